@@ -1,0 +1,95 @@
+"""The head360 exception family and the exit code of each.
+
+Library code raises these; the CLI maps each class to its own exit code and prints a
+single line (``head360: error: <message>``) unless ``--debug`` is given. Messages say what
+was expected and what was found.
+
+Exit codes:
+
+====  =====================  ==================================================
+code  exception              meaning
+====  =====================  ==================================================
+0     -                      success
+1     (any other)            an internal error: a bug, please report it
+2     (click usage error)    unknown option, missing argument, bad option value
+3     BadInputError          the input's content is invalid (NaN in a stream,
+                             image too large, missing file, bad parameter value)
+4     NoFaceError            no face was found where one was needed
+5     FileFormatError        a file is unreadable, truncated, corrupted, of an
+                             unsupported version or unsafe (pickles)
+6     ModelMismatchError     a file was made with another model than the one
+                             loaded, or a checkpoint's config does not fit
+7     ModelNotFoundError     a model file the command needs is not installed
+130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
+====  =====================  ==================================================
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "EXIT_CODES",
+    "BadInputError",
+    "FileFormatError",
+    "Head360Error",
+    "ModelMismatchError",
+    "ModelNotFoundError",
+    "NoFaceError",
+]
+
+
+class Head360Error(Exception):
+    """Base class of every error head360 reports to a user.
+
+    Attributes:
+        exit_code: The process exit status the CLI uses for this error.
+    """
+
+    exit_code: int = 1
+
+    def __init__(self, message: str) -> None:
+        # One line only: the CLI prints it as it is.
+        super().__init__(" ".join(str(message).split()))
+
+
+class BadInputError(Head360Error, ValueError):
+    """The content of an input is invalid (values, sizes, missing files, options)."""
+
+    exit_code = 3
+
+
+class NoFaceError(Head360Error):
+    """No face could be detected where one was needed."""
+
+    exit_code = 4
+
+
+class FileFormatError(Head360Error):
+    """A file is unreadable, truncated, corrupted, of another version or unsafe."""
+
+    exit_code = 5
+
+
+class ModelMismatchError(Head360Error):
+    """A head file or checkpoint does not belong to the model that was loaded."""
+
+    exit_code = 6
+
+
+class ModelNotFoundError(Head360Error, FileNotFoundError):
+    """A model file needed by the command is not installed."""
+
+    exit_code = 7
+
+
+EXIT_CODES: dict[str, int] = {
+    "ok": 0,
+    "internal": 1,
+    "usage": 2,
+    BadInputError.__name__: BadInputError.exit_code,
+    NoFaceError.__name__: NoFaceError.exit_code,
+    FileFormatError.__name__: FileFormatError.exit_code,
+    ModelMismatchError.__name__: ModelMismatchError.exit_code,
+    ModelNotFoundError.__name__: ModelNotFoundError.exit_code,
+    "interrupted": 130,
+}
+"""Exit code by error name, as documented in the README."""
