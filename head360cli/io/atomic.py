@@ -1,0 +1,106 @@
+"""Atomic outputs: write to a temporary name beside the target, then rename.
+
+A failure or an interrupt at any point leaves the target as it was (absent, or the
+previous complete version) and removes the temporary file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "commit_dir", "temp_dir_beside"]
+
+
+@contextlib.contextmanager
+def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
+
+    The temporary name keeps the target's suffix, so tools that pick a format by
+    extension (ffmpeg, numpy) still do the right thing.
+
+    Args:
+        target: The final output path. Its parent folder must exist.
+
+    Yields:
+        The temporary path to write to. It does not exist yet.
+    """
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        from head360cli.errors import BadInputError
+
+        raise BadInputError(f"output folder {str(parent)!r} does not exist")
+    fd, tmp_name = tempfile.mkstemp(
+        prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=parent
+    )
+    os.close(fd)
+    tmp = Path(tmp_name)
+    tmp.unlink()
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise RuntimeError(f"nothing was written to the temporary file for {target}")
+        os.replace(tmp, target)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def check_dir_target(target: Path, overwrite: bool) -> None:
+    """Refuse a folder target that is a file or a non-empty folder (unless ``overwrite``)."""
+    from head360cli.errors import BadInputError
+
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        raise BadInputError(f"output folder {str(parent)!r} does not exist")
+    if target.exists() and not target.is_dir():
+        raise BadInputError(f"expected a folder for {str(target)!r}, found a file")
+    if target.is_dir() and any(target.iterdir()) and not overwrite:
+        raise BadInputError(
+            f"output folder {str(target)!r} is not empty; choose another name or allow overwrite"
+        )
+
+
+def temp_dir_beside(target: Path) -> Path:
+    """A new empty temporary folder in the same parent as ``target``."""
+    parent = target.parent if str(target.parent) else Path(".")
+    return Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+
+
+def commit_dir(tmp: Path, target: Path) -> None:
+    """Move a complete temporary folder onto ``target``, replacing an old one last."""
+    if target.exists():
+        old = temp_dir_beside(target)
+        os.replace(target, old / "old")
+        os.replace(tmp, target)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, target)
+
+
+@contextlib.contextmanager
+def atomic_dir(target: str | os.PathLike[str], overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary folder beside ``target``; move it onto ``target`` on success.
+
+    Args:
+        target: The final folder. It must not exist, or be empty, unless ``overwrite``.
+        overwrite: Replace an existing non-empty folder (only after the new one is
+            complete).
+
+    Yields:
+        The temporary folder to write into (it exists and is empty).
+    """
+    target = Path(target)
+    check_dir_target(target, overwrite)
+    tmp = temp_dir_beside(target)
+    try:
+        yield tmp
+        commit_dir(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)

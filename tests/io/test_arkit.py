@@ -1,0 +1,323 @@
+"""ARKit CSV streams: formats, name matching, bad input policies, round trips, real data."""
+
+from __future__ import annotations
+
+import csv
+import io
+import sys
+
+import numpy as np
+import pytest
+
+from head360cli.errors import BadInputError, FileFormatError
+from head360cli.io.arkit import (
+    LIVE_LINK_FACE_ORDER,
+    ROTATION_COLUMNS,
+    ArkitStream,
+    read_arkit_csv,
+    resample,
+    smooth,
+    write_arkit_csv,
+)
+from head360cli.mesh.arkit52 import ARKIT52, INDEX
+
+
+def make_stream(frames: int = 90, fps: float = 60.0, seed: int = 0) -> ArkitStream:
+    rng = np.random.default_rng(seed)
+    return ArkitStream(
+        weights=rng.uniform(0, 1, (frames, 52)).astype(np.float32),
+        timestamps=np.arange(frames) / fps,
+        fps=fps,
+        nominal_fps=fps,
+        head_rotation=rng.uniform(-0.5, 0.5, (frames, 3)).astype(np.float32),
+        eye_rotation=rng.uniform(-0.2, 0.2, (frames, 6)).astype(np.float32),
+    )
+
+
+def write_rows(path, header, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+    return path
+
+
+# --------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("fps", [24.0, 30.0, 60.0])
+def test_live_link_face_round_trip(tmp_path, fps):
+    stream = make_stream(fps=fps)
+    path = tmp_path / "take.csv"
+    write_arkit_csv(stream, path, flavor="livelinkface", start_seconds=18 * 3600 + 59.5)
+    back = read_arkit_csv(path)
+    assert back.source_format == "livelinkface"
+    assert back.weights.shape == (90, 52)
+    np.testing.assert_allclose(back.weights, stream.weights, atol=1e-9)
+    np.testing.assert_allclose(back.head_rotation, stream.head_rotation, atol=1e-7)
+    np.testing.assert_allclose(back.eye_rotation, stream.eye_rotation, atol=1e-7)
+    np.testing.assert_allclose(back.timestamps, stream.timestamps, atol=1e-3 / fps)
+    assert back.fps == fps and back.nominal_fps == fps
+    assert back.warnings == []
+    header = path.read_text().splitlines()[0].split(",")
+    assert header[:2] == ["Timecode", "BlendshapeCount"]
+    assert header[2:54] == list(LIVE_LINK_FACE_ORDER)
+    assert header[54:] == list(ROTATION_COLUMNS)
+
+
+def test_arkit_flavor_round_trip_and_open_stream(tmp_path):
+    stream = make_stream(frames=30, fps=30.0)
+    buf = io.StringIO()
+    write_arkit_csv(stream, buf, flavor="arkit")
+    buf.seek(0)
+    back = read_arkit_csv(buf)
+    assert back.source_format == "arkit"
+    np.testing.assert_allclose(back.weights, stream.weights, atol=1e-9)
+    assert back.fps == 30.0
+
+
+def test_live_link_face_order_swaps_jaw_and_mouth_sides():
+    assert LIVE_LINK_FACE_ORDER[15:17] == ("JawRight", "JawLeft")
+    assert LIVE_LINK_FACE_ORDER[21:23] == ("MouthRight", "MouthLeft")
+
+
+def test_columns_are_matched_by_name_not_position(tmp_path):
+    rng = np.random.default_rng(1)
+    values = rng.uniform(0, 1, (10, 52))
+    order = rng.permutation(52)
+    header = ["time"] + [ARKIT52[i] for i in order]
+    rows = [[f"{t / 60:.6f}"] + [f"{values[t, i]:.8f}" for i in order] for t in range(10)]
+    back = read_arkit_csv(write_rows(tmp_path / "perm.csv", header, rows))
+    np.testing.assert_allclose(back.weights, values, atol=1e-7)
+
+
+def test_mediapipe_names_and_neutral_are_handled(tmp_path):
+    header = ["_neutral", "eyeBlinkLeft", "jawOpen", "mouthSmileRight"]
+    rows = [["0.9", "0.1", "0.5", "0.25"], ["0.8", "0.2", "0.6", "0.35"]]
+    back = read_arkit_csv(write_rows(tmp_path / "mp.csv", header, rows))
+    assert back.source_format == "mediapipe"
+    assert back.columns_found == ["eyeBlinkLeft", "jawOpen", "mouthSmileRight"]
+    assert "_neutral" in back.columns_ignored
+    assert back.weight("JawOpen").tolist() == pytest.approx([0.5, 0.6])
+
+
+def test_generic_subset_gives_zeros_and_one_warning(tmp_path):
+    header = ["frame", "jaw_open", "eyeBlink_L", "eyeBlink_R"]
+    rows = [[str(i), "0.5", "0.1", "0.2"] for i in range(5)]
+    back = read_arkit_csv(write_rows(tmp_path / "g.csv", header, rows), fps=25)
+    assert back.source_format == "generic"
+    assert len(back.columns_missing) == 49
+    missing_warnings = [w for w in back.warnings if "missing" in w]
+    assert len(missing_warnings) == 1
+    assert np.all(back.weights[:, INDEX["tongueOut"]] == 0)
+    assert back.weights[0, INDEX["eyeBlinkRight"]] == pytest.approx(0.2)
+    assert back.fps == 25.0
+    np.testing.assert_allclose(back.timestamps, np.arange(5) / 25)
+
+
+def test_split_halves_are_merged_by_mean(tmp_path):
+    header = ["browInnerUp_L", "browInnerUp_R", "cheekPuff_L", "cheekPuff_R"]
+    rows = [["0.2", "0.4", "1.0", "0.0"]]
+    back = read_arkit_csv(write_rows(tmp_path / "ict.csv", header, rows))
+    assert back.weights[0, INDEX["browInnerUp"]] == pytest.approx(0.3)
+    assert back.weights[0, INDEX["cheekPuff"]] == pytest.approx(0.5)
+
+
+def test_no_time_column_assumes_60_fps_with_a_warning(tmp_path):
+    back = read_arkit_csv(write_rows(tmp_path / "x.csv", ["jawOpen"], [["0.1"], ["0.2"]]))
+    assert back.fps == 60.0
+    assert any("assuming 60 fps" in w for w in back.warnings)
+
+
+def test_stdin_is_read_for_dash(monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.StringIO("time,jawOpen\n0,0.5\n0.5,0.25\n"))
+    back = read_arkit_csv("-")
+    assert back.num_frames == 2
+    assert back.fps == pytest.approx(2.0)
+
+
+def test_timecodes_wrap_at_midnight(tmp_path):
+    header = ["Timecode", "BlendshapeCount", "JawOpen"]
+    rows = [["23:59:59:58.000", "61", "0.1"], ["23:59:59:59.000", "61", "0.2"],
+            ["00:00:00:00.000", "61", "0.3"]]
+    back = read_arkit_csv(write_rows(tmp_path / "wrap.csv", header, rows), fps=60)
+    np.testing.assert_allclose(np.diff(back.timestamps), [1 / 60, 1 / 60])
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def bad_file(tmp_path, cell: str, line_of_bad: int = 3):
+    header = ["time", "jawOpen", "eyeBlinkLeft"]
+    rows = [[f"{i / 60:.6f}", "0.5", "0.25"] for i in range(4)]
+    rows[line_of_bad - 2][1] = cell
+    return write_rows(tmp_path / "bad.csv", header, rows)
+
+
+@pytest.mark.parametrize("cell", ["nan", "NaN", "inf", "-inf", "", "abc", "0.5.1"])
+def test_bad_cells_are_errors_with_the_line_number(tmp_path, cell):
+    with pytest.raises(BadInputError, match=r"line 3, column 'jawOpen'"):
+        read_arkit_csv(bad_file(tmp_path, cell))
+
+
+def test_skip_policy_drops_bad_rows(tmp_path):
+    back = read_arkit_csv(bad_file(tmp_path, "nan"), on_bad="skip")
+    assert back.num_frames == 3
+    assert back.skipped_rows == 1
+    assert np.isfinite(back.weights).all()
+    assert any("skipped 1" in w for w in back.warnings)
+
+
+def test_hold_policy_repeats_the_previous_frame(tmp_path):
+    header = ["time", "jawOpen", "eyeBlinkLeft"]
+    rows = [["0", "0.1", "0.2"], ["0.1", "nan", "0.3"], ["0.2", "", "0.4"], ["0.3", "0.7", "x"]]
+    back = read_arkit_csv(write_rows(tmp_path / "h.csv", header, rows), on_bad="hold")
+    np.testing.assert_allclose(back.weight("jawOpen"), [0.1, 0.1, 0.1, 0.7], atol=1e-7)
+    np.testing.assert_allclose(back.weight("eyeBlinkLeft"), [0.2, 0.3, 0.4, 0.4], atol=1e-7)
+    assert back.repaired == 3
+
+
+def test_hold_policy_uses_zero_before_the_first_good_value(tmp_path):
+    header = ["time", "jawOpen"]
+    rows = [["0", "nan"], ["0.1", "0.5"]]
+    back = read_arkit_csv(write_rows(tmp_path / "h0.csv", header, rows), on_bad="hold")
+    np.testing.assert_allclose(back.weight("jawOpen"), [0.0, 0.5])
+
+
+def test_wrong_column_count_is_an_error_or_a_policy(tmp_path):
+    path = tmp_path / "short.csv"
+    path.write_text("time,jawOpen,eyeBlinkLeft\n0,0.1,0.2\n0.1,0.3\n0.2,0.5,0.6\n")
+    with pytest.raises(BadInputError, match=r"line 3: expected 3 cells .* found 2"):
+        read_arkit_csv(path)
+    assert read_arkit_csv(path, on_bad="skip").num_frames == 2
+    held = read_arkit_csv(path, on_bad="hold")
+    assert held.num_frames == 3
+    np.testing.assert_allclose(held.weight("jawOpen"), [0.1, 0.1, 0.5], atol=1e-7)
+    np.testing.assert_allclose(held.timestamps, [0.0, 0.1, 0.2])
+
+
+def test_trailing_comma_and_blank_lines_are_tolerated(tmp_path):
+    path = tmp_path / "trail.csv"
+    path.write_text("time,jawOpen\n0,0.1,\n\n0.1,0.2,\n")
+    assert read_arkit_csv(path).num_frames == 2
+
+
+def test_out_of_range_values_are_clamped_and_counted(tmp_path):
+    header = ["time", "jawOpen", "eyeBlinkLeft"]
+    rows = [["0", "1.2", "-0.1"], ["0.1", "0.5", "0.2"], ["0.2", "1.0000001", "0.3"]]
+    back = read_arkit_csv(write_rows(tmp_path / "c.csv", header, rows))
+    assert back.clamped == 3
+    assert back.weights.min() >= 0 and back.weights.max() <= 1
+    assert any("clamped 3" in w for w in back.warnings)
+
+
+def test_time_going_backwards_is_an_error(tmp_path):
+    header = ["time", "jawOpen"]
+    rows = [["0", "0.1"], ["0.2", "0.1"], ["0.1", "0.1"]]
+    with pytest.raises(BadInputError, match="line 4: expected time to increase"):
+        read_arkit_csv(write_rows(tmp_path / "t.csv", header, rows))
+
+
+def test_structural_errors(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    with pytest.raises(BadInputError, match="empty file"):
+        read_arkit_csv(empty)
+    header_only = tmp_path / "header.csv"
+    header_only.write_text("time,jawOpen\n")
+    with pytest.raises(BadInputError, match="at least one frame"):
+        read_arkit_csv(header_only)
+    nonames = tmp_path / "nonames.csv"
+    nonames.write_text("a,b,c\n1,2,3\n")
+    with pytest.raises(BadInputError, match="expected columns named after ARKit"):
+        read_arkit_csv(nonames)
+    dup = tmp_path / "dup.csv"
+    dup.write_text("jawOpen,JawOpen\n0.1,0.2\n")
+    with pytest.raises(BadInputError, match="appears twice"):
+        read_arkit_csv(dup)
+    binary = tmp_path / "bin.csv"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00")
+    with pytest.raises(FileFormatError, match="UTF-8"):
+        read_arkit_csv(binary)
+    with pytest.raises(BadInputError, match="no such file"):
+        read_arkit_csv(tmp_path / "missing.csv")
+    with pytest.raises(BadInputError, match="on_bad"):
+        read_arkit_csv(dup, on_bad="ignore")  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- processing
+
+
+def test_resample_bridges_gaps_and_hits_the_grid():
+    t = np.array([0.0, 0.1, 0.2, 0.5])  # a gap between 0.2 and 0.5
+    w = np.zeros((4, 52), dtype=np.float32)
+    w[:, INDEX["jawOpen"]] = [0.0, 0.1, 0.2, 0.5]
+    s = ArkitStream(weights=w, timestamps=t, fps=10.0)
+    r = resample(s, 20.0)
+    assert r.num_frames == 11
+    assert r.fps == 20.0
+    np.testing.assert_allclose(r.weight("jawOpen"), np.arange(11) / 20, atol=1e-6)
+
+
+def test_resample_unwraps_angles():
+    s = make_stream(frames=3, fps=10.0)
+    s.head_rotation = np.array([[3.1, 0, 0], [-3.1, 0, 0], [-3.0, 0, 0]], dtype=np.float32)
+    r = resample(s, 20.0)
+    # Half-way between 3.1 and -3.1 (across +-pi) is +-pi, not 0.
+    assert abs(abs(r.head_rotation[1, 0]) - np.pi) < 1e-3
+
+
+def test_smooth_reduces_jitter_and_keeps_range():
+    rng = np.random.default_rng(2)
+    s = make_stream(frames=600, fps=60.0)
+    s.weights = np.clip(0.5 + 0.3 * rng.standard_normal((600, 52)), 0, 1).astype(np.float32)
+    out = smooth(s, 0.05)
+    assert np.diff(out.weights, axis=0).std() < 0.3 * np.diff(s.weights, axis=0).std()
+    assert out.weights.min() >= 0 and out.weights.max() <= 1
+    assert smooth(s, 0.0).weights is not s.weights
+    with pytest.raises(BadInputError):
+        smooth(s, -1.0)
+
+
+def test_between_selects_and_retimes():
+    s = make_stream(frames=120, fps=60.0)
+    part = s.between(0.5, 1.0)
+    assert part.num_frames == 30
+    assert part.timestamps[0] == 0.0
+    np.testing.assert_array_equal(part.weights, s.weights[30:60])
+    with pytest.raises(BadInputError, match="found none"):
+        s.between(5.0, 6.0)
+
+
+# --------------------------------------------------------------------------- real captures
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("name, frames", [("livelinkface_fearful.csv", 1846),
+                                          ("livelinkface_happy.csv", 3046)])
+def test_real_live_link_face_captures(shared_data, name, frames):
+    s = read_arkit_csv(shared_data / "arkit" / name)
+    assert s.weights.shape == (frames, 52)
+    assert s.source_format == "livelinkface"
+    assert s.nominal_fps == 60.0
+    assert s.fps == pytest.approx(60.0, rel=0.01)
+    assert s.duration == pytest.approx(frames / 60.0, rel=0.01)
+    assert s.columns_missing == []
+    assert s.head_rotation is not None and s.head_rotation.shape == (frames, 3)
+    assert np.isfinite(s.weights).all()
+    assert s.weights.max() > 0.2  # a real take moves the face
+
+
+@pytest.mark.shared_data
+def test_udp_order_file_matches_a_lookup_by_name(shared_data):
+    path = shared_data / "arkit" / "llv_dao_udp_order.csv"
+    s = read_arkit_csv(path)
+    assert s.weights.shape == (180, 52)
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    header = rows[0]
+    for name in ("JawOpen", "JawLeft", "JawRight", "MouthLeft", "MouthRight"):
+        raw = np.array([float(r[header.index(name)]) for r in rows[1:]], dtype=np.float32)
+        np.testing.assert_array_equal(s.weight(name), np.clip(raw, 0, 1))
+    # The UDP order puts JawLeft before JawRight, the app's CSV the other way round:
+    assert header.index("JawLeft") < header.index("JawRight")
