@@ -1,0 +1,232 @@
+"""The ``.h360`` head file: a fitted or sampled head, safe to share.
+
+Layout: a compressed NumPy ``.npz`` archive (a zip of ``.npy`` arrays) holding
+
+- ``__meta__``: a 0-d unicode array with a JSON object: ``format`` (``"head360"``),
+  ``format_version``, ``model_hash`` (SHA-256 of the generator it was made with, or
+  ``"none"``), ``created_by``, ``created`` (UTC ISO time) and free ``info``.
+- numeric arrays only, never Python objects. The names the pipeline uses are listed in
+  :data:`KNOWN_ARRAYS` with their expected rank; others are allowed for extensions.
+
+Files are read with ``allow_pickle=False``: a file that holds pickled objects is refused,
+never unpickled. Every array is read in full on load, so zip CRC checks catch corrupted
+bytes. Writing goes to a temporary name and is renamed into place.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import os
+import zipfile
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from head360cli.errors import BadInputError, FileFormatError, ModelMismatchError
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "KNOWN_ARRAYS",
+    "HeadFile",
+    "read_head",
+    "write_head",
+]
+
+FORMAT_NAME = "head360"
+FORMAT_VERSION = 1
+META_KEY = "__meta__"
+
+KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
+    "shape": (1, "f"),  # (S,) identity code of the bilinear model
+    "expression": (1, "f"),  # (52,) ARKit weights of the fitted photo
+    "pose": (2, "f"),  # (4, 4) camera-to-world of the photo's camera
+    "intrinsics": (2, "f"),  # (3, 3) intrinsics of the photo's camera
+    "texture": (3, "f"),  # (C, H, W) neural texture
+    "texture_code": (1, "f"),  # (T,) texture code it started from
+    "hair_style": (0, "i"),  # () hairstyle index
+    "hair_color": (1, "f"),  # (3,) linear RGB hair colour
+    "vertices": (2, "f"),  # (V, 3) fitted neutral mesh
+}
+"""Array name -> (rank, kind: ``f`` float, ``i`` integer) for the arrays the pipeline uses."""
+
+
+@dataclasses.dataclass
+class HeadFile:
+    """The contents of a head file.
+
+    Attributes:
+        arrays: Named numeric arrays (see :data:`KNOWN_ARRAYS`).
+        model_hash: SHA-256 hex digest of the model the head was made with, or ``"none"``.
+        info: Free JSON-serialisable metadata (source photo, timings, hairstyle name...).
+        format_version: Version of the layout the file was written in.
+        created_by: Tool and version that wrote it.
+        created: UTC time of writing, ISO 8601.
+    """
+
+    arrays: dict[str, np.ndarray]
+    model_hash: str = "none"
+    info: dict[str, Any] = dataclasses.field(default_factory=dict)
+    format_version: int = FORMAT_VERSION
+    created_by: str = ""
+    created: str = ""
+
+    def metadata(self) -> dict[str, Any]:
+        """The JSON metadata object, as stored."""
+        return {
+            "format": FORMAT_NAME,
+            "format_version": self.format_version,
+            "model_hash": self.model_hash,
+            "created_by": self.created_by,
+            "created": self.created,
+            "info": self.info,
+        }
+
+
+def _validate_arrays(arrays: dict[str, np.ndarray], where: str, error: type[Exception]) -> None:
+    for name, value in arrays.items():
+        if name == META_KEY:
+            continue
+        if not isinstance(value, np.ndarray):
+            raise error(f"{where}: expected array {name!r} to be a numpy array, found "
+                        f"{type(value).__name__}")
+        if value.dtype.kind not in "biuf":
+            raise error(
+                f"{where}: expected array {name!r} to be numeric, found dtype {value.dtype}"
+            )
+        if name in KNOWN_ARRAYS:
+            rank, kind = KNOWN_ARRAYS[name]
+            if value.ndim != rank:
+                raise error(
+                    f"{where}: expected array {name!r} of rank {rank}, found shape "
+                    f"{tuple(value.shape)}"
+                )
+            if kind == "f" and value.dtype.kind != "f":
+                raise error(f"{where}: expected float array {name!r}, found {value.dtype}")
+            if kind == "i" and value.dtype.kind not in "iu":
+                raise error(f"{where}: expected integer array {name!r}, found {value.dtype}")
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise error(f"{where}: array {name!r} holds NaN or infinite values")
+
+
+def write_head(head: HeadFile, path: str | os.PathLike[str]) -> Path:
+    """Write a head file atomically.
+
+    Args:
+        head: What to write. ``created_by`` and ``created`` are filled in if empty.
+        path: Target path (conventionally ``*.h360``).
+
+    Returns:
+        The path written.
+
+    Raises:
+        BadInputError: When an array is not numeric, has the wrong rank or holds NaN.
+    """
+    from head360cli import __version__
+    from head360cli.io.atomic import atomic_path
+
+    arrays = {k: np.asarray(v) for k, v in head.arrays.items()}
+    if META_KEY in arrays:
+        raise BadInputError(f"array name {META_KEY!r} is reserved for the metadata")
+    _validate_arrays(arrays, "head file to write", BadInputError)
+    meta = head.metadata()
+    meta["created_by"] = meta["created_by"] or f"head360 {__version__}"
+    meta["created"] = meta["created"] or _dt.datetime.now(_dt.timezone.utc).isoformat(
+        timespec="seconds"
+    )
+    try:
+        text = json.dumps(meta, sort_keys=True, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise BadInputError(f"head file metadata is not plain JSON: {exc}") from exc
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, **{META_KEY: np.array(text)}, **arrays)
+    return path
+
+
+def read_head(
+    path: str | os.PathLike[str], *, expected_model_hash: str | None = None
+) -> HeadFile:
+    """Read and validate a head file.
+
+    Args:
+        path: The ``.h360`` file.
+        expected_model_hash: When given, the file must have been made with this model.
+
+    Returns:
+        The head file's contents.
+
+    Raises:
+        BadInputError: The file does not exist.
+        FileFormatError: Not a head file, truncated, corrupted, unsafe (pickled objects)
+            or written by a newer format version.
+        ModelMismatchError: Made with another model than ``expected_model_hash``.
+    """
+    path = Path(path)
+    where = f"head file {str(path)!r}"
+    if not path.exists():
+        raise BadInputError(f"no such file: {str(path)!r}")
+    if path.is_dir():
+        raise BadInputError(f"expected a head file, found a folder: {str(path)!r}")
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic != b"PK\x03\x04":
+        found = "an empty file" if not magic else f"bytes {magic!r}"
+        raise FileFormatError(f"{where}: expected a head360 .h360 (zip) file, found {found}")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            names = list(npz.files)
+            if META_KEY not in names:
+                raise FileFormatError(f"{where}: expected a {META_KEY!r} entry, found only "
+                                      f"{', '.join(names[:6]) or 'nothing'}")
+            arrays = {name: npz[name] for name in names}
+    except FileFormatError:
+        raise
+    except ValueError as exc:
+        if "pickle" in str(exc).lower():
+            raise FileFormatError(
+                f"{where}: holds pickled Python objects; refusing to load it (head files "
+                "hold numeric arrays only)"
+            ) from exc
+        raise FileFormatError(f"{where}: corrupted ({exc})") from exc
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, KeyError) as exc:
+        raise FileFormatError(f"{where}: truncated or corrupted ({exc})") from exc
+
+    meta_arr = arrays.pop(META_KEY)
+    if meta_arr.dtype.kind != "U" or meta_arr.ndim != 0:
+        raise FileFormatError(f"{where}: expected JSON metadata text, found {meta_arr.dtype}")
+    try:
+        meta = json.loads(str(meta_arr))
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"{where}: metadata is not valid JSON ({exc.msg})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
+        found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        raise FileFormatError(f"{where}: expected format {FORMAT_NAME!r}, found {found!r}")
+    version = meta.get("format_version")
+    if not isinstance(version, int) or version < 1:
+        raise FileFormatError(f"{where}: expected an integer format_version, found {version!r}")
+    if version > FORMAT_VERSION:
+        raise FileFormatError(
+            f"{where}: format version {version} is newer than this head360 reads "
+            f"(up to {FORMAT_VERSION}); upgrade head360"
+        )
+    _validate_arrays(arrays, where, FileFormatError)
+    model_hash = str(meta.get("model_hash", "none"))
+    if expected_model_hash is not None and model_hash != expected_model_hash:
+        raise ModelMismatchError(
+            f"{where} was made with model {model_hash[:12]}, but the loaded model is "
+            f"{expected_model_hash[:12]}; refit the photo or load the matching model"
+        )
+    info = meta.get("info", {})
+    return HeadFile(
+        arrays=arrays,
+        model_hash=model_hash,
+        info=info if isinstance(info, dict) else {"info": info},
+        format_version=version,
+        created_by=str(meta.get("created_by", "")),
+        created=str(meta.get("created", "")),
+    )

@@ -1,0 +1,240 @@
+"""Loading photos: EXIF orientation, grey, RGBA, 16-bit, and guards against bad files.
+
+Policy for large images (documented in the README):
+
+- Images with more than :data:`MAX_PIXELS` pixels (default 100 megapixels) are refused
+  with a :class:`~head360cli.errors.BadInputError` before any pixel is decoded, so a
+  decompression bomb cannot exhaust memory.
+- Images whose longer side exceeds ``max_side`` (default 4096) are downscaled on load;
+  :attr:`LoadedImage.scale` records the factor so that results can be mapped back to the
+  pixels of the image as given on disk. JPEGs are decoded at reduced size directly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+
+from head360cli.errors import BadInputError, FileFormatError
+
+__all__ = ["MAX_PIXELS", "MAX_SIDE", "LoadedImage", "describe_image", "load_image"]
+
+MAX_PIXELS = 100_000_000
+"""Images with more pixels than this are refused."""
+
+MAX_SIDE = 4096
+"""Default limit on the longer side after loading; larger images are downscaled."""
+
+EXTENSIONS = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".tif", ".tiff",
+              ".webp", ".bmp")  # fmt: skip
+
+_ORIENTATION_TAG = 0x0112
+_ORIENTATION_NAMES = {
+    1: "normal", 2: "mirrored", 3: "rotated 180", 4: "mirrored vertically",
+    5: "transposed", 6: "rotated 90 CW", 7: "transversed", 8: "rotated 90 CCW",
+}  # fmt: skip
+
+
+@dataclasses.dataclass
+class LoadedImage:
+    """A decoded image and what was done to it on the way in.
+
+    Attributes:
+        pixels: ``(H, W, 3)`` uint8 RGB, or ``(H, W, 4)`` RGBA with ``keep_alpha``,
+            upright (EXIF orientation applied), possibly downscaled.
+        source_size: ``(width, height)`` of the upright image at full resolution.
+        scale: Factor from full-resolution pixels to ``pixels`` (1.0 unless downscaled).
+        mode: The file's pixel mode as Pillow names it (``RGB``, ``L``, ``I;16``, ``RGBA``...).
+        orientation: EXIF orientation code (1 when absent).
+        format: File format (``JPEG``, ``PNG``, ...).
+        path: Where it was read from.
+    """
+
+    pixels: np.ndarray
+    source_size: tuple[int, int]
+    scale: float
+    mode: str
+    orientation: int
+    format: str
+    path: str
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` of :attr:`pixels`."""
+        return int(self.pixels.shape[1]), int(self.pixels.shape[0])
+
+
+def _open(path: str | os.PathLike[str]):  # -> PIL.Image.Image
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.exists():
+        raise BadInputError(f"no such file: {str(path)!r}")
+    if path.is_dir():
+        raise BadInputError(f"expected an image file, found a folder: {str(path)!r}")
+    if path.stat().st_size == 0:
+        raise FileFormatError(f"expected an image in {str(path)!r}, found an empty file")
+    # Our own limit is checked on the header below; switch Pillow's off meanwhile.
+    Image.MAX_IMAGE_PIXELS = None
+    try:
+        img = Image.open(path)
+    except UnidentifiedImageError:
+        raise FileFormatError(
+            f"expected an image ({', '.join(e[1:] for e in EXTENSIONS)}) in {str(path)!r}, "
+            "found something unreadable"
+        ) from None
+    except OSError as exc:
+        raise FileFormatError(f"cannot read image {str(path)!r}: {exc}") from exc
+    return img
+
+
+def _orientation(img) -> int:
+    try:
+        value = int(img.getexif().get(_ORIENTATION_TAG, 1))
+    except Exception:  # malformed EXIF blocks are common; treat as upright
+        return 1
+    return value if value in _ORIENTATION_NAMES else 1
+
+
+def describe_image(path: str | os.PathLike[str]) -> dict[str, object]:
+    """What an image file is, read from its header only (no pixel decoding).
+
+    Args:
+        path: The image file.
+
+    Returns:
+        ``format``, ``mode``, ``width`` and ``height`` as stored, ``orientation`` (code and
+        name), upright ``display_size``, ``frames`` and ``bytes``.
+    """
+    img = _open(path)
+    with img:
+        w, h = img.size
+        orient = _orientation(img)
+        upright = (h, w) if orient in (5, 6, 7, 8) else (w, h)
+        return {
+            "kind": "image",
+            "path": str(path),
+            "format": img.format,
+            "mode": img.mode,
+            "width": w,
+            "height": h,
+            "orientation": orient,
+            "orientation_name": _ORIENTATION_NAMES[orient],
+            "display_size": list(upright),
+            "frames": int(getattr(img, "n_frames", 1)),
+            "bytes": Path(path).stat().st_size,
+            "megapixels": round(w * h / 1e6, 3),
+        }
+
+
+def _eight_bit(img):  # PIL.Image -> PIL.Image in an 8-bit mode
+    """16-bit and float greyscale to 8-bit by their full range; other modes unchanged."""
+    from PIL import Image
+
+    mode = img.mode
+    if mode in ("I;16", "I;16B", "I;16L", "I;16N", "I"):
+        a = np.asarray(img, dtype=np.float64)
+        top = 65535.0 if mode.startswith("I;16") or a.max() > 255 else 255.0
+        a = np.clip(np.round(a / top * 255.0), 0, 255).astype(np.uint8)
+        img = Image.fromarray(a, mode="L")
+    elif mode == "F":
+        a = np.asarray(img, dtype=np.float64)
+        top = 1.0 if a.max() <= 1.0 else 255.0
+        img = Image.fromarray(np.clip(np.round(a / top * 255), 0, 255).astype(np.uint8), "L")
+    elif mode not in ("RGB", "RGBA", "L", "LA", "P", "PA", "1"):
+        img = img.convert("RGBA" if "A" in mode else "RGB")  # CMYK, YCbCr, LAB...
+    return img
+
+
+def _has_alpha(img) -> bool:
+    return img.mode in ("RGBA", "LA", "PA") or (img.mode == "P" and "transparency" in img.info)
+
+
+def _to_rgb_array(img, keep_alpha: bool, background: tuple[int, int, int]) -> np.ndarray:
+    if _has_alpha(img):
+        rgba = np.asarray(img.convert("RGBA"))
+        if keep_alpha:
+            return np.ascontiguousarray(rgba)
+        alpha = rgba[..., 3:4].astype(np.float32) / 255.0
+        bg = np.asarray(background, dtype=np.float32)
+        rgb = rgba[..., :3].astype(np.float32) * alpha + bg * (1.0 - alpha)
+        return np.clip(np.round(rgb), 0, 255).astype(np.uint8)
+    rgb = np.asarray(img.convert("RGB"))
+    if keep_alpha:
+        full = np.full((*rgb.shape[:2], 1), 255, dtype=np.uint8)
+        return np.concatenate([rgb, full], axis=2)
+    return np.ascontiguousarray(rgb)
+
+
+def load_image(
+    path: str | os.PathLike[str],
+    *,
+    keep_alpha: bool = False,
+    background: tuple[int, int, int] = (255, 255, 255),
+    max_side: int | None = MAX_SIDE,
+    max_pixels: int = MAX_PIXELS,
+) -> LoadedImage:
+    """Load a photo as upright 8-bit RGB (or RGBA).
+
+    Args:
+        path: jpg, png, ppm/pgm/pbm, tiff, webp or bmp file.
+        keep_alpha: Return RGBA (opaque images get alpha 255) instead of compositing
+            transparent pixels over ``background``.
+        background: RGB colour transparent pixels are composited over.
+        max_side: Downscale so that the longer side is at most this (``None``: never).
+        max_pixels: Refuse images with more pixels than this.
+
+    Returns:
+        The image and how it was transformed.
+
+    Raises:
+        BadInputError: Missing file, or more than ``max_pixels`` pixels.
+        FileFormatError: Empty, unreadable or truncated file.
+    """
+    from PIL import Image, ImageOps
+
+    img = _open(path)
+    with img:
+        w, h = img.size
+        if w <= 0 or h <= 0:
+            raise FileFormatError(f"expected a non-empty image in {str(path)!r}, found {w}x{h}")
+        if w * h > max_pixels:
+            raise BadInputError(
+                f"image {str(path)!r} is {w}x{h} ({w * h / 1e6:.0f} megapixels); expected at "
+                f"most {max_pixels / 1e6:.0f} megapixels: downscale it first"
+            )
+        orient = _orientation(img)
+        mode, fmt = img.mode, img.format or "unknown"
+        longer = max(w, h)
+        if max_side is not None and longer > max_side and fmt == "JPEG":
+            # Decode a JPEG at 1/2, 1/4 or 1/8 scale directly: fast and memory-light.
+            img.draft("RGB", (max(1, w * max_side // longer), max(1, h * max_side // longer)))
+        try:
+            img.load()
+            upright = ImageOps.exif_transpose(img) if orient != 1 else img
+        except (OSError, SyntaxError, ValueError) as exc:
+            raise FileFormatError(
+                f"image {str(path)!r} is truncated or corrupted: {exc}"
+            ) from exc
+        full_w, full_h = (h, w) if orient in (5, 6, 7, 8) else (w, h)
+        upright = _eight_bit(upright)
+        if max_side is not None and max(upright.size) > max_side:
+            f = max_side / max(upright.size)
+            new = (max(1, round(upright.size[0] * f)), max(1, round(upright.size[1] * f)))
+            if upright.mode not in ("RGB", "RGBA", "L", "LA"):
+                upright = upright.convert("RGBA" if _has_alpha(upright) else "RGB")
+            upright = upright.resize(new, Image.Resampling.LANCZOS)
+        pixels = _to_rgb_array(upright, keep_alpha, background)
+        scale = pixels.shape[1] / full_w
+    return LoadedImage(
+        pixels=pixels,
+        source_size=(full_w, full_h),
+        scale=scale,
+        mode=mode,
+        orientation=orient,
+        format=fmt,
+        path=str(path),
+    )

@@ -1,0 +1,224 @@
+"""Streaming frame writers: mp4 (H.264), GIF, or a folder of PNGs, chosen by the name.
+
+- ``*.mp4``, ``*.m4v``, ``*.mov``: H.264 through the ffmpeg binary that imageio-ffmpeg
+  ships, ``yuv420p`` so that every player opens it; odd sizes are padded to even by
+  repeating the last row/column.
+- ``*.gif``: ffmpeg's GIF encoder with a palette per frame, looping forever.
+- a name ending in ``/``, without a suffix, or an existing folder: ``frame_000000.png`` ...
+
+Frames are sent to the encoder one at a time (the writer holds none of them), and the
+output appears only when the writer is closed without error: it is written under a
+temporary name beside the target and renamed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from head360cli.errors import BadInputError
+
+__all__ = ["VIDEO_SUFFIXES", "VideoWriter", "output_kind", "write_video"]
+
+VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov")
+
+
+def output_kind(path: str | os.PathLike[str]) -> str:
+    """``"mp4"``, ``"gif"`` or ``"png"`` (a folder of PNGs), from the output name.
+
+    Raises:
+        BadInputError: For a suffix that is none of these.
+    """
+    text = os.fspath(path)
+    p = Path(text)
+    suffix = p.suffix.lower()
+    if text.endswith(("/", os.sep)) or p.is_dir() or suffix == "":
+        return "png"
+    if suffix in VIDEO_SUFFIXES:
+        return "mp4"
+    if suffix == ".gif":
+        return "gif"
+    raise BadInputError(
+        f"expected an output ending in .mp4, .gif or a folder name, found {p.name!r}"
+    )
+
+
+def _as_uint8(frame: np.ndarray) -> np.ndarray:
+    a = np.asarray(frame)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[2] not in (1, 3, 4):
+        raise BadInputError(f"expected a frame of shape (H, W, 3), found {tuple(a.shape)}")
+    if a.dtype != np.uint8:
+        if a.dtype.kind == "f":
+            a = np.round(np.clip(np.nan_to_num(a, nan=0.0), 0.0, 1.0) * 255.0)
+        a = np.clip(a, 0, 255).astype(np.uint8)
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    return a
+
+
+class VideoWriter:
+    """Write frames to an mp4, a GIF or a PNG folder, streaming and atomically.
+
+    Use as a context manager::
+
+        with VideoWriter("turn.mp4", fps=30) as out:
+            for frame in frames:          # (H, W, 3) uint8, or float in [0, 1]
+                out.write(frame)
+
+    Args:
+        path: The output; its name picks the kind (see the module docstring).
+        fps: Frames per second.
+        quality: x264 constant rate factor for mp4 (lower is better; 18 is visually
+            lossless).
+        overwrite: Replace an existing non-empty PNG folder.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        fps: float = 30.0,
+        *,
+        quality: int = 18,
+        overwrite: bool = False,
+    ) -> None:
+        if not (np.isfinite(fps) and fps > 0):
+            raise BadInputError(f"expected a positive frame rate, found {fps!r}")
+        self.path = Path(os.fspath(path).rstrip("/") or ".")
+        self.kind = output_kind(path)
+        self.fps = float(fps)
+        self.quality = int(quality)
+        self.overwrite = overwrite
+        self.count = 0
+        self._size: tuple[int, int] | None = None  # (W, H) of the first frame
+        self._encoder = None
+        self._tmp: Path | None = None
+        parent = self.path.parent
+        if not parent.is_dir():
+            raise BadInputError(f"output folder {str(parent)!r} does not exist")
+        if self.kind != "png" and self.path.is_dir():
+            raise BadInputError(f"expected a file name for {str(self.path)!r}, found a folder")
+
+    # -- context management
+    def __enter__(self) -> VideoWriter:
+        if self.kind == "png":
+            from head360cli.io.atomic import check_dir_target, temp_dir_beside
+
+            check_dir_target(self.path, self.overwrite)
+            self._tmp = temp_dir_beside(self.path)
+        else:
+            fd, name = tempfile.mkstemp(
+                prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}",
+                dir=self.path.parent,
+            )
+            os.close(fd)
+            self._tmp = Path(name)
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        failed = exc_type is not None
+        try:
+            if self._encoder is not None:
+                if failed:
+                    with contextlib.suppress(Exception):
+                        self._encoder.close()
+                else:
+                    self._encoder.close()
+            if not failed and self.count == 0:
+                raise BadInputError(f"no frames were given for {str(self.path)!r}")
+            if not failed and self._tmp is not None:
+                if self.kind == "png":
+                    from head360cli.io.atomic import commit_dir
+
+                    commit_dir(self._tmp, self.path)
+                else:
+                    os.replace(self._tmp, self.path)
+        finally:
+            # Whatever is left under the temporary name is a failed attempt.
+            if self._tmp is not None and self._tmp.is_dir():
+                shutil.rmtree(self._tmp, ignore_errors=True)
+            elif self._tmp is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    self._tmp.unlink()
+
+    # -- writing
+    def write(self, frame: np.ndarray) -> None:
+        """Append one ``(H, W, 3)`` (or RGBA, or greyscale) frame."""
+        if self._tmp is None:
+            raise RuntimeError("VideoWriter.write() called outside its 'with' block")
+        a = _as_uint8(frame)
+        h, w = a.shape[:2]
+        if self._size is None:
+            self._size = (w, h)
+        elif self._size != (w, h):
+            raise BadInputError(
+                f"frame {self.count} is {w}x{h}; expected {self._size[0]}x{self._size[1]} "
+                "like the first frame"
+            )
+        if self.kind == "png":
+            from PIL import Image
+
+            Image.fromarray(a).save(self._tmp / f"frame_{self.count:06d}.png", compress_level=1)
+        else:
+            if a.shape[2] == 4:  # video has no alpha: composite over white
+                alpha = a[..., 3:4].astype(np.float32) / 255.0
+                a = np.round(a[..., :3] * alpha + 255.0 * (1 - alpha)).astype(np.uint8)
+            if self.kind == "mp4":  # yuv420p needs even sizes
+                a = np.pad(a, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+            if self._encoder is None:
+                self._encoder = self._open_encoder(a.shape[1], a.shape[0])
+            self._encoder.send(np.ascontiguousarray(a))
+        self.count += 1
+
+    def _open_encoder(self, width: int, height: int):
+        import imageio_ffmpeg
+
+        assert self._tmp is not None
+        if self.kind == "mp4":
+            gen = imageio_ffmpeg.write_frames(
+                str(self._tmp), (width, height), fps=self.fps, codec="libx264",
+                pix_fmt_out="yuv420p", quality=None, macro_block_size=1,
+                output_params=["-crf", str(self.quality), "-movflags", "+faststart"],
+            )
+        else:
+            gen = imageio_ffmpeg.write_frames(
+                str(self._tmp), (width, height), fps=self.fps, codec="gif",
+                pix_fmt_out="pal8", quality=None, macro_block_size=1,
+                output_params=[
+                    "-filter_complex",
+                    "split[a][b];[a]palettegen=stats_mode=single[p];[b][p]paletteuse=new=1",
+                    "-loop", "0",
+                ],
+            )
+        gen.send(None)  # start ffmpeg
+        return gen
+
+
+def write_video(
+    frames: Iterable[np.ndarray], path: str | os.PathLike[str], fps: float = 30.0, **kwargs
+) -> int:
+    """Write every frame of an iterable (consumed lazily) and return how many there were.
+
+    Args:
+        frames: ``(H, W, 3)`` frames; a generator keeps memory flat.
+        path: Output name (``.mp4``, ``.gif`` or a folder).
+        fps: Frames per second.
+        **kwargs: Passed to :class:`VideoWriter`.
+    """
+    with VideoWriter(path, fps, **kwargs) as out:
+        for frame in frames:
+            out.write(frame)
+    return out.count

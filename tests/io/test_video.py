@@ -1,0 +1,159 @@
+"""Frame writers: mp4, GIF and PNG folders; streaming, even sizes, atomic outputs."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from head360cli.errors import BadInputError
+from head360cli.io.atomic import atomic_dir, atomic_path
+from head360cli.io.video import VideoWriter, output_kind, write_video
+
+
+def frames(n: int, w: int = 33, h: int = 21):
+    for i in range(n):
+        f = np.zeros((h, w, 3), dtype=np.uint8)
+        f[..., 0] = (i * 20) % 256
+        f[:, : (i % w) + 1, 1] = 255
+        yield f
+
+
+def read_back(path):
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    count = sum(1 for _ in reader)
+    return meta, count
+
+
+def test_output_kind_by_name(tmp_path):
+    assert output_kind("a.mp4") == "mp4"
+    assert output_kind("a.MOV") == "mp4"
+    assert output_kind("a.gif") == "gif"
+    assert output_kind("frames/") == "png"
+    assert output_kind("frames") == "png"
+    assert output_kind(tmp_path) == "png"
+    with pytest.raises(BadInputError, match=r"\.mp4, \.gif or a folder"):
+        output_kind("a.avi")
+
+
+def test_mp4_pads_odd_sizes_to_even_and_keeps_every_frame(tmp_path):
+    out = tmp_path / "clip.mp4"
+    assert write_video(frames(12), out, fps=24) == 12
+    meta, count = read_back(out)
+    assert meta["size"] == (34, 22)
+    assert meta["fps"] == pytest.approx(24)
+    assert count == 12
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
+
+
+def test_mp4_content_survives_encoding(tmp_path):
+    out = tmp_path / "flat.mp4"
+    flat = [np.full((32, 32, 3), v, dtype=np.uint8) for v in (40, 120, 200)]
+    write_video(flat, out, fps=10)
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(out))
+    next(reader)
+    got = [np.frombuffer(b, dtype=np.uint8).mean() for b in reader]
+    np.testing.assert_allclose(got, [40, 120, 200], atol=3)
+
+
+def test_gif_streams_with_exact_flat_colours(tmp_path):
+    import imageio.v3 as iio
+
+    out = tmp_path / "clip.gif"
+    write_video(frames(6), out, fps=10)
+    back = iio.imread(out)
+    assert back.shape[:3] == (6, 21, 33)
+    assert tuple(back[3, 0, 0, :3]) == (60, 255, 0)
+
+
+def test_png_folder(tmp_path):
+    out = tmp_path / "frames"
+    write_video(frames(5), out, fps=10)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [f"frame_{i:06d}.png" for i in range(5)]
+    with pytest.raises(BadInputError, match="not empty"):
+        write_video(frames(2), out, fps=10)
+    write_video(frames(2), out, fps=10, overwrite=True)
+    assert len(list(out.iterdir())) == 2
+
+
+def test_float_and_grey_frames_are_accepted(tmp_path):
+    out = tmp_path / "f"
+    write_video([np.full((4, 4), 0.5), np.ones((4, 4, 3))], out)
+    from PIL import Image
+
+    assert np.asarray(Image.open(out / "frame_000000.png")).max() == 128
+
+
+@pytest.mark.parametrize("name", ["fail.mp4", "fail.gif", "failframes"])
+def test_failure_midway_leaves_nothing(tmp_path, name):
+    def broken():
+        yield from frames(3)
+        raise RuntimeError("renderer crashed")
+
+    with pytest.raises(RuntimeError, match="renderer crashed"):
+        write_video(broken(), tmp_path / name, fps=10)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failure_keeps_the_previous_output(tmp_path):
+    out = tmp_path / "keep.mp4"
+    write_video(frames(3), out, fps=10)
+    before = out.read_bytes()
+    with pytest.raises(BadInputError, match="expected 33x21"):
+        write_video([*frames(2), np.zeros((10, 10, 3), np.uint8)], out, fps=10)
+    assert out.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.mp4"]
+
+
+def test_bad_arguments(tmp_path):
+    with pytest.raises(BadInputError, match="does not exist"):
+        VideoWriter(tmp_path / "nope" / "a.mp4")
+    with pytest.raises(BadInputError, match="positive frame rate"):
+        VideoWriter(tmp_path / "a.mp4", fps=0)
+    with pytest.raises(BadInputError, match="no frames"):
+        write_video([], tmp_path / "empty.mp4")
+    with pytest.raises(BadInputError, match=r"shape \(H, W, 3\)"):
+        write_video([np.zeros((4, 4, 2))], tmp_path / "x.mp4")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_memory_does_not_grow_with_the_number_of_frames(tmp_path):
+    """400 frames of 256x256 are 79 MB raw; streaming keeps the peak near one frame."""
+
+    def many():
+        f = np.zeros((256, 256, 3), dtype=np.uint8)
+        for i in range(400):
+            f[:] = i % 256
+            yield f
+
+    tracemalloc.start()
+    write_video(many(), tmp_path / "long.mp4", fps=60)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert peak < 5_000_000
+    assert read_back(tmp_path / "long.mp4")[1] == 400
+
+
+def test_atomic_path_and_dir(tmp_path):
+    target = tmp_path / "a.txt"
+    with atomic_path(target) as tmp:
+        assert tmp.suffix == ".txt" and tmp.parent == tmp_path
+        tmp.write_text("done")
+    assert target.read_text() == "done"
+    with pytest.raises(ValueError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise ValueError
+    assert target.read_text() == "done"
+    with atomic_dir(tmp_path / "d") as d:
+        (d / "x").write_text("1")
+    assert (tmp_path / "d" / "x").read_text() == "1"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "d"]
+    with pytest.raises(BadInputError, match="does not exist"), atomic_path(tmp_path / "no" / "x"):
+        pass
