@@ -1,0 +1,39 @@
+"""Turning the ``--device`` option into a torch device (torch is imported late)."""
+
+from __future__ import annotations
+
+import re
+
+from head360cli.errors import BadInputError
+
+__all__ = ["resolve_device"]
+
+_PATTERN = re.compile(r"^(cpu|cuda|auto)(:\d+)?$")
+
+
+def resolve_device(name: str):  # -> torch.device
+    """Validate a device name and return the ``torch.device``.
+
+    Args:
+        name: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA when present, else CPU).
+
+    Raises:
+        BadInputError: For another name, or CUDA asked for where there is none.
+    """
+    text = name.strip().lower()
+    if not _PATTERN.match(text) or text.startswith(("cpu:", "auto:")):
+        raise BadInputError(f"expected --device cpu, cuda, cuda:N or auto, found {name!r}")
+    import torch
+
+    if text == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if text.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise BadInputError(f"--device {name} asked for CUDA, but no CUDA device is available")
+        index = int(text.split(":")[1]) if ":" in text else 0
+        if index >= torch.cuda.device_count():
+            raise BadInputError(
+                f"--device {name}: expected a CUDA index below {torch.cuda.device_count()}, "
+                f"found {index}"
+            )
+    return torch.device(text)

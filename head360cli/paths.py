@@ -1,0 +1,66 @@
+"""Where head360 finds its model files and the real evaluation data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+__all__ = ["dlib_model_files", "models_dir", "shared_data_dir"]
+
+_PACKAGE = Path(__file__).resolve().parent
+
+
+def models_dir() -> Path:
+    """The folder with the shipped model files.
+
+    In order: ``$HEAD360_MODELS``; the ``models/`` folder of a source checkout (next to
+    the package); the copy installed with the package (``head360cli/_models``).
+    """
+    env = os.environ.get("HEAD360_MODELS")
+    if env:
+        return Path(env)
+    checkout = _PACKAGE.parent / "models"
+    if checkout.is_dir() and (_PACKAGE.parent / "pyproject.toml").is_file():
+        return checkout
+    return _PACKAGE / "_models"
+
+
+def shared_data_dir() -> Path | None:
+    """``../shared/data`` beside a source checkout (or ``$HEAD360_SHARED_DATA``), if present."""
+    env = os.environ.get("HEAD360_SHARED_DATA")
+    candidates = [Path(env)] if env else []
+    candidates += [
+        _PACKAGE.parent.parent / "shared" / "data",
+        Path.cwd().parent / "shared" / "data",
+    ]
+    for c in candidates:
+        if c.is_dir():
+            return c
+    return None
+
+
+def dlib_model_files() -> dict[str, Path | None]:
+    """Paths of the dlib weights shipped by the ``face-recognition-models`` package.
+
+    The package is located without importing it (its import needs ``pkg_resources``,
+    which new setuptools no longer has).
+
+    Returns:
+        ``{"shape_predictor_68": path, "cnn_face_detector": path, "face_descriptor": path,
+        "shape_predictor_5": path}``; a value is ``None`` when the file is missing.
+    """
+    import importlib.util
+
+    names = {
+        "shape_predictor_68": "shape_predictor_68_face_landmarks.dat",
+        "shape_predictor_5": "shape_predictor_5_face_landmarks.dat",
+        "cnn_face_detector": "mmod_human_face_detector.dat",
+        "face_descriptor": "dlib_face_recognition_resnet_model_v1.dat",
+    }
+    spec = importlib.util.find_spec("face_recognition_models")
+    roots = list(spec.submodule_search_locations or []) if spec else []
+    out: dict[str, Path | None] = {}
+    for key, filename in names.items():
+        found = [Path(r) / "models" / filename for r in roots]
+        out[key] = next((p for p in found if p.is_file()), None)
+    return out

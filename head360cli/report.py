@@ -1,0 +1,204 @@
+"""Reports about the environment and about files: what ``head360 info`` and
+``head360 inspect`` print. Each function returns plain JSON-ready data; the CLI formats it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+import sys
+from pathlib import Path
+from typing import Any
+
+from head360cli.errors import BadInputError
+
+__all__ = ["environment_report", "file_kind", "inspect_file", "sha256_file"]
+
+MODEL_SUFFIXES = (".pt", ".npz", ".onnx", ".json")
+_IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".tif", ".tiff",
+                   ".webp", ".bmp")  # fmt: skip
+_STREAM_SUFFIXES = (".csv", ".tsv", ".txt")
+_HEAD_SUFFIXES = (".h360", ".npz")
+
+
+def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
+    """SHA-256 hex digest of a file, read in chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _version(module: str, attr: str = "__version__") -> str | None:
+    import importlib
+
+    try:
+        return str(getattr(importlib.import_module(module), attr))
+    except Exception:  # an optional dependency that is missing or broken
+        return None
+
+
+def environment_report(hash_models: bool = True) -> dict[str, Any]:
+    """Versions, devices and model files, for ``head360 info``.
+
+    Args:
+        hash_models: Compute SHA-256 digests of the files in the models folder.
+
+    Returns:
+        ``head360``, ``python``, ``platform``, ``packages`` (versions or ``None`` when
+        missing), ``devices``, ``models_dir``, ``models`` (name, bytes, sha256) and
+        ``dlib_models`` (which dlib weights are installed).
+    """
+    from head360cli import __version__
+    from head360cli.paths import dlib_model_files, models_dir, shared_data_dir
+
+    packages = {
+        "torch": _version("torch"),
+        "onnxruntime": _version("onnxruntime"),
+        "opencv": _version("cv2"),
+        "dlib": _version("dlib"),
+        "numpy": _version("numpy"),
+        "scipy": _version("scipy"),
+        "trimesh": _version("trimesh"),
+        "scikit-image": _version("skimage"),
+        "imageio": _version("imageio"),
+        "onnx": _version("onnx"),
+    }
+    devices: list[dict[str, Any]] = [{"name": "cpu", "threads": None}]
+    try:
+        import torch
+
+        devices[0]["threads"] = torch.get_num_threads()
+        for i in range(torch.cuda.device_count() if torch.cuda.is_available() else 0):
+            props = torch.cuda.get_device_properties(i)
+            devices.append({"name": f"cuda:{i}", "model": props.name,
+                            "memory_gib": round(props.total_memory / 2**30, 1)})
+    except ImportError:
+        pass
+    try:
+        import onnxruntime
+
+        ort_providers = list(onnxruntime.get_available_providers())
+    except ImportError:
+        ort_providers = []
+
+    mdir = models_dir()
+    models = []
+    if mdir.is_dir():
+        for p in sorted(mdir.iterdir()):
+            if p.is_file() and p.suffix in MODEL_SUFFIXES:
+                entry: dict[str, Any] = {"name": p.name, "bytes": p.stat().st_size}
+                if hash_models:
+                    entry["sha256"] = sha256_file(p)
+                models.append(entry)
+    dlib_files = {
+        k: (str(v) if v is not None else None) for k, v in dlib_model_files().items()
+    }
+    shared = shared_data_dir()
+    return {
+        "head360": __version__,
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "packages": packages,
+        "devices": devices,
+        "onnxruntime_providers": ort_providers,
+        "models_dir": str(mdir),
+        "models": models,
+        "dlib_models": dlib_files,
+        "shared_data": str(shared) if shared else None,
+    }
+
+
+def file_kind(path: str) -> str:
+    """``"stream"``, ``"head"`` or ``"image"``, from the name and the first bytes."""
+    if path == "-":
+        return "stream"
+    p = Path(path)
+    if not p.exists():
+        raise BadInputError(f"no such file: {path!r}")
+    if p.is_dir():
+        raise BadInputError(f"expected a file, found a folder: {path!r}")
+    suffix = p.suffix.lower()
+    with open(p, "rb") as f:
+        magic = f.read(8)
+    if suffix in _HEAD_SUFFIXES or magic.startswith(b"PK\x03\x04"):
+        return "head"
+    if suffix in _STREAM_SUFFIXES:
+        return "stream"
+    if suffix in _IMAGE_SUFFIXES:
+        return "image"
+    try:
+        from PIL import Image
+
+        with Image.open(p):
+            return "image"
+    except Exception:
+        pass
+    raise BadInputError(
+        f"expected an ARKit stream (.csv), an image or a head file (.h360), found {p.name!r}"
+    )
+
+
+def inspect_file(path: str, on_bad: str = "error") -> dict[str, Any]:
+    """Describe a file: ARKit stream, image or head file.
+
+    Args:
+        path: The file, or ``-`` for an ARKit stream on standard input.
+        on_bad: Bad-cell policy for streams (``error``, ``skip``, ``hold``).
+
+    Returns:
+        A JSON-ready description whose ``kind`` says which of the three it is.
+    """
+    kind = file_kind(path)
+    if kind == "image":
+        from head360cli.io.images import describe_image
+
+        return describe_image(path)
+    if kind == "head":
+        from head360cli.io.headfile import read_head
+
+        head = read_head(path)
+        return {
+            "kind": "head",
+            "path": path,
+            "metadata": head.metadata(),
+            "arrays": {
+                name: {"shape": list(a.shape), "dtype": str(a.dtype)}
+                for name, a in sorted(head.arrays.items())
+            },
+            "bytes": Path(path).stat().st_size,
+        }
+    from head360cli.io.arkit import read_arkit_csv
+
+    stream = read_arkit_csv(path, on_bad=on_bad)  # type: ignore[arg-type]
+    out: dict[str, Any] = {
+        "kind": "arkit_stream",
+        "path": path,
+        "format": stream.source_format,
+        "frames": stream.num_frames,
+        "fps": round(stream.fps, 4),
+        "nominal_fps": stream.nominal_fps,
+        "duration_s": round(stream.duration, 4),
+        "columns_found": stream.columns_found,
+        "columns_missing": stream.columns_missing,
+        "columns_ignored": stream.columns_ignored,
+        "head_rotation": stream.head_rotation is not None,
+        "eye_rotation": stream.eye_rotation is not None,
+        "clamped": stream.clamped,
+        "repaired": stream.repaired,
+        "skipped_rows": stream.skipped_rows,
+        "warnings": stream.warnings,
+        "blendshapes": {k: {s: round(v, 6) for s, v in d.items()}
+                        for k, d in stream.stats().items()},
+    }
+    if stream.head_rotation is not None:
+        import numpy as np
+
+        deg = np.degrees(stream.head_rotation.astype(np.float64))
+        out["head_rotation_deg"] = {
+            axis: {"min": round(float(deg[:, i].min()), 3),
+                   "max": round(float(deg[:, i].max()), 3)}
+            for i, axis in enumerate(("yaw", "pitch", "roll"))
+        }
+    return out

