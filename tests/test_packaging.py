@@ -56,3 +56,14 @@ def test_installed_metadata_and_dependencies():
     assert extras == {"test", "export"}
     scripts = {ep.name: ep.value for ep in dist.entry_points if ep.group == "console_scripts"}
     assert scripts == {"head360": "head360cli.cli:main"}
+
+
+def test_every_subpackage_is_listed_for_installation():
+    text = (REPO / "pyproject.toml").read_text()
+    listed = set(re.findall(r'^\s+"(head360cli[\w.]*)",$', text, flags=re.M))
+    on_disk = {
+        ".".join(p.parent.relative_to(REPO).parts)
+        for p in (REPO / "head360cli").rglob("__init__.py")
+    }
+    assert on_disk <= listed, f"add to [tool.setuptools] packages: {sorted(on_disk - listed)}"
+    assert "head360cli._models" in listed
