@@ -163,6 +163,8 @@ def _format_stream(r: dict[str, Any]) -> str:
         rot = r["head_rotation_deg"]
         lines.append("  head pose    " + ", ".join(
             f"{k} {v['min']:.1f}..{v['max']:.1f} deg" for k, v in rot.items()))
+    if r.get("plot"):
+        lines.append(f"  plot         {r['plot']}")
     lines.append(f"  {'blendshape':<22}{'min':>8}{'mean':>8}{'max':>8}")
     for name, s in r["blendshapes"].items():
         lines.append(f"  {name:<22}{s['min']:8.3f}{s['mean']:8.3f}{s['max']:8.3f}")
@@ -201,8 +203,11 @@ def _format_head(r: dict[str, Any]) -> str:
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="error",
               show_default=True, help="ARKit streams: what to do with NaN, empty or "
               "non-numeric cells and malformed rows.")
+@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+              help="ARKit streams: also draw the most active blendshapes and the head "
+              "rotation over time into this PNG.")
 @common_options
-def inspect(file: str, on_bad: str) -> None:
+def inspect(file: str, on_bad: str, plot: str | None) -> None:
     """Tell what FILE is and holds: an ARKit stream, an image or a head file.
 
     For an ARKit CSV stream: frames, frame rate, duration, columns found, missing or
@@ -213,11 +218,12 @@ def inspect(file: str, on_bad: str) -> None:
     Examples:
       head360 inspect examples/smile_blink_livelinkface.csv
       head360 inspect photo.jpg --json
+      head360 inspect take.csv --plot take.png
       cat take.csv | head360 inspect - --on-bad skip
     """
     from head360cli.report import inspect_file
 
-    result = inspect_file(file, on_bad=on_bad)
+    result = inspect_file(file, on_bad=on_bad, plot=plot)
     for w in result.get("warnings", []):
         _warn(w)
     formatter = {"arkit_stream": _format_stream, "image": _format_image,

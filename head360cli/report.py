@@ -140,17 +140,21 @@ def file_kind(path: str) -> str:
     )
 
 
-def inspect_file(path: str, on_bad: str = "error") -> dict[str, Any]:
+def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> dict[str, Any]:
     """Describe a file: ARKit stream, image or head file.
 
     Args:
         path: The file, or ``-`` for an ARKit stream on standard input.
         on_bad: Bad-cell policy for streams (``error``, ``skip``, ``hold``).
+        plot: For a stream, also draw its curves into this PNG.
 
     Returns:
         A JSON-ready description whose ``kind`` says which of the three it is.
     """
     kind = file_kind(path)
+    if plot is not None and kind != "stream":
+        what = {"image": "an image", "head": "a head file"}[kind]
+        raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {path!r}")
     if kind == "image":
         from head360cli.io.images import describe_image
 
@@ -192,6 +196,11 @@ def inspect_file(path: str, on_bad: str = "error") -> dict[str, Any]:
         "blendshapes": {k: {s: round(v, 6) for s, v in d.items()}
                         for k, d in stream.stats().items()},
     }
+    if plot is not None:
+        from head360cli.viz import plot_stream
+
+        plot_stream(stream, plot)
+        out["plot"] = plot
     if stream.head_rotation is not None:
         import numpy as np
 

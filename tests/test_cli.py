@@ -106,6 +106,19 @@ def test_inspect_warnings_and_quiet(run_cli, tmp_path):
     assert quiet.code == 0 and quiet.err == ""
 
 
+def test_inspect_plot(run_cli, tmp_path):
+    out = tmp_path / "curves.png"
+    r = run_cli("inspect", SAMPLE_STREAM, "--plot", out, "--json")
+    assert r.code == 0 and json.loads(r.out)["plot"] == str(out)
+    img = np.asarray(Image.open(out))
+    assert img.shape == (560, 1000, 3)
+    assert (img < 250).any(axis=2).mean() > 0.02  # curves and text were drawn
+    assert run_cli("inspect", SAMPLE_STREAM, "--plot", tmp_path / "c.jpg").code == 3
+    r = run_cli("inspect", out, "--plot", tmp_path / "x.png")
+    assert r.code == 3 and "found an image" in r.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["curves.png"]
+
+
 def test_inspect_image_and_head(run_cli, tmp_path):
     img = tmp_path / "p.png"
     Image.fromarray(np.zeros((20, 30), np.uint8)).save(img)
