@@ -1,0 +1,203 @@
+"""A triangle rasterizer in plain torch (gather and scatter ops), for CPU and GPU.
+
+It serves the corpus renderer, the hex-plane rasterization and the screen depth used to
+place volume samples. Input is already in screen space (pixels plus depth), so the same
+function rasterizes perspective views (``perspective_correct=True``) and orthographic ones.
+
+How it works: every triangle is given the pixels of its bounding box as candidates. To keep
+the work proportional to the covered area, triangles are grouped by bounding-box size and
+each group uses a ``K x K`` candidate window with ``K`` the group's power of two. Candidates
+inside the triangle write their depth into a z-buffer with ``scatter_reduce("amin")``; the
+candidates that match the z-buffer then write their triangle id (ties: the larger id). The
+barycentric coordinates of each covered pixel are recomputed from its triangle, so they are
+differentiable with respect to the vertex positions (visibility is not).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+__all__ = ["Fragments", "interpolate", "interpolate_face_corners", "rasterize"]
+
+
+@dataclasses.dataclass
+class Fragments:
+    """What the rasterizer found at each pixel.
+
+    Attributes:
+        face_id: ``(B, H, W)`` int64 index of the visible triangle, -1 where none.
+        bary: ``(B, H, W, 3)`` barycentric coordinates in that triangle (perspective-
+            correct if asked), zero where none.
+        depth: ``(B, H, W)`` depth of the visible surface, zero where none.
+    """
+
+    face_id: torch.Tensor
+    bary: torch.Tensor
+    depth: torch.Tensor
+
+    @property
+    def mask(self) -> torch.Tensor:
+        """``(B, H, W)`` bool: a triangle covers the pixel."""
+        return self.face_id >= 0
+
+
+def _barycentric(tri: torch.Tensor, px: torch.Tensor, py: torch.Tensor, area: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Screen barycentrics of points ``(px, py)`` in triangles ``tri (..., 3, 2)``."""
+    x0, y0 = tri[..., 0, 0], tri[..., 0, 1]
+    x1, y1 = tri[..., 1, 0], tri[..., 1, 1]
+    x2, y2 = tri[..., 2, 0], tri[..., 2, 1]
+    w0 = ((x1 - px) * (y2 - py) - (x2 - px) * (y1 - py)) / area
+    w1 = ((x2 - px) * (y0 - py) - (x0 - px) * (y2 - py)) / area
+    return w0, w1, 1.0 - w0 - w1
+
+
+def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, height: int,
+              width: int, *, perspective_correct: bool = True, near: float = 1e-4,
+              eps: float = 1e-6) -> Fragments:
+    """Rasterize triangles given in screen space.
+
+    Args:
+        screen: ``(B, V, 2)`` vertex positions in pixels (OpenCV: x right, y down; pixel
+            ``(i, j)`` is sampled at ``(j + 0.5, i + 0.5)``).
+        depth: ``(B, V)`` vertex depths; smaller is nearer. Triangles with a vertex at
+            depth ``<= near`` (behind a perspective camera) are dropped.
+        faces: ``(F, 3)`` int64 vertex indices.
+        height: Image height ``H``.
+        width: Image width ``W``.
+        perspective_correct: Interpolate ``1/depth`` (perspective views); ``False``
+            interpolates depth linearly (orthographic views, where depth may be negative:
+            pass ``near=-inf``).
+        near: Near clipping depth.
+        eps: Tolerance of the inside test, in barycentric units (shared edges leave no
+            cracks).
+
+    Returns:
+        The visible triangle, barycentrics and depth at every pixel.
+    """
+    b = depth.shape[0]
+    device, dtype = screen.device, screen.dtype
+    hw = height * width
+    tri = screen[:, faces]  # (B, F, 3, 2)
+    tri_z = depth[:, faces]  # (B, F, 3)
+    x, y = tri[..., 0], tri[..., 1]
+    area = (x[..., 1] - x[..., 0]) * (y[..., 2] - y[..., 0]) - (
+        x[..., 2] - x[..., 0]) * (y[..., 1] - y[..., 0])
+    j0 = torch.ceil(x.min(-1).values - 0.5).clamp(0, width)
+    j1 = torch.floor(x.max(-1).values - 0.5).clamp(-1, width - 1)
+    i0 = torch.ceil(y.min(-1).values - 0.5).clamp(0, height)
+    i1 = torch.floor(y.max(-1).values - 0.5).clamp(-1, height - 1)
+    finite = torch.isfinite(tri).all(-1).all(-1) & torch.isfinite(tri_z).all(-1)
+    valid = (finite & (tri_z > near).all(-1) & (area.abs() > 1e-12)
+             & (j1 >= j0) & (i1 >= i0))
+    size = torch.maximum(j1 - j0, i1 - i0) + 1  # bounding-box extent in pixels
+
+    bi, fi = torch.nonzero(valid, as_tuple=True)
+    sizes = size[bi, fi]
+    pix_all, z_all, face_all = [], [], []
+    k = 1
+    lower = 0
+    max_size = int(sizes.max().item()) if sizes.numel() else 0
+    while lower < max_size:
+        sel = torch.nonzero((sizes > lower) & (sizes <= k), as_tuple=True)[0]
+        if sel.numel():
+            sb, sf = bi[sel], fi[sel]
+            d = torch.arange(k, device=device)
+            dy, dx = torch.meshgrid(d, d, indexing="ij")
+            px = j0[sb, sf][:, None] + dx.reshape(1, -1).to(dtype)
+            py = i0[sb, sf][:, None] + dy.reshape(1, -1).to(dtype)
+            in_box = (px <= j1[sb, sf][:, None]) & (py <= i1[sb, sf][:, None])
+            t = tri[sb, sf][:, None]  # (n, 1, 3, 2)
+            w0, w1, w2 = _barycentric(t, px + 0.5, py + 0.5, area[sb, sf][:, None])
+            inside = in_box & (w0 >= -eps) & (w1 >= -eps) & (w2 >= -eps)
+            tz = tri_z[sb, sf]
+            if perspective_correct:
+                z = 1.0 / (w0 / tz[:, 0:1] + w1 / tz[:, 1:2] + w2 / tz[:, 2:3])
+            else:
+                z = w0 * tz[:, 0:1] + w1 * tz[:, 1:2] + w2 * tz[:, 2:3]
+            pix = sb[:, None] * hw + py.long() * width + px.long()
+            keep = torch.nonzero(inside, as_tuple=True)
+            pix_all.append(pix[keep])
+            z_all.append(z[keep])
+            face_all.append(sf[:, None].expand_as(pix)[keep])
+        lower = k
+        k *= 2
+
+    face_id = torch.full((b * hw,), -1, dtype=torch.long, device=device)
+    zbuf = torch.full((b * hw,), float("inf"), dtype=dtype, device=device)
+    if pix_all:
+        pix = torch.cat(pix_all)
+        z = torch.cat(z_all).detach()
+        face = torch.cat(face_all)
+        zbuf = zbuf.scatter_reduce(0, pix, z, reduce="amin", include_self=True)
+        win = z <= zbuf[pix]
+        face_id = face_id.scatter_reduce(0, pix[win], face[win], reduce="amax",
+                                         include_self=True)
+
+    fg = torch.nonzero(face_id >= 0, as_tuple=True)[0]
+    bary = torch.zeros(b * hw, 3, dtype=dtype, device=device)
+    zout = torch.zeros(b * hw, dtype=dtype, device=device)
+    if fg.numel():
+        fb = fg // hw
+        rem = fg % hw
+        cy = (rem // width).to(dtype) + 0.5
+        cx = (rem % width).to(dtype) + 0.5
+        f = face_id[fg]
+        t = tri[fb, f]  # (n, 3, 2), differentiable w.r.t. screen
+        w0, w1, w2 = _barycentric(t, cx, cy, area[fb, f])
+        w = torch.stack([w0, w1, w2], dim=-1).clamp(0.0, 1.0)
+        w = w / w.sum(-1, keepdim=True).clamp_min(1e-12)
+        tz = tri_z[fb, f]
+        if perspective_correct:
+            wz = w / tz
+            zf = 1.0 / wz.sum(-1)
+            w = wz * zf[:, None]
+        else:
+            zf = (w * tz).sum(-1)
+        bary = bary.index_put((fg,), w)
+        zout = zout.index_put((fg,), zf)
+    return Fragments(
+        face_id=face_id.view(b, height, width),
+        bary=bary.view(b, height, width, 3),
+        depth=zout.view(b, height, width),
+    )
+
+
+def interpolate(attr: torch.Tensor, faces: torch.Tensor, frags: Fragments) -> torch.Tensor:
+    """Interpolate per-vertex attributes at every pixel.
+
+    Args:
+        attr: ``(B, V, C)`` or ``(V, C)`` vertex attributes.
+        faces: ``(F, 3)`` vertex indices.
+        frags: The rasterizer's output.
+
+    Returns:
+        ``(B, H, W, C)``; zero where no triangle is visible.
+    """
+    return interpolate_face_corners(attr[..., faces, :] if attr.dim() == 3 else attr[faces],
+                                    frags)
+
+
+def interpolate_face_corners(corner_attr: torch.Tensor, frags: Fragments) -> torch.Tensor:
+    """Interpolate attributes given per face corner (e.g. UVs with seams).
+
+    Args:
+        corner_attr: ``(B, F, 3, C)`` or ``(F, 3, C)``.
+        frags: The rasterizer's output.
+
+    Returns:
+        ``(B, H, W, C)``; zero where no triangle is visible.
+    """
+    b, h, w = frags.face_id.shape
+    fid = frags.face_id.clamp_min(0).reshape(b, h * w)
+    if corner_attr.dim() == 3:
+        corners = corner_attr[fid]  # (B, HW, 3, C)
+    else:
+        corners = torch.gather(
+            corner_attr, 1,
+            fid[:, :, None, None].expand(b, h * w, 3, corner_attr.shape[-1]))
+    out = (corners * frags.bary.reshape(b, h * w, 3, 1)).sum(2)
+    out = out * frags.mask.reshape(b, h * w, 1).to(out.dtype)
+    return out.view(b, h, w, -1)
