@@ -96,6 +96,7 @@ class HeadFrame:
     jaw_pivot: np.ndarray  # (3,) on the axis the jaw turns about (parallel to x)
     ear_centres: np.ndarray  # (2, 3)
     nose_tip: np.ndarray
+    face_half_width: float = 0.065  # widest |x| of the face in front of the ears, eye level
 
 
 # --------------------------------------------------------------------------- topology
@@ -630,5 +631,7 @@ def build_head(p: IdentityParams) -> tuple[np.ndarray, HeadFrame]:
                             -0.012]),
         ear_centres=ear_c,
         nose_tip=verts[topo.skin_rows[names.index("nose_tip"), N_COLS // 2]],
+        face_half_width=float(np.abs(grid[names.index("eye_bottom")][:, 0][
+            grid[names.index("eye_bottom")][:, 2] > 0.03]).max()),
     )
     return verts, frame
