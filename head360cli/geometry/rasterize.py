@@ -7,8 +7,10 @@ function rasterizes perspective views (``perspective_correct=True``) and orthogr
 How it works: every triangle is given the pixels of its bounding box as candidates. To keep
 the work proportional to the covered area, triangles are grouped by bounding-box size and
 each group uses a ``K x K`` candidate window with ``K`` the group's power of two. Candidates
-inside the triangle write their depth into a z-buffer with ``scatter_reduce("amin")``; the
-candidates that match the z-buffer then write their triangle id (ties: the larger id). The
+inside the triangle write their depth key (``1/depth``, linear in screen space) into a
+z-buffer with ``scatter_reduce("amax")``; the candidates that match the z-buffer then write
+their triangle id (ties: the larger id). Each triangle's barycentrics and depth key are
+plane equations, so a whole candidate window is one small batched matrix product. The
 barycentric coordinates of each covered pixel are recomputed from its triangle, so they are
 differentiable with respect to the vertex positions (visibility is not).
 """
@@ -56,7 +58,7 @@ def _barycentric(tri: torch.Tensor, px: torch.Tensor, py: torch.Tensor, area: to
 
 def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, height: int,
               width: int, *, perspective_correct: bool = True, near: float = 1e-4,
-              eps: float = 1e-6) -> Fragments:
+              eps: float = 1e-6, cull_backfaces: bool = False) -> Fragments:
     """Rasterize triangles given in screen space.
 
     Args:
@@ -73,6 +75,8 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         near: Near clipping depth.
         eps: Tolerance of the inside test, in barycentric units (shared edges leave no
             cracks).
+        cull_backfaces: Drop triangles seen from behind (counter-clockwise in the world,
+            seen from outside, is front). Only for closed, outward-facing meshes.
 
     Returns:
         The visible triangle, barycentrics and depth at every pixel.
@@ -92,47 +96,69 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     finite = torch.isfinite(tri).all(-1).all(-1) & torch.isfinite(tri_z).all(-1)
     valid = (finite & (tri_z > near).all(-1) & (area.abs() > 1e-12)
              & (j1 >= j0) & (i1 >= i0))
+    if cull_backfaces:
+        # With image y pointing down, a triangle that is counter-clockwise seen from the
+        # camera has negative screen area.
+        valid &= area < 0
     size = torch.maximum(j1 - j0, i1 - i0) + 1  # bounding-box extent in pixels
 
     bi, fi = torch.nonzero(valid, as_tuple=True)
+    # Plane equations of the selected triangles: w_k = A_k x + B_k y + C_k for the three
+    # barycentrics, and the depth key (1/z for perspective, -z for orthographic, larger
+    # is nearer) likewise, all linear in screen space.
+    t = tri[bi, fi]
+    tz = tri_z[bi, fi]
+    ar = area[bi, fi]
+    x0, y0, x1, y1, x2, y2 = (t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 0],
+                              t[:, 2, 1])
+    a = torch.stack([y1 - y2, y2 - y0, y0 - y1], 1) / ar[:, None]
+    bb = torch.stack([x2 - x1, x0 - x2, x1 - x0], 1) / ar[:, None]
+    c = torch.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], 1) / ar[:, None]
+    key_v = 1.0 / tz if perspective_correct else -tz
+    a = torch.cat([a, (a * key_v).sum(1, keepdim=True)], 1)  # (n, 4)
+    bb = torch.cat([bb, (bb * key_v).sum(1, keepdim=True)], 1)
+    c = torch.cat([c, (c * key_v).sum(1, keepdim=True)], 1)
+    tj0, ti0 = j0[bi, fi], i0[bi, fi]
+    base = a * (tj0 + 0.5)[:, None] + bb * (ti0 + 0.5)[:, None] + c  # at the box corner
+    plane = torch.stack([a, bb, base], 2)  # (n, 4, 3)
+    tj1, ti1 = j1[bi, fi], i1[bi, fi]
     sizes = size[bi, fi]
-    pix_all, z_all, face_all = [], [], []
+
+    pix_all, key_all, face_all = [], [], []
     k = 1
     lower = 0
     max_size = int(sizes.max().item()) if sizes.numel() else 0
     while lower < max_size:
         sel = torch.nonzero((sizes > lower) & (sizes <= k), as_tuple=True)[0]
         if sel.numel():
-            sb, sf = bi[sel], fi[sel]
-            d = torch.arange(k, device=device)
+            d = torch.arange(k, device=device, dtype=dtype)
             dy, dx = torch.meshgrid(d, d, indexing="ij")
-            px = j0[sb, sf][:, None] + dx.reshape(1, -1).to(dtype)
-            py = i0[sb, sf][:, None] + dy.reshape(1, -1).to(dtype)
-            in_box = (px <= j1[sb, sf][:, None]) & (py <= i1[sb, sf][:, None])
-            t = tri[sb, sf][:, None]  # (n, 1, 3, 2)
-            w0, w1, w2 = _barycentric(t, px + 0.5, py + 0.5, area[sb, sf][:, None])
-            inside = in_box & (w0 >= -eps) & (w1 >= -eps) & (w2 >= -eps)
-            tz = tri_z[sb, sf]
-            if perspective_correct:
-                z = 1.0 / (w0 / tz[:, 0:1] + w1 / tz[:, 1:2] + w2 / tz[:, 2:3])
-            else:
-                z = w0 * tz[:, 0:1] + w1 * tz[:, 1:2] + w2 * tz[:, 2:3]
-            pix = sb[:, None] * hw + py.long() * width + px.long()
-            keep = torch.nonzero(inside, as_tuple=True)
-            pix_all.append(pix[keep])
-            z_all.append(z[keep])
-            face_all.append(sf[:, None].expand_as(pix)[keep])
+            offsets = torch.stack([dx.reshape(-1), dy.reshape(-1),
+                                   torch.ones(k * k, device=device, dtype=dtype)])  # (3, K2)
+            values = plane[sel, :3] @ offsets  # (n, 3, K2): the three barycentrics
+            inside = ((values.amin(1) >= -eps)
+                      & (offsets[0][None] <= (tj1 - tj0)[sel][:, None])
+                      & (offsets[1][None] <= (ti1 - ti0)[sel][:, None]))
+            row, col = torch.nonzero(inside, as_tuple=True)
+            s_idx = sel[row]
+            px = (tj0[s_idx] + offsets[0][col]).long()
+            py = (ti0[s_idx] + offsets[1][col]).long()
+            pix_all.append(bi[s_idx] * hw + py * width + px)
+            key_plane = plane[s_idx, 3]  # depth key only where needed
+            key_all.append(key_plane[:, 0] * offsets[0][col] + key_plane[:, 1] * offsets[1][col]
+                           + key_plane[:, 2])
+            face_all.append(fi[s_idx])
         lower = k
         k *= 2
 
     face_id = torch.full((b * hw,), -1, dtype=torch.long, device=device)
-    zbuf = torch.full((b * hw,), float("inf"), dtype=dtype, device=device)
     if pix_all:
         pix = torch.cat(pix_all)
-        z = torch.cat(z_all).detach()
+        key = torch.cat(key_all).detach()
         face = torch.cat(face_all)
-        zbuf = zbuf.scatter_reduce(0, pix, z, reduce="amin", include_self=True)
-        win = z <= zbuf[pix]
+        zbuf = torch.full((b * hw,), float("-inf"), dtype=dtype, device=device)
+        zbuf = zbuf.scatter_reduce(0, pix, key, reduce="amax", include_self=True)
+        win = key >= zbuf[pix]
         face_id = face_id.scatter_reduce(0, pix[win], face[win], reduce="amax",
                                          include_self=True)
 

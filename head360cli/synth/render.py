@@ -3,7 +3,9 @@
 It holds no parameters. Lighting is computed in world space from the surface normal (a
 key, a fill and a rim light plus a sky/ground ambient), so the shading is baked into the
 head: every camera of the rig sees the same appearance, as in a studio capture with fixed
-lights. Antialiasing is by supersampling: render at ``ssaa`` times the size and average.
+lights. Antialiasing is by multi-sampling: the view is rendered at 1, 2 or 4 subpixel
+offsets (batched together) and averaged, which costs far less than rendering at twice
+the size, since triangles stay small in pixels.
 """
 
 from __future__ import annotations
@@ -15,9 +17,16 @@ import torch.nn.functional as F
 
 from head360cli.geometry.cameras import project
 from head360cli.geometry.mesh_ops import vertex_normals
-from head360cli.geometry.rasterize import interpolate, interpolate_face_corners, rasterize
+from head360cli.geometry.rasterize import rasterize
 
 __all__ = ["RenderOutput", "StudioLights", "render_mesh", "shade"]
+
+# Subpixel sample offsets (pixels) for 1, 2 and 4 samples per pixel.
+_OFFSETS = {
+    1: [(0.0, 0.0)],
+    2: [(-0.25, -0.25), (0.25, 0.25)],
+    4: [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)],
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,8 +52,8 @@ class RenderOutput:
     Attributes:
         rgb: Colour composited over ``background``.
         alpha: Coverage (antialiased).
-        depth: Camera depth in metres of the nearest surface (0 where none), not averaged
-            across the supersamples but taken at their centre one.
+        depth: Camera depth in metres of the nearest surface (0 where none), from the first
+            sample (not averaged).
         normals: World-space unit normals in [-1, 1] (0 where none).
         labels: ``(B, L, H, W)`` coverage of each label set asked for (e.g. hair, face).
     """
@@ -86,9 +95,9 @@ def render_mesh(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
                 faces_uv: torch.Tensor, texture: torch.Tensor,
                 face_labels: torch.Tensor | None = None,
                 label_sets: tuple[tuple[int, ...], ...] = (),
-                lights: StudioLights = StudioLights(), ssaa: int = 2,
-                background: float = 1.0, normal_groups: torch.Tensor | None = None
-                ) -> RenderOutput:
+                lights: StudioLights = StudioLights(), samples: int = 2,
+                background: float = 1.0, normal_groups: torch.Tensor | None = None,
+                cull_backfaces: bool = True) -> RenderOutput:
     """Render textured meshes from cameras.
 
     Args:
@@ -103,45 +112,68 @@ def render_mesh(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
         face_labels: ``(F,)`` int label per face, for ``label_sets``.
         label_sets: Each a tuple of labels; the output has one coverage image per set.
         lights: Studio lights.
-        ssaa: Supersampling factor for antialiasing.
+        samples: Antialiasing samples per pixel: 1, 2 (diagonal) or 4 (a 2x2 grid).
         background: Grey level behind the head.
         normal_groups: ``(G, K)`` vertex groups whose coincident members share a normal.
+        cull_backfaces: Skip triangles facing away (all corpus meshes are closed and
+            outward-facing, so nothing visible is lost and half the work is saved).
 
     Returns:
         Colour, alpha, depth, normals and label coverage at ``size x size``.
     """
+    if samples not in _OFFSETS:
+        raise ValueError(f"expected 1, 2 or 4 antialiasing samples, found {samples}")
+    nb = verts.shape[0]
+    offsets = torch.tensor(_OFFSETS[samples], dtype=verts.dtype, device=verts.device)
+    # Each sample is the view shifted by a subpixel offset; all go through one batch.
+    k = intrinsics.to(verts.dtype).expand(samples, 3, 3).clone()
+    k[:, 0, 2] += offsets[:, 0]
+    k[:, 1, 2] += offsets[:, 1]
+    k = k.repeat_interleave(nb, 0)  # sample-major: (S * B, 3, 3)
+    verts = verts.repeat(samples, 1, 1)
+    c2w = c2w.repeat(samples, 1, 1)
     b = verts.shape[0]
-    hi = size * ssaa
-    k = intrinsics.clone()
-    k[:2] = k[:2] * ssaa
+    hi = size
     pix, depth = project(verts, c2w, k)
-    frags = rasterize(pix, depth, faces, hi, hi)
-    normals_v = vertex_normals(verts, faces, normal_groups)
-    n = interpolate(normals_v, faces, frags)
+    frags = rasterize(pix, depth, faces, hi, hi, cull_backfaces=cull_backfaces)
+    normals_v = vertex_normals(verts[:nb], faces, normal_groups).repeat(samples, 1, 1)
+    # Shade only the covered pixels.
+    fg = torch.nonzero(frags.face_id.reshape(-1) >= 0, as_tuple=True)[0]
+    fid = frags.face_id.reshape(-1)[fg]
+    bidx = fg // (hi * hi)
+    w = frags.bary.reshape(-1, 3)[fg][..., None]  # (n, 3, 1)
+    n = (normals_v[bidx[:, None], faces[fid]] * w).sum(1)
     n = F.normalize(n, dim=-1)
-    uvs = interpolate_face_corners(uv[faces_uv], frags)  # (B, H, W, 2)
-    grid = uvs * 2 - 1
-    tex = texture.expand(b, -1, -1, -1)
-    albedo = F.grid_sample(tex, grid, mode="bilinear", padding_mode="border",
-                           align_corners=False).permute(0, 2, 3, 1)
+    uvs = (uv[faces_uv[fid]] * w).sum(1)  # (n, 2)
+    grid = (uvs * 2 - 1)[None, None]  # (1, 1, n, 2)
+    if texture.shape[0] > 1:
+        texture = texture.repeat(samples, 1, 1, 1)
+    if texture.shape[0] == 1:
+        albedo = F.grid_sample(texture, grid, mode="bilinear", padding_mode="border",
+                               align_corners=False)[0, :, 0].T
+    else:  # one texture per view: sample each view's pixels from its own texture
+        albedo = torch.empty(len(fg), 3, dtype=verts.dtype, device=verts.device)
+        for i in range(b):
+            m = bidx == i
+            albedo[m] = F.grid_sample(texture[i:i + 1], grid[:, :, m], mode="bilinear",
+                                      padding_mode="border", align_corners=False)[0, :, 0].T
     colour = shade(albedo, n, lights)
-    mask = frags.mask[..., None].to(colour.dtype)
-    colour = colour * mask + background * (1 - mask)
-    chans = [colour.permute(0, 3, 1, 2), mask.permute(0, 3, 1, 2)]
+    chans = [colour, torch.ones(len(fg), 1, dtype=colour.dtype, device=colour.device)]
     if label_sets:
         assert face_labels is not None
-        fid = frags.face_id.clamp_min(0)
         lab = face_labels[fid]
-        for s in label_sets:
+        for s_ in label_sets:
             member = torch.zeros_like(lab, dtype=torch.bool)
-            for value in s:
+            for value in s_:
                 member |= lab == value
-            chans.append((member & frags.mask).to(colour.dtype)[:, None])
-    stacked = torch.cat(chans, 1)
-    if ssaa > 1:
-        stacked = F.avg_pool2d(stacked, ssaa)
-    centre = ssaa // 2
-    depth_lo = frags.depth[:, centre::ssaa, centre::ssaa][:, None]
-    normals_lo = (n * frags.mask[..., None])[:, centre::ssaa, centre::ssaa].permute(0, 3, 1, 2)
+            chans.append(member.to(colour.dtype)[:, None])
+    values = torch.cat(chans, 1)
+    image = torch.zeros(b * hi * hi, values.shape[1], dtype=colour.dtype, device=colour.device)
+    image[:, :3] = background
+    image = image.index_put((fg,), values)
+    stacked = image.view(samples, nb, hi, hi, -1).mean(0).permute(0, 3, 1, 2)
+    depth_lo = frags.depth[:nb, None]
+    normal_img = torch.zeros(b * hi * hi, 3, dtype=colour.dtype, device=colour.device)
+    normals_lo = normal_img.index_put((fg,), n).view(b, hi, hi, 3)[:nb].permute(0, 3, 1, 2)
     return RenderOutput(rgb=stacked[:, :3], alpha=stacked[:, 3:4], depth=depth_lo,
                         normals=normals_lo, labels=stacked[:, 4:])

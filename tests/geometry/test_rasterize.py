@@ -131,3 +131,24 @@ def test_gradients_flow_to_vertices():
     out = interpolate(colour, torch.tensor([[0, 1, 2]]), frags)
     out.sum().backward()
     assert screen.grad is not None and screen.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("yaw, pitch", [(0.0, 0.0), (123.0, 40.0)])
+def test_backface_culling_changes_nothing_on_closed_meshes(yaw, pitch):
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    c2w = camera_on_sphere(torch.tensor([yaw]), torch.tensor([pitch]), 0.6,
+                           target=(0.0, 0.0, 0.0))
+    k = intrinsics_from_fov(30.0, 64, 64)
+    pix, depth = project(torch.tensor(mesh.vertices, dtype=torch.float32)[None], c2w, k)
+    faces = torch.tensor(mesh.faces)
+    full = rasterize(pix, depth, faces, 64, 64)
+    culled = rasterize(pix, depth, faces, 64, 64, cull_backfaces=True)
+    assert torch.equal(full.face_id, culled.face_id)
+    # Turned inside out, the near half is culled and the far half shows from inside:
+    # the same silhouette, farther away.
+    inside_out = rasterize(pix, depth, faces.flip(1), 64, 64, cull_backfaces=True)
+    assert torch.equal(inside_out.mask, full.mask)
+    m = full.mask
+    assert (inside_out.depth[m] > full.depth[m]).all()

@@ -17,7 +17,7 @@ from head360cli.synth.render import render_mesh
 from head360cli.synth.sculpt import build_head, topology
 
 
-def render(verts, texture, yaws, size=64, ssaa=2):
+def render(verts, texture, yaws, size=64, samples=4):
     topo = topology()
     eye_parts = (topo.part_names.index("eye_l"), topo.part_names.index("eye_r"))
     c2w = camera_on_sphere(torch.tensor(yaws), torch.zeros(len(yaws)), RIG_DISTANCE)
@@ -27,7 +27,7 @@ def render(verts, texture, yaws, size=64, ssaa=2):
                        uv=torch.tensor(topo.uv), faces_uv=torch.tensor(topo.faces_uv),
                        texture=torch.tensor(texture).permute(2, 0, 1)[None],
                        face_labels=torch.tensor(topo.face_parts), label_sets=(eye_parts,),
-                       normal_groups=torch.tensor(topo.normal_groups), ssaa=ssaa)
+                       normal_groups=torch.tensor(topo.normal_groups), samples=samples)
 
 
 def test_front_and_back_views():

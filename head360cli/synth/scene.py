@@ -1,0 +1,128 @@
+"""A synthetic head ready to render: identity, appearance, blendshapes, hair, textures.
+
+:func:`make_head` derives everything about corpus head ``k`` of a split from one seed;
+:func:`render_head` renders it with an expression, with or without hair, from cameras.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from head360cli.mesh.template import REGION_NAMES, template
+from head360cli.synth.appearance import Appearance, paint_texture, sample_appearance
+from head360cli.synth.expressions import blendshape_deltas
+from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES, HairMesh, build_hair, hair_texture
+from head360cli.synth.identity import IdentityParams, sample_identity
+from head360cli.synth.render import RenderOutput, render_mesh
+from head360cli.synth.sculpt import HeadFrame, build_head, topology
+
+__all__ = ["LABEL_FACE", "LABEL_HAIR", "SynthHead", "head_seed", "make_head", "render_head"]
+
+LABEL_HAIR = 0
+LABEL_FACE = 1
+LABEL_OTHER = 2
+_FACE_REGIONS = ("face", "nose", "lips", "mouth_interior", "eyes", "teeth", "tongue")
+SPLITS = {"train": 0, "test": 1}
+
+
+def head_seed(seed: int, split: str, index: int) -> int:
+    """The seed of head ``index`` of a split: train and test never share one."""
+    return (seed * 2 + SPLITS[split]) * 1_000_003 + index
+
+
+@dataclasses.dataclass
+class SynthHead:
+    """Everything needed to render one corpus head."""
+
+    index: int
+    split: str
+    identity: IdentityParams
+    look: Appearance
+    verts: np.ndarray  # (V, 3) neutral
+    frame: HeadFrame
+    deltas: np.ndarray  # (52, V, 3)
+    texture: np.ndarray  # (S, S, 3) skin atlas
+    hair_style: int
+    hair_colour: str
+    hair: HairMesh
+    hair_tex: np.ndarray  # (S, S, 3)
+
+
+def make_head(index: int, split: str = "train", seed: int = 0, texture_size: int = 512,
+              hair_style: int | None = None, hair_colour: str | None = None) -> SynthHead:
+    """Build corpus head ``index``: balanced sex (even = female), ages spread over 16-70.
+
+    Args:
+        index: Position in the split.
+        split: ``"train"`` or ``"test"`` (held-out identities from other seeds).
+        seed: Corpus seed.
+        texture_size: Atlas size.
+        hair_style: Style id (default: ``index % 30``).
+        hair_colour: Colour name (default: drawn, greyer with age).
+    """
+    s = head_seed(seed, split, index)
+    rng = np.random.default_rng([s, 0x5EED])
+    # Stratified ages: each block of 10 heads covers 16..70 evenly.
+    age = 16.0 + (((index * 7) % 10) + rng.uniform()) * 5.4
+    identity = sample_identity(s, sex=float(index % 2), age=age)
+    look = sample_appearance(s, identity)
+    verts, frame = build_head(identity)
+    deltas = blendshape_deltas(verts, frame)
+    texture = paint_texture(verts, topology(), frame, identity, look, texture_size)
+    style = index % len(HAIRSTYLES) if hair_style is None else hair_style
+    if hair_colour is None:
+        names = list(HAIR_COLOURS)
+        if age > 55 and rng.random() < 0.6:
+            hair_colour = "grey" if rng.random() < 0.6 else "white"
+        elif look.skin_tone > 0.55:
+            hair_colour = "black" if rng.random() < 0.7 else "dark brown"
+        else:
+            hair_colour = names[int(rng.integers(0, 8))]
+    hair = build_hair(verts, frame, style)
+    hair_tex = hair_texture(HAIR_COLOURS[hair_colour], texture_size // 2, s)
+    return SynthHead(index, split, identity, look, verts, frame, deltas, texture, style,
+                     hair_colour, hair, hair_tex)
+
+
+def _face_labels() -> np.ndarray:
+    t = template()
+    face_ids = [REGION_NAMES.index(r) for r in _FACE_REGIONS]
+    first = t.region[t.faces[:, 0]]
+    return np.where(np.isin(first, face_ids), LABEL_FACE, LABEL_OTHER)
+
+
+def render_head(head: SynthHead, weights: np.ndarray, c2w: torch.Tensor,
+                intrinsics: torch.Tensor, size: int, *, with_hair: bool = True,
+                samples: int = 2) -> RenderOutput:
+    """Render a head with ARKit ``weights (52,)`` from cameras ``c2w (B, 4, 4)``.
+
+    The output's ``labels`` are ``(B, 2, H, W)``: hair coverage, then face coverage.
+    """
+    topo = topology()
+    verts = head.verts + np.tensordot(np.asarray(weights, dtype=np.float64), head.deltas, 1)
+    faces, uv, faces_uv = topo.faces, topo.uv * np.array([0.5, 1.0]), topo.faces_uv
+    labels = _face_labels()
+    tex = head.texture
+    hair_tex = np.asarray(
+        torch.nn.functional.interpolate(
+            torch.tensor(head.hair_tex).permute(2, 0, 1)[None], size=tex.shape[:2],
+            mode="bilinear", align_corners=False)[0].permute(1, 2, 0))
+    atlas = np.concatenate([tex, hair_tex], axis=1)
+    if with_hair and len(head.hair.faces):
+        n = len(verts)
+        verts = np.concatenate([verts, head.hair.verts])
+        faces = np.concatenate([faces, head.hair.faces + n])
+        faces_uv = np.concatenate([faces_uv, head.hair.faces + len(uv)])
+        uv = np.concatenate([uv, head.hair.uv * np.array([0.5, 1.0]) + np.array([0.5, 0.0])])
+        labels = np.concatenate([labels, np.full(len(head.hair.faces), LABEL_HAIR)])
+    b = c2w.shape[0]
+    v = torch.tensor(verts, dtype=torch.float32)[None].expand(b, -1, -1)
+    return render_mesh(
+        v, torch.tensor(faces), c2w, intrinsics, size,
+        uv=torch.tensor(uv, dtype=torch.float32), faces_uv=torch.tensor(faces_uv),
+        texture=torch.tensor(atlas).permute(2, 0, 1)[None],
+        face_labels=torch.tensor(labels), label_sets=((LABEL_HAIR,), (LABEL_FACE,)),
+        normal_groups=torch.tensor(topo.normal_groups), samples=samples)
