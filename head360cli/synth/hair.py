@@ -295,7 +295,9 @@ def _shell(base: np.ndarray, normal: np.ndarray, covered: np.ndarray, thick: np.
     for k in range(rows):
         above = padded[k]  # cell rows k-1
         below = padded[k + 1] if k + 1 <= rows - 1 else np.zeros(cols, dtype=bool)
-        for cols_on, flip in ((above & ~below, False), (below & ~above, True)):
+        # The outer face above a bottom edge runs p -> q along it, so that wall must run
+        # q -> p; the face below a top edge runs q -> p, so that wall runs p -> q.
+        for cols_on, flip in ((above & ~below, True), (below & ~above, False)):
             j = np.nonzero(cols_on)[0]
             p, q = idx[k, j], idx[k, (j + 1) % cols]
             quad = [np.stack([p, q, n + q], 1), np.stack([p, n + q, n + p], 1)]

@@ -1,0 +1,44 @@
+"""Writing benchmark results: one JSON file and one Markdown table per benchmark."""
+
+from __future__ import annotations
+
+import json
+import platform
+from pathlib import Path
+from typing import Any
+
+__all__ = ["machine", "markdown_table", "save"]
+
+
+def machine() -> dict[str, Any]:
+    """What the numbers were measured on."""
+    import os
+
+    import torch
+
+    return {"cpu_cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+            "torch": torch.__version__, "platform": platform.platform(),
+            "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def markdown_table(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    """A Markdown table of ``rows`` with the given column keys."""
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for row in rows:
+        lines.append("| " + " | ".join(str(row.get(c, "")) for c in columns) + " |")
+    return "\n".join(lines)
+
+
+def save(result: dict[str, Any], markdown: str, out_dir: str | Path, name: str) -> list[str]:
+    """Write ``<name>.json`` and ``<name>.md`` into ``out_dir`` (atomically)."""
+    from head360cli.io.atomic import atomic_path
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for suffix, text in ((".json", json.dumps(result, indent=1)), (".md", markdown + "\n")):
+        path = out / f"{name}{suffix}"
+        with atomic_path(path) as tmp:
+            tmp.write_text(text)
+        paths.append(str(path))
+    return paths

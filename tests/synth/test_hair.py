@@ -1,0 +1,59 @@
+"""Hairstyles: 30 named closed shells that stay outside any identity's scalp."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from head360cli.errors import BadInputError
+from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES, build_hair, hair_texture, style_index
+from head360cli.synth.identity import sample_identity
+from head360cli.synth.sculpt import build_head, topology
+
+
+def test_thirty_named_styles_and_lookup():
+    assert len(HAIRSTYLES) == 30
+    assert style_index("long wavy") == 17 and style_index("Long_Wavy") == 17
+    assert style_index(7) == 7 and style_index("7") == 7
+    for bad in ("beehive", 30, -1):
+        with pytest.raises(BadInputError):
+            style_index(bad)
+    assert len(HAIR_COLOURS) >= 8
+
+
+@pytest.mark.parametrize("seed", [1, 6])
+def test_every_style_is_closed_and_clears_the_scalp(seed):
+    import trimesh
+
+    verts, frame = build_head(sample_identity(seed))
+    topo = topology()
+    faces = topo.faces[topo.face_parts == 0]
+    tri = verts[faces]
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    skin = trimesh.Trimesh(verts, faces[area > 1e-10], process=False)
+    for k, style in enumerate(HAIRSTYLES):
+        hair = build_hair(verts, frame, k)
+        if style.name == "bald":
+            assert len(hair.faces) == 0
+            continue
+        mesh = trimesh.Trimesh(hair.verts, hair.faces, process=False)
+        assert mesh.is_watertight and mesh.is_winding_consistent, style.name
+        assert mesh.volume > 0, style.name
+        pts = hair.verts[np.unique(hair.faces)]
+        closest, dist, fid = trimesh.proximity.closest_point(skin, pts)
+        outside = np.einsum("ij,ij->i", pts - closest, skin.face_normals[fid]) > 0
+        clearance = np.where(outside, dist, -dist).min()
+        assert clearance >= 0.001, (style.name, clearance)  # the shell sits 1.5 mm out
+
+
+def test_styles_differ_in_extent():
+    verts, frame = build_head(sample_identity(2))
+    low = {s.name: build_hair(verts, frame, k).verts[:, 1].min()
+           for k, s in enumerate(HAIRSTYLES) if s.name != "bald"}
+    assert low["long straight"] < low["shoulder straight"] < low["bob"] < low["crew"]
+
+
+def test_hair_texture_tints_by_colour():
+    dark = hair_texture(HAIR_COLOURS["black"], 64, 0)
+    blonde = hair_texture(HAIR_COLOURS["blonde"], 64, 0)
+    assert dark.shape == (64, 64, 3) and dark.mean() < 0.1 < 0.4 < blonde.mean()
