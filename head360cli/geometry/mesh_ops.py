@@ -44,8 +44,7 @@ def vertex_normals(verts: torch.Tensor, faces: torch.Tensor,
     fn = face_normals(verts, faces)  # (B, F, 3)
     b, v = verts.shape[:2]
     acc = torch.zeros(b, v, 3, dtype=verts.dtype, device=verts.device)
-    for k in range(3):
-        acc = acc.index_add(1, faces[:, k], fn)
+    acc = acc.index_add(1, faces.reshape(-1), fn.repeat_interleave(3, dim=1))
     if weld_groups is not None:
         pos = verts[:, weld_groups]  # (B, G, K, 3)
         same = ((pos - pos[:, :, :1]).norm(dim=-1, keepdim=True) <= tol).to(acc.dtype)

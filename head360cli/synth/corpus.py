@@ -336,6 +336,7 @@ def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 16
         head.hair_style, head.hair_colour = sid, colours[sid % len(colours)]
         head.hair = build_hair(head.verts, head.frame, sid)
         head.hair_tex = hair_texture(HAIR_COLOURS[head.hair_colour], 256, sid)
+        head.__dict__.pop("_render_cache", None)  # the hair changed
         r = render_head(head, np.zeros(52), three_q, k, size, samples=4)
         tiles.append(_label(_to_u8(r.rgb[0].permute(1, 2, 0)), f"{sid} {style.name}"))
     save(_grid(tiles, 10), "preview_hairstyles.png")

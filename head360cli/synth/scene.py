@@ -94,6 +94,40 @@ def _face_labels() -> np.ndarray:
     return np.where(np.isin(first, face_ids), LABEL_FACE, LABEL_OTHER)
 
 
+def _render_inputs(head: SynthHead, with_hair: bool) -> dict[str, torch.Tensor]:
+    """Faces, UVs, labels and the texture atlas of a head, built once and cached on it."""
+    cache = head.__dict__.setdefault("_render_cache", {})
+    if with_hair in cache:
+        return cache[with_hair]
+    topo = topology()
+    faces, uv, faces_uv = topo.faces, topo.uv * np.array([0.5, 1.0]), topo.faces_uv
+    labels = _face_labels()
+    if "atlas" not in cache:
+        tex = head.texture
+        hair_tex = torch.nn.functional.interpolate(
+            torch.tensor(head.hair_tex).permute(2, 0, 1)[None], size=tex.shape[:2],
+            mode="bilinear", align_corners=False)
+        cache["atlas"] = torch.cat([torch.tensor(tex).permute(2, 0, 1)[None], hair_tex], 3)
+    hair_verts = np.zeros((0, 3))
+    if with_hair and len(head.hair.faces):
+        n = len(head.verts)
+        hair_verts = head.hair.verts
+        faces = np.concatenate([faces, head.hair.faces + n])
+        faces_uv = np.concatenate([faces_uv, head.hair.faces + len(uv)])
+        uv = np.concatenate([uv, head.hair.uv * np.array([0.5, 1.0]) + np.array([0.5, 0.0])])
+        labels = np.concatenate([labels, np.full(len(head.hair.faces), LABEL_HAIR)])
+    cache[with_hair] = {
+        "faces": torch.tensor(faces), "uv": torch.tensor(uv, dtype=torch.float32),
+        "faces_uv": torch.tensor(faces_uv), "labels": torch.tensor(labels),
+        "hair_verts": torch.tensor(hair_verts, dtype=torch.float32),
+        "groups": torch.tensor(topo.normal_groups),
+    }
+    if "neutral" not in cache:
+        cache["neutral"] = torch.tensor(head.verts, dtype=torch.float32)
+        cache["deltas"] = torch.tensor(head.deltas, dtype=torch.float32).reshape(52, -1)
+    return cache[with_hair]
+
+
 def render_head(head: SynthHead, weights: np.ndarray, c2w: torch.Tensor,
                 intrinsics: torch.Tensor, size: int, *, with_hair: bool = True,
                 samples: int = 2) -> RenderOutput:
@@ -101,28 +135,19 @@ def render_head(head: SynthHead, weights: np.ndarray, c2w: torch.Tensor,
 
     The output's ``labels`` are ``(B, 2, H, W)``: hair coverage, then face coverage.
     """
-    topo = topology()
-    verts = head.verts + np.tensordot(np.asarray(weights, dtype=np.float64), head.deltas, 1)
-    faces, uv, faces_uv = topo.faces, topo.uv * np.array([0.5, 1.0]), topo.faces_uv
-    labels = _face_labels()
-    tex = head.texture
-    hair_tex = np.asarray(
-        torch.nn.functional.interpolate(
-            torch.tensor(head.hair_tex).permute(2, 0, 1)[None], size=tex.shape[:2],
-            mode="bilinear", align_corners=False)[0].permute(1, 2, 0))
-    atlas = np.concatenate([tex, hair_tex], axis=1)
-    if with_hair and len(head.hair.faces):
-        n = len(verts)
-        verts = np.concatenate([verts, head.hair.verts])
-        faces = np.concatenate([faces, head.hair.faces + n])
-        faces_uv = np.concatenate([faces_uv, head.hair.faces + len(uv)])
-        uv = np.concatenate([uv, head.hair.uv * np.array([0.5, 1.0]) + np.array([0.5, 0.0])])
-        labels = np.concatenate([labels, np.full(len(head.hair.faces), LABEL_HAIR)])
+    inputs = _render_inputs(head, with_hair)
+    cache = head.__dict__["_render_cache"]
+    w = torch.as_tensor(np.asarray(weights, dtype=np.float32))
+    verts = cache["neutral"] + (w @ cache["deltas"]).view(-1, 3)
+    v = torch.cat([verts, inputs["hair_verts"]])
     b = c2w.shape[0]
-    v = torch.tensor(verts, dtype=torch.float32)[None].expand(b, -1, -1)
     return render_mesh(
-        v, torch.tensor(faces), c2w, intrinsics, size,
-        uv=torch.tensor(uv, dtype=torch.float32), faces_uv=torch.tensor(faces_uv),
-        texture=torch.tensor(atlas).permute(2, 0, 1)[None],
-        face_labels=torch.tensor(labels), label_sets=((LABEL_HAIR,), (LABEL_FACE,)),
-        normal_groups=torch.tensor(topo.normal_groups), samples=samples)
+        v[None].expand(b, -1, -1), inputs["faces"], c2w, intrinsics, size,
+        uv=inputs["uv"], faces_uv=inputs["faces_uv"], texture=_atlas(head),
+        face_labels=inputs["labels"], label_sets=((LABEL_HAIR,), (LABEL_FACE,)),
+        normal_groups=inputs["groups"], samples=samples)
+
+
+def _atlas(head: SynthHead) -> torch.Tensor:
+    """``(1, 3, S, 2S)`` skin atlas beside the hair strand texture (cached)."""
+    return head.__dict__["_render_cache"]["atlas"]

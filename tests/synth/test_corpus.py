@@ -98,3 +98,15 @@ def test_cli_synth(run_cli, tmp_path):
     summary = json.loads(r.out)
     assert summary["views"] == 2 and summary["identities_written"] == 1
     assert run_cli("synth", tmp_path / "c", "--views", "99").code == 3
+
+
+def test_contact_sheets(tmp_path):
+    from head360cli.synth.corpus import write_previews
+
+    paths = write_previews(tmp_path, size=32, identities=2)
+    sizes = {p.rsplit("/", 1)[-1]: Image.open(p).size for p in paths}
+    assert sizes == {"preview_identities.png": (6 * 32, 2 * 32),
+                     "preview_expressions.png": (9 * 32, 6 * 32),
+                     "preview_hairstyles.png": (10 * 32, 3 * 32)}
+    sheet = np.asarray(Image.open(paths[2]))
+    assert sheet.std() > 10  # heads were drawn, not a blank sheet
