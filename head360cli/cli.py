@@ -292,6 +292,52 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
                    f"views in the index, {summary['seconds']:.1f} s -> {summary['index']}")
 
 
+@cli.command("build-model")
+@click.option("--corpus", type=click.Choice(["synthead-p", "ict", "synthead100"]),
+              default="synthead-p", show_default=True, help="Where the meshes come from.")
+@click.option("--path", type=click.Path(exists=True), default=None,
+              help="ICT-FaceKit npz/folder or SynHead100-style folder.")
+@click.option("--identities", "-n", default=100, show_default=True,
+              help="Training identities.")
+@click.option("--rank", default=50, show_default=True, help="Identity codes kept (HOSVD).")
+@click.option("--seed", default=0, show_default=True, help="SynHead-P seed.")
+@click.option("--held-out", default=20, show_default=True,
+              help="Identities kept out of the model to measure it.")
+@click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
+              help="Output .npz (default: models/bilinear.npz for SynHead-P; required for "
+              "external corpora, which are never shipped).")
+@common_options
+def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, seed: int,
+                    held_out: int, out: str | None) -> None:
+    """Build the bilinear head model (identity HOSVD, 52 ARKit blendshapes kept).
+
+    \b
+    Examples:
+      head360 build-model                                   models/bilinear.npz
+      head360 build-model --corpus ict --path ../shared/data/ict-facekit -o ict.npz
+    """
+    from head360cli.mesh.build import build_model
+
+    if out is None:
+        if corpus != "synthead-p":
+            from head360cli.errors import BadInputError
+
+            raise BadInputError(f"--corpus {corpus} needs -o: external corpora are not "
+                                "written into models/")
+        from head360cli.paths import models_dir
+
+        out = str(models_dir() / "bilinear.npz")
+    s = build_model(corpus, path, identities, rank, seed, out, held_out)
+    lines = [f"wrote {s['out']} ({s['bytes'] / 1e6:.1f} MB, sha256 {s['sha256'][:16]}) from "
+             f"{s['identities']} {corpus} identities, rank {s['rank']}, {s['seconds']} s",
+             "reconstruction error, all 53 meshes per identity (mean / p99 / max mm):",
+             "  training  " + " / ".join(str(v) for v in s["train_error"].values())]
+    if "held_out_error" in s:
+        lines.append(f"  held out ({s['held_out']}) " + " / ".join(
+            str(v) for v in s["held_out_error"].values()))
+    _emit(s, "\n".join(lines))
+
+
 @cli.group()
 def bench() -> None:
     """Speed-against-error benchmarks; each writes JSON and a Markdown table.

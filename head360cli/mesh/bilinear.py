@@ -1,0 +1,290 @@
+"""The parametric head: a bilinear model ``V = C x_id s x_exp [1, w]``.
+
+Built from a corpus of identities, each given as a neutral mesh and its 52 ARKit
+blendshape deltas. Per identity the 53 meshes ``[neutral, delta_1 .. delta_52]`` are
+stacked into one vector; the identity mode is reduced by HOSVD (an SVD of that mode's
+unfolding, here through the identities' Gram matrix) from ``N`` identities to ``K`` codes
+(the paper: 100 -> 50). The expression mode is kept whole, so ``w`` stays ARKit weights::
+
+    vertices(s, w) = (M_0 + s . B_0) + sum_e w_e (M_e + s . B_e)
+
+linear in ``s`` for fixed ``w`` and in ``w`` for fixed ``s``. Blendshape blocks are stored
+sparsely (each moves only its own region). Means are float32; bases float16, whose error is
+checked against 0.1 mm when the model is built.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from head360cli.errors import FileFormatError, ModelNotFoundError
+from head360cli.mesh.arkit52 import MIRROR_INDEX, NUM_BLENDSHAPES
+
+__all__ = ["BilinearHead", "BilinearModel", "build_bilinear", "load_bilinear"]
+
+MODEL_FORMAT = 1
+MOVE_THRESHOLD = 1e-6
+"""A blendshape moves a vertex if any identity displaces it by more than this (metres)."""
+
+
+@dataclasses.dataclass
+class BilinearModel:
+    """The model's arrays (numpy), as stored in ``bilinear.npz``.
+
+    Attributes:
+        neutral_mean: ``(V, 3)`` float32 mean neutral mesh.
+        neutral_basis: ``(K, V, 3)`` identity basis of the neutral mesh (float16 on disk).
+        expr_vertex: ``(N,)`` vertex id of each stored blendshape entry.
+        expr_shape: ``(N,)`` ARKit index (0..51) of each entry.
+        expr_mean: ``(N, 3)`` float32 mean delta.
+        expr_basis: ``(K, N, 3)`` identity basis of the deltas.
+        code_mean: ``(K,)`` mean identity code of the training identities (about 0).
+        code_cov: ``(K, K)`` covariance of the codes: the prior for fitting.
+        mirror_matrix: ``(K, K)``; with ``mirror_offset`` ``(K,)`` maps a code to the code
+            of the mirror-image identity: ``s' = s @ mirror_matrix.T + mirror_offset``.
+        mirror_offset: ``(K,)``.
+        vertex_mirror: ``(V,)`` mirror vertex of each vertex.
+        faces: ``(F, 3)``; ``uv`` ``(T, 2)`` and ``faces_uv`` ``(F, 3)`` when known.
+        uv: ``(T, 2)``.
+        faces_uv: ``(F, 3)``.
+        region: ``(V,)`` region index per vertex (see ``meta["regions"]``).
+        landmarks: ``(68,)`` landmark vertex ids.
+        meta: format, source corpus, rank, identities, errors measured at build time.
+    """
+
+    neutral_mean: np.ndarray
+    neutral_basis: np.ndarray
+    expr_vertex: np.ndarray
+    expr_shape: np.ndarray
+    expr_mean: np.ndarray
+    expr_basis: np.ndarray
+    code_mean: np.ndarray
+    code_cov: np.ndarray
+    mirror_matrix: np.ndarray
+    mirror_offset: np.ndarray
+    vertex_mirror: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    faces_uv: np.ndarray
+    region: np.ndarray
+    landmarks: np.ndarray
+    meta: dict[str, Any]
+
+    @property
+    def rank(self) -> int:
+        return int(self.neutral_basis.shape[0])
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.neutral_mean.shape[0])
+
+    def vertices(self, s: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``(V, 3)`` float64 mesh for one code ``s (K,)`` and weights ``w (52,)``."""
+        cache = self.__dict__.setdefault("_f64", {})
+        if not cache:  # float64 copies of the (float16) bases, made once
+            cache["nb"] = self.neutral_basis.astype(np.float64).reshape(self.rank, -1)
+            cache["eb"] = self.expr_basis.astype(np.float64).reshape(self.rank, -1)
+        s = np.asarray(s, dtype=np.float64)
+        out = self.neutral_mean + (s @ cache["nb"]).reshape(-1, 3)
+        d = self.expr_mean + (s @ cache["eb"]).reshape(-1, 3)
+        d = d * np.asarray(w, dtype=np.float64)[self.expr_shape][:, None]
+        for c in range(3):  # bincount scatters far faster than np.add.at
+            out[:, c] += np.bincount(self.expr_vertex, d[:, c], minlength=len(out))
+        return out
+
+    def save(self, path: str | os.PathLike[str]) -> str:
+        """Write ``bilinear.npz`` atomically; returns the model's content hash."""
+        from head360cli.io.atomic import atomic_path
+
+        arrays = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                  if f.name != "meta"}
+        arrays["neutral_basis"] = arrays["neutral_basis"].astype(np.float16)
+        arrays["expr_basis"] = arrays["expr_basis"].astype(np.float16)
+        meta = {k: v for k, v in self.meta.items() if k != "sha256"}
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez_compressed(f, __meta__=np.array(json.dumps(meta, sort_keys=True)),
+                                **arrays)
+        return content_hash(arrays, meta)
+
+
+def content_hash(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> str:
+    """SHA-256 of a model's arrays (names, dtypes, shapes, bytes) and metadata.
+
+    Unlike the file's bytes (zip entries carry timestamps), it is the same whenever the
+    same model is rebuilt; head files record it as the model they were made with.
+    """
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}".encode())
+        h.update(a.tobytes())
+    h.update(json.dumps({k: v for k, v in meta.items() if k != "sha256"},
+                        sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def load_bilinear(path: str | os.PathLike[str] | None = None) -> BilinearModel:
+    """Load a bilinear model (default: ``bilinear.npz`` in the models folder).
+
+    Raises:
+        ModelNotFoundError: The file does not exist.
+        FileFormatError: It is not a head360 bilinear model of a known version.
+    """
+    if path is None:
+        from head360cli.paths import models_dir
+
+        path = models_dir() / "bilinear.npz"
+    path = Path(path)
+    if not path.is_file():
+        raise ModelNotFoundError(
+            f"bilinear model not found at {str(path)!r}; build it with 'head360 build-model'")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            data = {k: npz[k] for k in npz.files}
+    except Exception as exc:  # zip, zlib, pickle and value errors alike
+        raise FileFormatError(f"{path}: not a readable model file ({exc})") from exc
+    try:
+        meta = json.loads(str(data.pop("__meta__")))
+        assert meta.get("format") == "head360-bilinear"
+        assert int(meta.get("format_version", 0)) <= MODEL_FORMAT
+        fields = {f.name for f in dataclasses.fields(BilinearModel)} - {"meta"}
+        model = BilinearModel(**{k: data[k] for k in fields}, meta=meta)
+    except (KeyError, AssertionError, ValueError, TypeError) as exc:
+        raise FileFormatError(f"{path}: expected a head360 bilinear model ({exc!r})") from exc
+    model.meta["sha256"] = content_hash(
+        {k: v for k, v in data.items()}, {k: v for k, v in meta.items() if k != "sha256"})
+    return model
+
+
+def build_bilinear(identities: Iterable[tuple[np.ndarray, np.ndarray]], rank: int,
+                   topology: dict[str, np.ndarray], meta: dict[str, Any] | None = None
+                   ) -> BilinearModel:
+    """Build the model from identities by HOSVD on the identity mode.
+
+    Args:
+        identities: ``(neutral (V, 3), deltas (52, V, 3))`` per identity.
+        rank: Identity codes kept (``K``); at most the number of identities minus one.
+        topology: ``faces``, ``landmarks``, ``vertex_mirror`` and optionally ``uv``,
+            ``faces_uv``, ``region``.
+        meta: Extra metadata to store (source corpus, command...).
+
+    Returns:
+        The model.
+    """
+    rows = []
+    for neutral, deltas in identities:
+        rows.append(np.concatenate([neutral[None], deltas]).astype(np.float32).reshape(-1))
+    x = np.stack(rows)  # (N, 53 * V * 3)
+    n = x.shape[0]
+    if not 1 <= rank <= n - 1:
+        raise ValueError(f"expected rank in 1..{n - 1}, found {rank}")
+    v = x.shape[1] // (3 * (NUM_BLENDSHAPES + 1))
+    mean = x.mean(0, dtype=np.float64)
+    xc = (x - mean).astype(np.float64)
+    gram = xc @ xc.T  # (N, N): the identity mode's unfolding, through its Gram matrix
+    eigval, eigvec = np.linalg.eigh(gram)
+    order = np.argsort(eigval)[::-1][:rank]
+    sigma = np.sqrt(np.clip(eigval[order], 1e-30, None))
+    basis = (eigvec[:, order].T @ xc) / sigma[:, None]  # (K, D), orthonormal rows
+    codes = xc @ basis.T  # (N, K)
+    basis_t = basis.reshape(rank, NUM_BLENDSHAPES + 1, v, 3)
+    mean_t = mean.reshape(NUM_BLENDSHAPES + 1, v, 3)
+
+    # Sparse blendshape blocks: vertices that any identity's delta moves.
+    deltas_all = x.reshape(n, NUM_BLENDSHAPES + 1, v, 3)[:, 1:]
+    moving = np.abs(deltas_all).max(axis=(0, 3)) > MOVE_THRESHOLD  # (52, V)
+    e_idx, v_idx = np.nonzero(moving)
+    expr_mean = mean_t[1:][e_idx, v_idx]
+    expr_basis = basis_t[:, 1:][:, e_idx, v_idx]
+
+    # Mirror: reflect the stacked meshes (x -> -x, vertices and left/right shapes swapped)
+    # and express the reflection in code space.
+    vm = topology["vertex_mirror"]
+    flip = np.array([-1.0, 1.0, 1.0])
+
+    def reflect(t: np.ndarray) -> np.ndarray:  # (..., 53, V, 3)
+        order_e = np.concatenate([[0], 1 + np.asarray(MIRROR_INDEX)])
+        return t[..., order_e, :, :][..., :, vm, :] * flip
+
+    mirror_matrix = basis @ reflect(basis_t).reshape(rank, -1).T  # (K, K): B P B^T
+    mirror_offset = basis @ (reflect(mean_t).reshape(-1) - mean)
+    model = BilinearModel(
+        neutral_mean=mean_t[0].astype(np.float32),
+        neutral_basis=basis_t[:, 0].astype(np.float32),
+        expr_vertex=v_idx.astype(np.int32),
+        expr_shape=e_idx.astype(np.int16),
+        expr_mean=expr_mean.astype(np.float32),
+        expr_basis=expr_basis.astype(np.float32),
+        code_mean=codes.mean(0),
+        code_cov=np.cov(codes, rowvar=False),
+        mirror_matrix=mirror_matrix,
+        mirror_offset=mirror_offset,
+        vertex_mirror=np.asarray(vm, dtype=np.int64),
+        faces=np.asarray(topology["faces"], dtype=np.int64),
+        uv=np.asarray(topology.get("uv", np.zeros((0, 2))), dtype=np.float32),
+        faces_uv=np.asarray(topology.get("faces_uv", np.zeros((0, 3))), dtype=np.int64),
+        region=np.asarray(topology.get("region", np.zeros(v)), dtype=np.int64),
+        landmarks=np.asarray(topology["landmarks"], dtype=np.int64),
+        meta={"format": "head360-bilinear", "format_version": MODEL_FORMAT,
+              "identities": n, "rank": rank, "vertices": v, **(meta or {})},
+    )
+    return model
+
+
+class BilinearHead:
+    """Differentiable, batched evaluation of a :class:`BilinearModel` in torch.
+
+    Args:
+        model: The model.
+        device: Torch device for its tensors.
+        dtype: Floating dtype.
+    """
+
+    def __init__(self, model: BilinearModel, device: Any = "cpu", dtype: Any = None) -> None:
+        import torch
+
+        dtype = dtype or torch.float32
+        t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype,  # noqa: E731
+                                      device=device)
+        self.model = model
+        self.neutral_mean = t(model.neutral_mean)
+        self.neutral_basis = t(model.neutral_basis)
+        self.expr_mean = t(model.expr_mean)
+        self.expr_basis = t(model.expr_basis)
+        self.expr_vertex = torch.as_tensor(model.expr_vertex, dtype=torch.long, device=device)
+        self.expr_shape = torch.as_tensor(model.expr_shape, dtype=torch.long, device=device)
+        self.mirror_matrix = t(model.mirror_matrix)
+        self.mirror_offset = t(model.mirror_offset)
+        self.code_cov = t(model.code_cov)
+        self.landmarks_idx = torch.as_tensor(model.landmarks, dtype=torch.long, device=device)
+        self.vertex_mirror = torch.as_tensor(model.vertex_mirror, dtype=torch.long,
+                                             device=device)
+
+    @property
+    def rank(self) -> int:
+        return self.model.rank
+
+    def vertices(self, s, w):
+        """``(B, V, 3)`` vertices for codes ``s (B, K)`` and ARKit weights ``w (B, 52)``."""
+        import torch
+
+        base = self.neutral_mean + torch.einsum("bk,kvc->bvc", s, self.neutral_basis)
+        d = self.expr_mean + torch.einsum("bk,knc->bnc", s, self.expr_basis)
+        d = d * w[:, self.expr_shape, None]
+        return base.index_add(1, self.expr_vertex, d)
+
+    def landmarks(self, s, w):
+        """``(B, 68, 3)`` landmark positions."""
+        return self.vertices(s, w)[:, self.landmarks_idx]
+
+    def mirror(self, s, w):
+        """Codes and weights of the mirror-image head (x -> -x)."""
+        return s @ self.mirror_matrix.T + self.mirror_offset, w[:, list(MIRROR_INDEX)]
