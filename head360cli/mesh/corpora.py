@@ -3,7 +3,8 @@
 - ``synthead-p``: the project's own procedural heads (:mod:`head360cli.synth`), any count.
 - ``ict``: ICT-FaceKit's light npz (neutral, 100 identity deltas, 53 ARKit-style expression
   deltas with ``browInnerUp``/``cheekPuff`` split into halves and no ``tongueOut``). Its
-  expressions do not depend on the identity, as in that linear model.
+  expressions do not depend on the identity, as in that linear model. ICT-FaceKit is in
+  centimetres; the reader converts to metres.
 - ``synthead100``: SynHead100's layout, one mesh per identity per ARKit expression:
   ``ROOT/<identity>/neutral.obj`` and ``ROOT/<identity>/<arkitName>.obj`` (any spelling
   that :func:`~head360cli.mesh.arkit52.canonical_name` maps; ``.obj``/``.ply``).
@@ -54,23 +55,24 @@ def ict_facekit(path: str | Path) -> tuple[Iterator[tuple[np.ndarray, np.ndarray
     if not path.is_file():
         raise BadInputError(f"no ICT-FaceKit npz at {str(path)!r}")
     data = np.load(path, allow_pickle=False)
-    neutral = data["neutral"].astype(np.float64)
+    cm = 0.01  # ICT-FaceKit's unit is the centimetre
+    neutral = data["neutral"].astype(np.float64) * cm
     deltas = np.zeros((52, *neutral.shape))
     for name, delta in zip(data["expression_names"], data["expression_deltas"], strict=True):
         canon = canonical_name(str(name))
         if canon is None:
             continue
         if split_part(str(name)):  # a half moves half the face: the whole is their sum
-            deltas[INDEX[canon]] += delta.astype(np.float64)
+            deltas[INDEX[canon]] += delta.astype(np.float64) * cm
         else:
-            deltas[INDEX[canon]] = delta.astype(np.float64)
+            deltas[INDEX[canon]] = delta.astype(np.float64) * cm
     faces = np.concatenate([data["tris"], data["quads"][:, [0, 1, 2]],
                             data["quads"][:, [0, 2, 3]]]).astype(np.int64)
     mirror = _mirror_by_position(neutral)
 
     def gen():
         for d in data["identity_deltas"]:
-            yield neutral + d.astype(np.float64), deltas
+            yield neutral + d.astype(np.float64) * cm, deltas
 
     return gen(), {"faces": faces, "landmarks": data["landmarks68"], "vertex_mirror": mirror}
 

@@ -109,6 +109,8 @@ def test_ict_facekit_reader(shared_data):
     it, topo = ict_facekit(shared_data / "ict-facekit")
     neutral, deltas = next(it)
     assert neutral.shape == (26719, 3) and deltas.shape == (52, 26719, 3)
+    width = np.ptp(neutral[:, 0])
+    assert 0.15 < width < 0.3  # metres: a head, not centimetres
     from head360cli.mesh.arkit52 import INDEX
 
     assert np.abs(deltas[INDEX["tongueOut"]]).max() == 0  # ICT has no tongue shape
