@@ -306,14 +306,17 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
 @click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
               help="Output .npz (default: models/bilinear.npz for SynHead-P; required for "
               "external corpora, which are never shipped).")
+@click.option("--calibrate", type=click.Path(exists=True, file_okay=False), default=None,
+              help="Folder of dlib landmark XML files: learn where the 68 landmarks sit on "
+              "the template from those faces.")
 @common_options
 def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, seed: int,
-                    held_out: int, out: str | None) -> None:
+                    held_out: int, out: str | None, calibrate: str | None) -> None:
     """Build the bilinear head model (identity HOSVD, 52 ARKit blendshapes kept).
 
     \b
     Examples:
-      head360 build-model                                   models/bilinear.npz
+      head360 build-model --calibrate ../shared/data/faces  models/bilinear.npz
       head360 build-model --corpus ict --path ../shared/data/ict-facekit -o ict.npz
     """
     from head360cli.mesh.build import build_model
@@ -327,7 +330,7 @@ def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, s
         from head360cli.paths import models_dir
 
         out = str(models_dir() / "bilinear.npz")
-    s = build_model(corpus, path, identities, rank, seed, out, held_out)
+    s = build_model(corpus, path, identities, rank, seed, out, held_out, calibrate)
     lines = [f"wrote {s['out']} ({s['bytes'] / 1e6:.1f} MB, sha256 {s['sha256'][:16]}) from "
              f"{s['identities']} {corpus} identities, rank {s['rank']}, {s['seconds']} s",
              "reconstruction error, all 53 meshes per identity (mean / p99 / max mm):",
@@ -367,6 +370,23 @@ def bench_synth_cmd(identities: int, out_dir: str) -> None:
         raise BadInputError(f"expected --identities >= 1, found {identities}")
     result, md = bench_synth(identities=identities)
     result["files"] = save(result, md, out_dir, "synth")
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
+@bench.command("fit-shape")
+@click.option("--trials", default=200, show_default=True,
+              help="Synthetic faces (random identity, expression and pose).")
+@click.option("--out", "out_dir", default="bench-results", show_default=True,
+              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+@common_options
+def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
+    """Landmark shape fit: vertex and pose error on synthetic faces by yaw, NME of dlib's
+    and the fitted landmarks on the real photos in ../shared/data, and fit time."""
+    from head360cli.bench.fit_shape import bench_fit_shape
+    from head360cli.bench.report import save
+
+    result, md = bench_fit_shape(trials=trials)
+    result["files"] = save(result, md, out_dir, "fit_shape")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 
 

@@ -45,7 +45,7 @@ def reconstruction_error(model: BilinearModel, identities) -> dict[str, float]:
 
 def build_model(corpus: str = "synthead-p", path: str | None = None, identities: int = 100,
                 rank: int = 50, seed: int = 0, out: str | Path = "models/bilinear.npz",
-                held_out: int = 20) -> dict[str, Any]:
+                held_out: int = 20, calibrate: str | Path | None = None) -> dict[str, Any]:
     """Build, save and measure a bilinear model.
 
     Args:
@@ -57,6 +57,8 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
         out: Output ``.npz``.
         held_out: Identities measured but not used for building (SynHead-P: the test
             split; external corpora: the last ones).
+        calibrate: A folder of dlib landmark XML files: learn where the landmarks sit on
+            the template from those faces (see :mod:`head360cli.fitting.calibrate`).
 
     Returns:
         Summary with the model hash, size and reconstruction errors.
@@ -87,7 +89,21 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
     meta = {"corpus": corpus, "seed": seed, "held_out": held_out,
             "command": f"head360 build-model --corpus {corpus} --identities {identities} "
                        f"--rank {rank} --seed {seed}"}
+    if calibrate is not None:
+        meta["command"] += f" --calibrate {calibrate}"
     model = build_bilinear(train, rank, topo, meta)
+    if calibrate is not None:
+        from head360cli.fitting.calibrate import calibrate_landmarks, read_dlib_landmarks
+
+        files = sorted(Path(calibrate).glob("*.xml"))
+        faces = [face for f in files for face in read_dlib_landmarks(f)]
+        if not faces:
+            raise BadInputError(f"expected dlib landmark XML files in {calibrate}, found none")
+        model.landmarks, stats = calibrate_landmarks(model, faces, rounds=3)
+        model.meta["landmarks_calibrated_on"] = {
+            "files": [f.name for f in files], "faces": len(faces),
+            "fit_error_before": round(stats["round0_error"], 5),
+            "fit_error_after_round2": round(stats["round2_error"], 5)}
     t_build = time.perf_counter() - t0
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
