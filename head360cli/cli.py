@@ -292,6 +292,56 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
                    f"views in the index, {summary['seconds']:.1f} s -> {summary['index']}")
 
 
+@cli.command()
+@click.argument("photo", type=click.Path(dir_okay=False))
+@click.option("--stage", type=click.Choice(["shape"]), default="shape", show_default=True,
+              help="How far to go. shape: landmarks, pose, identity and expression of the "
+              "parametric head (the texture and hair stages arrive with the generator).")
+@click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
+              type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--face", default="0", show_default=True,
+              help="Which face: 0 = the largest, 1 = the next..., or 'all'.")
+@click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
+              show_default=True, help="dlib face detector; cnn finds harder faces, slower.")
+@click.option("--focal", type=float, default=None,
+              help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
+              "lens).")
+@common_options
+def fit(photo: str, stage: str, out_dir: str, face: str, detector: str,
+        focal: float | None) -> None:
+    """Fit the head model to a photo.
+
+    With --stage shape: detects the face and its 68 landmarks, fits pose, identity code and
+    ARKit expression weights, and writes the mesh (OBJ with UVs), an overlay PNG (detected
+    landmarks green, fitted red, mesh wireframe) and the parameters as JSON.
+
+    \b
+    Examples:
+      head360 fit photo.jpg --stage shape -o out/
+      head360 fit group.jpg --stage shape --face all --json > faces.json
+      head360 fit profile.jpg --stage shape --detector cnn
+    """
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.pipeline import fit_shape_photo
+
+    if face != "all" and not face.isdigit():
+        raise BadInputError(f"expected --face N or all, found {face!r}")
+    result = fit_shape_photo(photo, out_dir, face=face if face == "all" else int(face),
+                             detector=detector, focal=focal)
+    faces = result.get("faces", [result])
+    lines = []
+    for r in faces:
+        pose = r["pose"]
+        top = sorted(r["expression"].items(), key=lambda kv: -kv[1])[:3]
+        lines.append(
+            f"face {r['face']}: yaw {pose['yaw']:.1f}, pitch {pose['pitch']:.1f}, roll "
+            f"{pose['roll']:.1f} deg; strongest expressions "
+            + ", ".join(f"{n} {w:.2f}" for n, w in top)
+            + f"; fit {1000 * r['timings']['fit']:.1f} ms")
+        lines += [f"  wrote {p}" for p in r["files"].values()]
+    _emit(result, "\n".join(lines))
+
+
 @cli.command("build-model")
 @click.option("--corpus", type=click.Choice(["synthead-p", "ict", "synthead100"]),
               default="synthead-p", show_default=True, help="Where the meshes come from.")
