@@ -37,9 +37,13 @@ def _overlay(rgb: np.ndarray, detected: np.ndarray, fitted: np.ndarray, verts2d:
 
     img = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
     wire = img.copy()
-    tris = np.round(verts2d[faces[visible]] * 4).astype(np.int32)  # 2 bits of subpixel
+    shown = faces[visible]
+    # Thin the wireframe so that each drawn triangle covers about 40 pixels.
+    span = verts2d[shown.reshape(-1)].max(0) - verts2d[shown.reshape(-1)].min(0)
+    stride = max(1, int(np.ceil(len(shown) * 40 / max(1.0, float(span[0] * span[1])))))
+    tris = np.round(verts2d[shown[::stride]] * 4).astype(np.int32)  # 2 bits of subpixel
     cv2.polylines(wire, list(tris), True, (255, 200, 60), 1, cv2.LINE_AA, shift=2)
-    img = cv2.addWeighted(wire, 0.45, img, 0.55, 0)
+    img = cv2.addWeighted(wire, 0.35, img, 0.65, 0)
     r = max(1, round(max(img.shape[:2]) / 400))
     for (x, y) in detected:
         cv2.circle(img, (round(x), round(y)), r + 1, (60, 220, 60), -1, cv2.LINE_AA)
