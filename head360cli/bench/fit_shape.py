@@ -28,31 +28,44 @@ def nme(pred: np.ndarray, truth: np.ndarray) -> float:
     return float(np.linalg.norm(pred - truth, axis=1).mean() / np.sqrt(span[0] * span[1]))
 
 
-def _synthetic(fitter, trials: int, seed: int = 0) -> list[dict[str, float]]:
+def simulate_detections(fitter, s: np.ndarray, w: np.ndarray, yaw: float, pitch: float,
+                        noise: float, rng: np.random.Generator, size: int = 640,
+                        focal: float = 1000.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 68 points a detector would report for a model head seen from a camera at
+    ``(yaw, pitch)`` 0.6 m away: jawline points on the true silhouette, plus Gaussian
+    pixel noise.
+
+    Returns:
+        ``(landmarks (68, 2), rotation (3, 3), translation (3,))`` of the true camera.
+    """
     import torch
 
     from head360cli.geometry.cameras import camera_on_sphere
 
+    c2w = camera_on_sphere(torch.tensor([yaw]), torch.tensor([pitch]), 0.6,
+                           target=(0.0, 0.0, 0.0)).double()[0].numpy()
+    w2c = np.linalg.inv(c2w)
+    rot, t = w2c[:3, :3], w2c[:3, 3]
+    centre = np.array([size / 2, size / 2])
+    pts = fitter._points(s, w)
+    rows = np.array([fitter.pos_of[int(v)] for v in fitter.landmarks])
+    rows = fitter._slide_contour(pts, rows, rot, t, focal, centre)
+    uv = fitter._project(pts[rows], rot, t, focal, centre)[0]
+    return uv + rng.normal(size=uv.shape) * noise, rot, t
+
+
+def _synthetic(fitter, trials: int, seed: int = 0) -> list[dict[str, float]]:
     model = fitter.model
     rng = np.random.default_rng(seed)
     std = np.sqrt(np.diag(model.code_cov))
     size, f = 640, 1000.0
-    centre = np.array([size / 2, size / 2])
     out = []
     for _ in range(trials):
         s = rng.normal(size=model.rank) * std
         w = np.zeros(52)
         w[rng.choice(52, 3, replace=False)] = rng.uniform(0, 0.7, 3)
         yaw, pitch = rng.uniform(-80, 80), rng.uniform(-40, 40)
-        c2w = camera_on_sphere(torch.tensor([yaw]), torch.tensor([pitch]), 0.6,
-                               target=(0.0, 0.0, 0.0)).double()[0].numpy()
-        w2c = np.linalg.inv(c2w)
-        rot, t = w2c[:3, :3], w2c[:3, 3]
-        pts = fitter._points(s, w)
-        rows = np.array([fitter.pos_of[int(v)] for v in fitter.landmarks])
-        rows = fitter._slide_contour(pts, rows, rot, t, f, centre)
-        uv = fitter._project(pts[rows], rot, t, f, centre)[0]
-        uv = uv + rng.normal(size=uv.shape) * 1.5
+        uv, rot, _ = simulate_detections(fitter, s, w, yaw, pitch, 1.5, rng, size, f)
         t0 = time.perf_counter()
         fit = fitter.fit(uv, (size, size), focal=f)
         ms = 1000 * (time.perf_counter() - t0)

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
+from head360cli.bench.fit_shape import simulate_detections
 from head360cli.errors import BadInputError
 from head360cli.fitting.shape import FitConfig, ShapeFitter, default_focal
-from head360cli.geometry.cameras import camera_on_sphere
 from head360cli.mesh.bilinear import load_bilinear
 
 W = H = 640
 F = 1000.0
-CENTRE = np.array([W / 2, H / 2])
 
 
 @pytest.fixture(scope="module")
@@ -23,15 +21,8 @@ def fitter():
 
 def synthetic(fitter, s, w, yaw, pitch, noise, rng):
     """Landmarks a detector would report: contour points on the true silhouette."""
-    c2w = camera_on_sphere(torch.tensor([yaw]), torch.tensor([pitch]), 0.6,
-                           target=(0.0, 0.0, 0.0)).double()[0].numpy()
-    w2c = np.linalg.inv(c2w)
-    rot, t = w2c[:3, :3], w2c[:3, 3]
-    pts = fitter._points(s, w)
-    rows = np.array([fitter.pos_of[int(v)] for v in fitter.landmarks])
-    rows = fitter._slide_contour(pts, rows, rot, t, F, CENTRE)
-    uv, _ = fitter._project(pts[rows], rot, t, F, CENTRE)
-    return uv + rng.normal(size=uv.shape) * noise, rot
+    uv, rot, _ = simulate_detections(fitter, s, w, yaw, pitch, noise, rng, W, F)
+    return uv, rot
 
 
 @pytest.mark.parametrize("yaw, pitch", [(0.0, 0.0), (35.0, -20.0), (-70.0, 30.0),
