@@ -5,8 +5,10 @@ the iBUG annotators' conventions on real faces (where exactly a brow or a nostri
 lies). Given faces with 68 landmarks (here: dlib's example sets, which carry the conventions
 of the detector head360 fits to), each face is fitted, and every non-contour landmark moves
 to the nearby vertex whose projection best matches the detected points over all faces.
-The jawline (0-16) slides during fitting anyway, and the inner lips (60-67) stay on the lip
-seam so that an open mouth keeps its meaning.
+The jawline points slide to the silhouette during fitting, so for them calibration chooses
+the height of the slice they slide in (and, for the chin points 6-10, which do not slide, the
+vertex itself). The inner lips (60-67) stay on the lip seam so that an open mouth keeps its
+meaning.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from head360cli.mesh.bilinear import BilinearModel
 
 __all__ = ["calibrate_landmarks", "read_dlib_landmarks"]
 
-CALIBRATED = tuple(range(17, 60))
+CALIBRATED = tuple(range(0, 60))
 
 
 def read_dlib_landmarks(path: str | Path) -> list[tuple[np.ndarray, tuple[int, int]]]:
@@ -41,6 +43,14 @@ def read_dlib_landmarks(path: str | Path) -> list[tuple[np.ndarray, tuple[int, i
     return faces
 
 
+def _silhouette_point(points: np.ndarray, fit, side_x: float) -> np.ndarray:
+    """Projection of a slice's outline point, as the fitter's contour rule picks it."""
+    cam = points @ fit.rotation.T + fit.translation
+    uv = fit.focal * cam[:, :2] / cam[:, 2:3] + fit.centre
+    toward = uv[:, 0] if side_x > 0 else -uv[:, 0]
+    return uv[int(np.argmax(toward))]
+
+
 def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2,
                         radius: float = 0.012) -> tuple[np.ndarray, dict[str, float]]:
     """New landmark vertex ids for ``model`` from annotated faces.
@@ -57,10 +67,11 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2,
     """
     import dataclasses
 
-    from head360cli.fitting.shape import ShapeFitter
+    from head360cli.fitting.shape import CHIN_FIXED, JAW, ShapeFitter
 
     mean = model.neutral_mean.astype(np.float64)
     allowed = np.isin(model.region, [1, 2, 3])  # face, nose, lips
+    jaw_allowed = np.isin(model.region, [1, 6])  # face, neck: where the outline runs
     current = np.asarray(model.landmarks, dtype=np.int64).copy()
     stats: dict[str, float] = {}
     for r in range(rounds):
@@ -69,19 +80,32 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2,
         fits = [(fitter.fit(lm, size), lm) for lm, size in faces]
         score = {}
         cand_of = {}
+        sliding = [k for k in JAW if k not in CHIN_FIXED]
+        slices: dict[int, list[np.ndarray]] = {}
         for k in CALIBRATED:
-            near = np.nonzero(allowed & (np.linalg.norm(mean - mean[current[k]], axis=1)
-                                         < radius))[0]
+            region = jaw_allowed if k in JAW else allowed
+            near = np.nonzero(region & (np.linalg.norm(mean - mean[current[k]], axis=1)
+                                        < radius))[0]
             cand_of[k] = np.union1d(near, [current[k]])
             score[k] = np.zeros(len(cand_of[k]))
+            if k in sliding:  # each candidate stands for the slice at its height
+                lm = current.copy()
+                slices[k] = []
+                for c in cand_of[k]:
+                    lm[k] = c
+                    slices[k].append(ShapeFitter._contour_candidates(m, lm)[k])
         errs = []
         for fit, lm in fits:
             verts = m.vertices(fit.shape, fit.expression)
             scale = np.sqrt(np.prod(lm.max(0) - lm.min(0)))
             errs.append(np.linalg.norm(fit.landmarks_fitted - lm, axis=1).mean() / scale)
             for k in CALIBRATED:
-                cam = verts[cand_of[k]] @ fit.rotation.T + fit.translation
-                uv = fit.focal * cam[:, :2] / cam[:, 2:3] + fit.centre
+                if k in slices:  # where the silhouette rule puts the point, per slice
+                    uv = np.stack([_silhouette_point(verts[sl], fit, mean[sl[0], 0])
+                                   for sl in slices[k]])
+                else:
+                    cam = verts[cand_of[k]] @ fit.rotation.T + fit.translation
+                    uv = fit.focal * cam[:, :2] / cam[:, 2:3] + fit.centre
                 score[k] += (np.linalg.norm(uv - lm[k], axis=1) / scale) ** 2
         stats[f"round{r}_error"] = float(np.mean(errs))
         for k in CALIBRATED:
