@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+from head360cli.synth.fields import smoothstep
 from head360cli.synth.identity import IdentityParams
 from head360cli.synth.sculpt import HeadFrame, Topology
 
@@ -96,11 +97,6 @@ def _noise(rng: np.random.Generator, size: int, scale: int) -> np.ndarray:
     return cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC)
 
 
-def _smooth(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
-    t = np.clip((x - e0) / (e1 - e0), 0, 1)
-    return t * t * (3 - 2 * t)
-
-
 def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
                   identity: IdentityParams, look: Appearance, size: int = 512) -> np.ndarray:
     """The albedo atlas of one identity.
@@ -122,7 +118,7 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
     red = np.array([0.06, -0.03, -0.02]) * look.redness
     skin = np.broadcast_to(base + red, pos.shape).copy()
     skin *= (1 + 0.035 * fine + 0.05 * blotch)[..., None]
-    front = _smooth(0.02, 0.06, z)
+    front = smoothstep(0.02, 0.06, z)
 
     # Cheeks and nose a little warmer; the ear's inside darker.
     for sgn in (1, -1):
@@ -131,9 +127,9 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
         skin += cheek[..., None] * np.array([0.05, -0.01, -0.01]) * look.redness
     # Lips.
     mw = frame.mouth_half_width
-    lip_x = _smooth(1.0, 0.85, np.abs(x) / mw)
-    lip_y = (_smooth(lv["lip_bottom"] - 0.002, lv["lip_bottom"] + 0.0015, y)
-             * _smooth(lv["lip_top"] + 0.0015, lv["lip_top"] - 0.0015, y))
+    lip_x = smoothstep(1.0, 0.85, np.abs(x) / mw)
+    lip_y = (smoothstep(lv["lip_bottom"] - 0.002, lv["lip_bottom"] + 0.0015, y)
+             * smoothstep(lv["lip_top"] + 0.0015, lv["lip_top"] - 0.0015, y))
     lips = lip_x * lip_y * front
     lip_colour = base * np.array([0.86, 0.62, 0.62]) + np.array([0.10, 0.0, 0.02]) * look.lip_tint
     skin = skin * (1 - lips[..., None]) + lip_colour * lips[..., None]
@@ -141,8 +137,8 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
     age = np.clip((look.age - 25.0) / 45.0, 0, 1)
     if age > 0:
         lines = 0.5 + 0.5 * np.cos((y - lv["brow"]) / 0.0045 * np.pi * 2)
-        forehead = _smooth(lv["brow"] + 0.008, lv["brow"] + 0.014, y) * _smooth(
-            lv["forehead"] + 0.02, lv["forehead"], y) * _smooth(0.05, 0.03, np.abs(x))
+        forehead = smoothstep(lv["brow"] + 0.008, lv["brow"] + 0.014, y) * smoothstep(
+            lv["forehead"] + 0.02, lv["forehead"], y) * smoothstep(0.05, 0.03, np.abs(x))
         fold = np.zeros_like(x)
         for sgn in (1, -1):
             # A line from beside the nose to beside the mouth corner.
@@ -163,8 +159,8 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
         u = (dx + 0.022) / 0.046  # 0 at the inner end, 1 at the outer end
         centre_y = lv["brow"] + 0.003 + 0.006 * np.sin(np.clip(u, 0, 1) * np.pi * 0.8)
         half = (0.0032 + 0.0012 * identity.sex) * (1.1 - 0.5 * u)
-        band = _smooth(half, half * 0.4, np.abs(y - centre_y)) * _smooth(-0.05, 0.05, u) \
-            * _smooth(1.05, 0.9, u)
+        band = smoothstep(half, half * 0.4, np.abs(y - centre_y)) * smoothstep(-0.05, 0.05, u) \
+            * smoothstep(1.05, 0.9, u)
         brow = np.maximum(brow, band)
     hairs = np.clip(0.6 + 0.8 * _noise(rng, size, 2), 0, 1)
     brow = brow * hairs * front
@@ -172,11 +168,11 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
     skin = skin * (1 - 0.9 * brow[..., None]) + browc * 0.9 * brow[..., None]
     # Stubble: a shadow over jaw, chin and upper lip (not on the lips or the neck's back).
     if look.stubble > 0:
-        area = (_smooth(lv["nose_base"] - 0.004, lv["nose_base"] - 0.010, y)
-                * _smooth(lv["throat"] - 0.01, lv["menton"], y) * (1 - lips)
-                * _smooth(-0.03, 0.0, z))
-        cheeks = _smooth(lv["eye_bottom"] - 0.012, lv["nose_base"], y) * _smooth(
-            0.035, 0.055, np.abs(x)) * _smooth(-0.01, 0.02, z) * _smooth(
+        area = (smoothstep(lv["nose_base"] - 0.004, lv["nose_base"] - 0.010, y)
+                * smoothstep(lv["throat"] - 0.01, lv["menton"], y) * (1 - lips)
+                * smoothstep(-0.03, 0.0, z))
+        cheeks = smoothstep(lv["eye_bottom"] - 0.012, lv["nose_base"], y) * smoothstep(
+            0.035, 0.055, np.abs(x)) * smoothstep(-0.01, 0.02, z) * smoothstep(
             lv["eye_bottom"] - 0.03, lv["nose_base"] - 0.02, y)
         area = np.clip(area + cheeks, 0, 1)
         dots = np.clip(0.5 + _noise(rng, size, 1), 0, 1)
@@ -206,13 +202,13 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
         ang = np.degrees(np.arccos(np.clip(d[:, 2], -1, 1)))
         spokes = 0.85 + 0.15 * np.cos(np.arctan2(d[:, 1], d[:, 0]) * 24)
         col = np.tile(np.array([0.92, 0.90, 0.87]), (len(d), 1))
-        col *= (1 - 0.15 * _smooth(50, 90, ang))[:, None]  # shadowed towards the back
+        col *= (1 - 0.15 * smoothstep(50, 90, ang))[:, None]  # shadowed towards the back
         iris = np.array(look.iris) * spokes[:, None]
-        in_iris = _smooth(31.0, 27.0, ang)[:, None]
+        in_iris = smoothstep(31.0, 27.0, ang)[:, None]
         col = col * (1 - in_iris) + iris * in_iris
         limbus = np.exp(-0.5 * ((ang - 29.0) / 1.6) ** 2)[:, None]
         col *= 1 - 0.5 * limbus
-        pupil = _smooth(12.0, 10.0, ang)[:, None]
+        pupil = smoothstep(12.0, 10.0, ang)[:, None]
         col = col * (1 - pupil) + 0.02 * pupil
         out[m] = col
     out[part == names.index("teeth_upper")] = (0.93, 0.91, 0.84)

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from head360cli.mesh.arkit52 import ARKIT52, INDEX
+from head360cli.synth.fields import gauss2d, smoothstep
 from head360cli.synth.sculpt import EYE_RADIUS, HeadFrame, topology
 
 __all__ = ["JAW_OPEN_RAD", "blendshape_deltas"]
@@ -24,13 +25,9 @@ __all__ = ["JAW_OPEN_RAD", "blendshape_deltas"]
 JAW_OPEN_RAD = math.radians(17.0)
 
 
-def _smooth(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
-    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * (3 - 2 * t)
-
-
 def _bump(v: np.ndarray, cx: float, cy: float, sx: float, sy: float) -> np.ndarray:
-    return np.exp(-0.5 * (((v[:, 0] - cx) / sx) ** 2 + ((v[:, 1] - cy) / sy) ** 2))
+    """A Gaussian bump over the vertices' face-plane coordinates (x, y)."""
+    return gauss2d(v[:, 0], v[:, 1], cx, cy, sx, sy)
 
 
 def _rot_x(angle: float) -> np.ndarray:
@@ -67,7 +64,7 @@ class _Masks:
             seam[:, 2] > 0)
         self.taper = np.zeros(nv)
         self.taper[topo.skin_rows] = col_taper[None, :]
-        self.front = _smooth(0.02, 0.05, v[:, 2])
+        self.front = smoothstep(0.02, 0.05, v[:, 2])
         self.skin = skin
         part = np.zeros(nv, dtype=np.int64)
         for k, name in enumerate(topo.part_names):
@@ -86,14 +83,14 @@ class _Masks:
 def _jaw_weight(m: _Masks) -> np.ndarray:
     """How much each vertex follows the lower jaw (1 chin and lower lip, 0 skull)."""
     v, lv, f = m.v, m.lv, m.frame
-    cheek = _smooth(m.seam_y + 0.004, m.seam_y - 0.018, v[:, 1])  # skin stretches smoothly
+    cheek = smoothstep(m.seam_y + 0.004, m.seam_y - 0.018, v[:, 1])  # skin stretches smoothly
     inside = m.taper
     w = np.where(m.lower, inside + (1 - inside) * cheek, 0.0)
     w = np.where(m.lower_half, 0.5 * inside + (1 - inside) * cheek, w)
     w = np.where(m.upper, (1 - inside) * cheek * (v[:, 1] < m.seam_y + 0.004), w)
     # Only in front of the jaw's hinge; the neck below the chin stretches.
-    w = w * _smooth(f.jaw_pivot[2] - 0.005, f.jaw_pivot[2] + 0.03, v[:, 2])
-    w = w * _smooth(lv["menton"] - 0.04, lv["menton"] - 0.004, v[:, 1])
+    w = w * smoothstep(f.jaw_pivot[2] - 0.005, f.jaw_pivot[2] + 0.03, v[:, 2])
+    w = w * smoothstep(lv["menton"] - 0.04, lv["menton"] - 0.004, v[:, 1])
     w = np.where(m.skin, w, 0.0)
     w = np.where(m.is_part("teeth_lower", "tongue"), 1.0, w)
     return w
@@ -107,8 +104,8 @@ def _left_shapes(m: _Masks, jaw_open: np.ndarray, jaw_w: np.ndarray
     front_skin = (m.front * m.skin)[:, None]
     mw = f.mouth_half_width
     corner = (mw, m.seam_y)
-    lips_zone = _smooth(mw * 1.6, mw * 0.6, np.abs(v[:, 0])) * _smooth(
-        lv["lip_bottom"] - 0.012, lv["lip_bottom"], v[:, 1]) * _smooth(
+    lips_zone = smoothstep(mw * 1.6, mw * 0.6, np.abs(v[:, 0])) * smoothstep(
+        lv["lip_bottom"] - 0.012, lv["lip_bottom"], v[:, 1]) * smoothstep(
         lv["lip_top"] + 0.012, lv["lip_top"], v[:, 1])
     mouth_region = (lips_zone * m.skin * m.front)[:, None]
 
@@ -126,7 +123,7 @@ def _left_shapes(m: _Masks, jaw_open: np.ndarray, jaw_w: np.ndarray
     lower_lip = m.lower & (v[:, 1] > lv["lip_bottom"] - 0.004)
     close_w = (np.where(lower_lip | m.lower_half, 1.0, 0.0) * np.maximum(m.taper, 0.0)
                * m.skin)
-    out["mouthClose"] = -jaw_open * _smooth(0.0, 0.3, close_w)[:, None]
+    out["mouthClose"] = -jaw_open * smoothstep(0.0, 0.3, close_w)[:, None]
     # Funnel and pucker: lips forward and rounded towards the middle.
     centre_pull = -v[:, 0:1] * np.array([[1.0, 0.0, 0.0]])
     out["mouthFunnel"] = mouth_region * (0.25 * centre_pull + np.array([0.0, 0.0, 0.006]))
@@ -193,10 +190,10 @@ def _eye_shapes(m: _Masks, side: int) -> dict[str, np.ndarray]:
     u = np.clip(1 - (dx / hw) ** 2, 0, None)
     top = c[1] + up * np.sqrt(u)
     bottom = c[1] - down * np.sqrt(u)
-    near_x = _smooth(hw + 0.004, hw, np.abs(dx)) * m.skin * m.front
+    near_x = smoothstep(hw + 0.004, hw, np.abs(dx)) * m.skin * m.front
     inside = ((v[:, 1] < top + 0.0004) & (v[:, 1] > bottom - 0.0004)) * near_x
-    above = _smooth(top + 0.009, top, v[:, 1]) * (v[:, 1] >= top + 0.0004) * near_x
-    below = _smooth(bottom - 0.007, bottom, v[:, 1]) * (v[:, 1] <= bottom - 0.0004) * near_x
+    above = smoothstep(top + 0.009, top, v[:, 1]) * (v[:, 1] >= top + 0.0004) * near_x
+    below = smoothstep(bottom - 0.007, bottom, v[:, 1]) * (v[:, 1] <= bottom - 0.0004) * near_x
     out: dict[str, np.ndarray] = {}
     # Blink: the upper lid slides down to the lower one. Skin inside the opening and the
     # lid above it are compressed towards the lower lid line and laid on a shell just over

@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from head360cli.synth.fields import gauss2d, smoothstep
 from head360cli.synth.identity import IdentityParams
 
 __all__ = ["N_COLS", "HeadFrame", "Topology", "build_head", "topology"]
@@ -330,15 +331,6 @@ def _section_radius(phi: np.ndarray, a, zf, zb, pf, pb) -> np.ndarray:
     return (np.abs(c / depth) ** expo + np.abs(s / a) ** expo) ** (-1.0 / expo)
 
 
-def _gauss(x, y, cx, cy, sx, sy):
-    return np.exp(-0.5 * (((x - cx) / sx) ** 2 + ((y - cy) / sy) ** 2))
-
-
-def _smoothstep(e0, e1, x):
-    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * (3 - 2 * t)
-
-
 def _features(x, y, p: IdentityParams, lv: dict[str, float]) -> np.ndarray:
     """Outward displacement of the face surface at face coordinates (x, y)."""
     h = np.zeros_like(x)
@@ -347,18 +339,18 @@ def _features(x, y, p: IdentityParams, lv: dict[str, float]) -> np.ndarray:
     ridge = np.where(t_ridge <= 1.0, 0.22 + 0.78 * t_ridge ** 1.4,
                      np.exp(-((y - lv["nose_tip"]) / (0.45 * (lv["nose_tip"]
                                                           - lv["nose_base"]))) ** 2))
-    ridge = ridge * _smoothstep(lv["nasion"] + 0.012, lv["nasion"] - 0.002, y)
+    ridge = ridge * smoothstep(lv["nasion"] + 0.012, lv["nasion"] - 0.002, y)
     width = 0.0065 + 0.0035 * np.clip(t_ridge, 0, 1.2)
     h += p.nose_projection * ridge * np.exp(-0.5 * (x / width) ** 2)
     ala_x = p.nose_width / 2 - 0.0045
     for sgn in (1, -1):
-        h += 0.0085 * _gauss(x, y, sgn * ala_x, lv["nose_base"] + 0.0055, 0.0055, 0.0055)
+        h += 0.0085 * gauss2d(x, y, sgn * ala_x, lv["nose_base"] + 0.0055, 0.0055, 0.0055)
     # Eye sockets and the brow ridge above them.
     for sgn in (1, -1):
-        h -= 0.0065 * _gauss(x, y, sgn * p.eye_spacing / 2, lv["eye"], 0.017, 0.011)
-        h += (0.004 + 0.004 * p.cheek_fullness) * _gauss(
+        h -= 0.0065 * gauss2d(x, y, sgn * p.eye_spacing / 2, lv["eye"], 0.017, 0.011)
+        h += (0.004 + 0.004 * p.cheek_fullness) * gauss2d(
             x, y, sgn * 0.049, lv["eye"] - 0.024, 0.015, 0.013)
-        h += (p.cheek_fullness - 0.5) * 0.008 * _gauss(x, y, sgn * 0.045, lv["seam"] + 0.006,
+        h += (p.cheek_fullness - 0.5) * 0.008 * gauss2d(x, y, sgn * 0.045, lv["seam"] + 0.006,
                                                         0.014, 0.014)
     h += p.brow_ridge * np.exp(-0.5 * ((y - lv["brow"]) / 0.0065) ** 2
                                - 0.5 * (x / 0.042) ** 4)
@@ -371,10 +363,10 @@ def _features(x, y, p: IdentityParams, lv: dict[str, float]) -> np.ndarray:
         -0.5 * ((y - upper_mid) / (0.5 * (lv["lip_top"] - lv["seam"]))) ** 2)
     h += 0.0055 * p.lip_fullness * lip_x * np.exp(
         -0.5 * ((y - lower_mid) / (0.5 * (lv["seam"] - lv["lip_bottom"]))) ** 2)
-    h -= 0.0028 * _gauss(x, y, 0.0, lv["lip_bottom"] - 0.006, 0.014, 0.004)
-    h += (0.004 + p.chin_projection) * _gauss(x, y, 0.0, lv["chin"] + 0.004, 0.016, 0.011)
+    h -= 0.0028 * gauss2d(x, y, 0.0, lv["lip_bottom"] - 0.006, 0.014, 0.004)
+    h += (0.004 + p.chin_projection) * gauss2d(x, y, 0.0, lv["chin"] + 0.004, 0.016, 0.011)
     # Philtrum groove.
-    h -= 0.0012 * _gauss(x, y, 0.0, 0.5 * (lv["nose_base"] + lv["lip_top"]), 0.003, 0.005)
+    h -= 0.0012 * gauss2d(x, y, 0.0, 0.5 * (lv["nose_base"] + lv["lip_top"]), 0.003, 0.005)
     return h
 
 
@@ -425,7 +417,7 @@ def _skin(p: IdentityParams, lv: dict[str, float]) -> tuple[np.ndarray, np.ndarr
     z = r * np.cos(phi)[None]
     y = np.broadcast_to(ys[:, None], x.shape)
     # Facial features live on the front: fade them out well before the sides of the head.
-    h = _features(x, y, p, lv) * _smoothstep(0.3, 0.8, np.cos(phi))[None]
+    h = _features(x, y, p, lv) * smoothstep(0.3, 0.8, np.cos(phi))[None]
     x = x + h * np.sin(phi)[None]
     z = z + h * np.cos(phi)[None]
     pts = np.stack([x, y.copy(), z], -1)
@@ -485,7 +477,7 @@ def _eye_dents(pts: np.ndarray, p: IdentityParams, lv: dict[str, float],
     up, down = lv["eye_top"] - lv["eye"], lv["eye"] - lv["eye_bottom"]
     for c in centres:
         inside = _almond(pts[..., 0], pts[..., 1], c[0], c[1], hw, up, down)
-        w = _smoothstep(-0.0003, 0.0012, inside) * (pts[..., 2] > 0)
+        w = smoothstep(-0.0003, 0.0012, inside) * (pts[..., 2] > 0)
         frac = np.clip((c[1] + up - pts[..., 1]) / (up + down), 0, 1)  # 0 top, 1 bottom
         sphere_z = c[2] + np.sqrt(np.clip(EYE_RADIUS ** 2 - (pts[..., 0] - c[0]) ** 2
                                           - (pts[..., 1] - c[1]) ** 2, 0, None))
