@@ -234,9 +234,8 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle
     line = face_line * (1 - temple) + (side_line * (1 - behind) + back_y * behind) * temple
     covered = y >= line
     if style.strip > 0:
-        covered &= np.abs(np.sin(phi)) * np.linalg.norm(pts[..., [0, 2]], axis=-1) < \
-            style.strip * 0.08 + 1e-6 * 0
-        covered &= y >= lv["nose_base"]
+        # A band across the top: within strip * 8 cm of the midplane.
+        covered &= (np.abs(pts[..., 0]) < style.strip * 0.08) & (y >= lv["nose_base"])
     thick = style.top * np.clip((y - lv["eye"]) / 0.06, 0, 1) + style.sides * np.clip(
         1 - (y - lv["eye"]) / 0.06, 0, 1) * (1 - behind) + style.rear * behind * np.clip(
         1 - (y - lv["eye"]) / 0.06, 0, 1)
@@ -270,9 +269,9 @@ def _shell(base: np.ndarray, normal: np.ndarray, covered: np.ndarray, thick: np.
     outer = outer + normal * np.clip(mod, -0.5 * thick, None)[..., None]
     widest = np.maximum.accumulate(radial, axis=0)
     hang = y < lv["eye"]
-    for surf, gap in ((inner, INNER_GAP), (outer, None)):
+    for surf, offset in ((inner, INNER_GAP), (outer, INNER_GAP + thick)):
         r = np.linalg.norm(surf[..., [0, 2]], axis=-1)
-        floor = widest + (INNER_GAP if gap is not None else INNER_GAP + thick)
+        floor = widest + offset
         scale = np.where(hang & (r < floor), floor / np.maximum(r, 1e-9), 1.0)
         surf[..., 0] *= scale
         surf[..., 2] *= scale
