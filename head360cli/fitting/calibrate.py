@@ -71,7 +71,7 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2,
 
     mean = model.neutral_mean.astype(np.float64)
     allowed = np.isin(model.region, [1, 2, 3])  # face, nose, lips
-    jaw_allowed = np.isin(model.region, [1, 6])  # face, neck: where the outline runs
+    jaw_allowed = ShapeFitter.outline_mask(model)  # face, neck: where the outline runs
     current = np.asarray(model.landmarks, dtype=np.int64).copy()
     stats: dict[str, float] = {}
     for r in range(rounds):
@@ -89,11 +89,8 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2,
             cand_of[k] = np.union1d(near, [current[k]])
             score[k] = np.zeros(len(cand_of[k]))
             if k in sliding:  # each candidate stands for the slice at its height
-                lm = current.copy()
-                slices[k] = []
-                for c in cand_of[k]:
-                    lm[k] = c
-                    slices[k].append(ShapeFitter._contour_candidates(m, lm)[k])
+                slices[k] = [ShapeFitter.contour_slice(mean, jaw_allowed, int(c))
+                             for c in cand_of[k]]
         errs = []
         for fit, lm in fits:
             verts = m.vertices(fit.shape, fit.expression)

@@ -146,41 +146,37 @@ class ShapeFitter:
 
     # ----------------------------------------------------------------- model pieces
     @staticmethod
-    def _contour_candidates(model: BilinearModel, lm: np.ndarray) -> list[np.ndarray]:
-        """For each jawline landmark, the vertices of its horizontal slice on its side."""
-        v = model.neutral_mean.astype(np.float64)
-        out = []
-        skin = np.ones(len(v), dtype=bool)
+    def outline_mask(model: BilinearModel) -> np.ndarray:
+        """``(V,)`` vertices that can carry the face's outline: face and neck (regions 1
+        and 6 in REGION_NAMES order), not eyes, ears or teeth. All, without regions."""
         if model.region.size and model.region.max() > 0:
-            # Face and neck vertices (regions 1 and 6 in REGION_NAMES order) carry the
-            # outline; eyes, ears, teeth... do not.
-            skin = np.isin(model.region, [1, 6])
-        for k in JAW:
-            p = v[lm[k]]
-            if k in CHIN_FIXED:
-                out.append(np.array([lm[k]]))
-                continue
-            # The slice: vertices at the landmark's height (its own grid row, on the
-            # template), on its side of the face and in front of the ears.
-            near = skin & (np.abs(v[:, 1] - p[1]) < 0.0015) & (
-                np.sign(v[:, 0]) == np.sign(p[0])) & (v[:, 2] > -0.01)
-            cand = np.nonzero(near)[0]
-            out.append(np.union1d(cand, [lm[k]]) if cand.size else np.array([lm[k]]))
-        return out
+            return np.isin(model.region, [1, 6])
+        return np.ones(model.num_vertices, dtype=bool)
 
-    def _state(self, s: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray]:
-        """The sub-model at ``(s, w)``: neutral ``base (L, 3)``, shapes ``shapes (52, L, 3)``
-        (affine in s), identity basis ``ident (K, L, 3)`` (affine in w), points."""
-        k, n = self.model.rank, len(self.sub_vertices)
-        base = self.a0 + (s @ self.b0_flat).reshape(n, 3)
-        shapes = self.me + (s.astype(np.float32) @ self.be_by_code).reshape(52, n, 3)
-        ident = self.b0 + (w.astype(np.float32) @ self.be_by_shape).reshape(k, n, 3)
-        return {"base": base, "shapes": shapes, "ident": ident,
-                "points": base + np.tensordot(w, shapes, 1)}
+    @staticmethod
+    def contour_slice(mean: np.ndarray, outline: np.ndarray, vertex: int) -> np.ndarray:
+        """The vertices a jawline landmark at ``vertex`` slides over: those at its height
+        (its own grid row, on the mean head), on its side of the face, in front of the ears.
+        """
+        p = mean[vertex]
+        near = outline & (np.abs(mean[:, 1] - p[1]) < 0.0015) & (
+            np.sign(mean[:, 0]) == np.sign(p[0])) & (mean[:, 2] > -0.01)
+        return np.union1d(np.nonzero(near)[0], [vertex])
+
+    @classmethod
+    def _contour_candidates(cls, model: BilinearModel, lm: np.ndarray) -> list[np.ndarray]:
+        """For each jawline landmark, its slice (the chin points keep their vertex)."""
+        mean = model.neutral_mean.astype(np.float64)
+        outline = cls.outline_mask(model)
+        return [np.array([lm[k]]) if k in CHIN_FIXED else
+                cls.contour_slice(mean, outline, int(lm[k])) for k in JAW]
 
     def _points(self, s: np.ndarray, w: np.ndarray) -> np.ndarray:
         """``(L, 3)`` positions of the sub-model's vertices."""
-        return self._state(s, w)["points"]
+        n = len(self.sub_vertices)
+        base = self.a0 + (s @ self.b0_flat).reshape(n, 3)
+        shapes = self.me + (s.astype(np.float32) @ self.be_by_code).reshape(52, n, 3)
+        return base + np.tensordot(w, shapes, 1)
 
     # ----------------------------------------------------------------- solver pieces
     def _rows(self, pts_cam_depth, rot, t, f, centre, uv):

@@ -173,7 +173,9 @@ def render_mesh(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
     image = image.index_put((fg,), values)
     stacked = image.view(samples, nb, hi, hi, -1).mean(0).permute(0, 3, 1, 2)
     depth_lo = frags.depth[:nb, None]
-    normal_img = torch.zeros(b * hi * hi, 3, dtype=colour.dtype, device=colour.device)
-    normals_lo = normal_img.index_put((fg,), n).view(b, hi, hi, 3)[:nb].permute(0, 3, 1, 2)
+    first = fg < nb * hi * hi  # normals of the first sample only, like depth
+    normal_img = torch.zeros(nb * hi * hi, 3, dtype=colour.dtype, device=colour.device)
+    normals_lo = normal_img.index_put((fg[first],), n[first]).view(nb, hi, hi, 3).permute(
+        0, 3, 1, 2)
     return RenderOutput(rgb=stacked[:, :3], alpha=stacked[:, 3:4], depth=depth_lo,
                         normals=normals_lo, labels=stacked[:, 4:])
