@@ -155,5 +155,7 @@ def test_atomic_path_and_dir(tmp_path):
         (d / "x").write_text("1")
     assert (tmp_path / "d" / "x").read_text() == "1"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "d"]
-    with pytest.raises(BadInputError, match="does not exist"), atomic_path(tmp_path / "no" / "x"):
-        pass
+    # A target in a missing folder is refused on entry, before anything is written.
+    with pytest.raises(BadInputError, match="does not exist"):
+        atomic_path(tmp_path / "no" / "x").__enter__()
+    assert not (tmp_path / "no").exists()
