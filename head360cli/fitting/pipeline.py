@@ -73,6 +73,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
 
     from head360cli.fitting.landmarks import LandmarkDetector
     from head360cli.fitting.shape import ShapeFitter, default_focal
+    from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
     from head360cli.io.mesh import write_obj
     from head360cli.mesh.arkit52 import ARKIT52
@@ -123,8 +124,6 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
                   comment=f"head360 shape fit of {Path(photo).name}\nmetres, +y up, face +z")
         overlay = _overlay(img.pixels, found.landmarks, fit.landmarks_fitted, v2d,
                            model.faces, visible)
-        from head360cli.io.atomic import atomic_path
-
         with atomic_path(paths["overlay"]) as tmp:
             Image.fromarray(overlay).save(tmp)
         euler = fit.euler_degrees()

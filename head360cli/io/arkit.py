@@ -531,9 +531,8 @@ class _Layout:
             time_kind=time_kind,
             found=found,
             missing=missing,
-            ignored=[c for c in ignored if c.casefold() not in _IGNORED_KNOWN] + [
-                c for c in ignored if c.casefold() in _IGNORED_KNOWN
-            ],
+            # Unexpected columns first, the well-known ones (BlendshapeCount...) last.
+            ignored=sorted(ignored, key=lambda c: c.casefold() in _IGNORED_KNOWN),
         )
 
     def gather_weights(self, values: np.ndarray) -> np.ndarray:
