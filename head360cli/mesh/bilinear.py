@@ -56,8 +56,13 @@ class BilinearModel:
         uv: ``(T, 2)``.
         faces_uv: ``(F, 3)``.
         region: ``(V,)`` region index per vertex (see ``meta["regions"]``).
-        landmarks: ``(68,)`` landmark vertex ids.
+        landmarks: ``(68,)`` landmark vertex ids (the nearest vertex of each landmark).
         meta: format, source corpus, rank, identities, errors measured at build time.
+        landmark_tri: ``(68, 3)`` the three vertices each landmark lies between, with
+            ``landmark_bary`` ``(68, 3)`` its barycentric weights: landmarks are points on
+            the surface, not only vertices. Absent in older files: then the landmark
+            vertices themselves.
+        landmark_bary: ``(68, 3)``.
     """
 
     neutral_mean: np.ndarray
@@ -77,6 +82,26 @@ class BilinearModel:
     region: np.ndarray
     landmarks: np.ndarray
     meta: dict[str, Any]
+    landmark_tri: np.ndarray | None = None
+    landmark_bary: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.landmark_tri is None or self.landmark_bary is None:
+            self.landmark_tri = np.repeat(np.asarray(self.landmarks, np.int64)[:, None], 3, 1)
+            self.landmark_bary = np.tile(np.array([1.0, 0.0, 0.0], np.float32),
+                                         (len(self.landmarks), 1))
+
+    def with_landmarks(self, landmarks: np.ndarray, tri: np.ndarray | None = None,
+                       bary: np.ndarray | None = None) -> BilinearModel:
+        """A copy with other landmarks: vertex ids ``(68,)`` and, optionally, their surface
+        embedding ``tri``/``bary`` ``(68, 3)`` (default: the vertices themselves)."""
+        return dataclasses.replace(self, landmarks=np.asarray(landmarks, np.int64),
+                                   landmark_tri=tri, landmark_bary=bary)
+
+    def landmark_points(self, vertices: np.ndarray) -> np.ndarray:
+        """``(68, 3)`` landmark positions on a mesh ``(V, 3)`` of this topology."""
+        return np.einsum("lj,ljc->lc", self.landmark_bary.astype(vertices.dtype),
+                         vertices[self.landmark_tri])
 
     @property
     def rank(self) -> int:
@@ -156,7 +181,9 @@ def load_bilinear(path: str | os.PathLike[str] | None = None) -> BilinearModel:
         assert meta.get("format") == "head360-bilinear"
         assert int(meta.get("format_version", 0)) <= MODEL_FORMAT
         fields = {f.name for f in dataclasses.fields(BilinearModel)} - {"meta"}
-        model = BilinearModel(**{k: data[k] for k in fields}, meta=meta)
+        optional = {"landmark_tri", "landmark_bary"}  # added after format version 1
+        model = BilinearModel(**{k: data[k] for k in fields - optional},
+                              **{k: data[k] for k in optional if k in data}, meta=meta)
     except (KeyError, AssertionError, ValueError, TypeError) as exc:
         raise FileFormatError(f"{path}: expected a head360 bilinear model ({exc!r})") from exc
     model.meta["sha256"] = content_hash(
@@ -264,7 +291,8 @@ class BilinearHead:
         self.mirror_matrix = t(model.mirror_matrix)
         self.mirror_offset = t(model.mirror_offset)
         self.code_cov = t(model.code_cov)
-        self.landmarks_idx = torch.as_tensor(model.landmarks, dtype=torch.long, device=device)
+        self.landmark_tri = torch.as_tensor(model.landmark_tri, dtype=torch.long, device=device)
+        self.landmark_bary = t(model.landmark_bary)
         self.vertex_mirror = torch.as_tensor(model.vertex_mirror, dtype=torch.long,
                                              device=device)
 
@@ -282,8 +310,9 @@ class BilinearHead:
         return base.index_add(1, self.expr_vertex, d)
 
     def landmarks(self, s, w):
-        """``(B, 68, 3)`` landmark positions."""
-        return self.vertices(s, w)[:, self.landmarks_idx]
+        """``(B, 68, 3)`` landmark positions (points on the surface)."""
+        v = self.vertices(s, w)[:, self.landmark_tri]  # (B, 68, 3, 3)
+        return (v * self.landmark_bary[None, :, :, None]).sum(2)
 
     def mirror(self, s, w):
         """Codes and weights of the mirror-image head (x -> -x)."""

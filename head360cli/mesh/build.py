@@ -99,7 +99,7 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
         faces = [face for f in files for face in read_dlib_landmarks(f)]
         if not faces:
             raise BadInputError(f"expected dlib landmark XML files in {calibrate}, found none")
-        model.landmarks, stats = calibrate_landmarks(model, faces, rounds=3)
+        model, stats = calibrate_landmarks(model, faces, rounds=3)
         model.meta["landmarks_calibrated_on"] = {
             "files": [f.name for f in files], "faces": len(faces),
             "fit_error_before": round(stats["round0_error"], 5),

@@ -33,11 +33,18 @@ def test_full_rank_reproduces_the_training_identities(corpus):
     assert err["max_mm"] < 0.01
 
 
+def surface_landmarks(model, rng):
+    """The model with its landmarks on random points of the first 68 triangles."""
+    bary = rng.uniform(0.05, 1, (68, 3))
+    return model.with_landmarks(model.landmarks, model.faces[:68], bary / bary.sum(1,
+                                                                                  keepdims=True))
+
+
 def test_torch_matches_numpy_and_is_differentiable(corpus):
     ids, topo = corpus
-    model = build_bilinear(ids, 4, topo)
-    head = BilinearHead(model, dtype=torch.float64)
     rng = np.random.default_rng(0)
+    model = surface_landmarks(build_bilinear(ids, 4, topo), rng)
+    head = BilinearHead(model, dtype=torch.float64)
     s = rng.normal(size=(3, 4)) * np.sqrt(np.diag(model.code_cov))
     w = rng.uniform(0, 1, (3, 52))
     st = torch.tensor(s, requires_grad=True)
@@ -47,6 +54,8 @@ def test_torch_matches_numpy_and_is_differentiable(corpus):
                                    atol=1e-9)
     lm = head.landmarks(st, torch.tensor(w))
     assert lm.shape == (3, 68, 3)
+    np.testing.assert_allclose(lm[1].detach().numpy(),
+                               model.landmark_points(model.vertices(s[1], w[1])), atol=1e-9)
     lm.sum().backward()
     assert st.grad is not None and st.grad.abs().sum() > 0
 
@@ -72,6 +81,9 @@ def test_stored_model_costs_under_a_tenth_of_a_millimetre(corpus, tmp_path):
     sha = model.save(tmp_path / "m.npz")
     stored = load_bilinear(tmp_path / "m.npz")
     assert stored.meta["sha256"] == sha and len(sha) == 64
+    # Without a surface embedding the landmarks are their vertices.
+    np.testing.assert_array_equal(stored.landmark_tri[:, 0], model.landmarks)
+    np.testing.assert_array_equal(stored.landmark_bary, np.eye(3)[np.zeros(68, int)])
     # Rebuilding the same model gives the same hash, though the zip's bytes differ.
     assert build_bilinear(ids, 7, topo).save(tmp_path / "again.npz") == sha
     rng = np.random.default_rng(2)
@@ -81,6 +93,24 @@ def test_stored_model_costs_under_a_tenth_of_a_millimetre(corpus, tmp_path):
         w = rng.uniform(0, 1, 52)
         diff = np.abs(stored.vertices(s, w) - model.vertices(s, w)).max()
         assert diff < 1e-4  # metres
+
+
+def test_surface_landmarks_survive_storage_and_older_files_load(corpus, tmp_path):
+    ids, topo = corpus
+    model = surface_landmarks(build_bilinear(ids, 3, topo), np.random.default_rng(8))
+    model.save(tmp_path / "m.npz")
+    stored = load_bilinear(tmp_path / "m.npz")
+    np.testing.assert_array_equal(stored.landmark_tri, model.landmark_tri)
+    np.testing.assert_allclose(stored.landmark_bary, model.landmark_bary, atol=1e-7)
+    mean = model.neutral_mean.astype(np.float64)
+    expected = (model.landmark_bary[:, :, None] * mean[model.landmark_tri]).sum(1)
+    np.testing.assert_allclose(stored.landmark_points(mean), expected, atol=1e-6)
+    # A file from before surface landmarks (no landmark_tri/landmark_bary) still loads.
+    with np.load(tmp_path / "m.npz") as npz:
+        old = {k: npz[k] for k in npz.files if not k.startswith("landmark_")}
+    np.savez(tmp_path / "old.npz", **old)
+    loaded = load_bilinear(tmp_path / "old.npz")
+    np.testing.assert_allclose(loaded.landmark_points(mean), mean[model.landmarks])
 
 
 def test_load_errors(tmp_path):
