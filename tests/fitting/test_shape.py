@@ -97,3 +97,52 @@ def test_default_focal_and_options():
                       np.random.default_rng(2))
     fit = fitter.fit(uv, (W, H), focal=F)
     assert (fit.expression == 0).all()
+
+
+def test_a_zero_weight_leaves_a_landmark_out(fitter):
+    uv, _ = synthetic(fitter, np.zeros(fitter.model.rank), np.zeros(52), 15.0, 5.0, 0.5,
+                      np.random.default_rng(4))
+    weights = np.ones(68)
+    weights[[30, 48]] = 0.0  # nose tip, a mouth corner
+    moved = uv.copy()
+    moved[[30, 48]] += 150.0  # far off: would drag the fit if it counted
+    a = fitter.fit(uv, (W, H), focal=F, weights=weights)
+    b = fitter.fit(moved, (W, H), focal=F, weights=weights)
+    np.testing.assert_allclose(a.landmarks_fitted, b.landmarks_fitted, atol=1e-6)
+    # Still reported, and near where the face puts them (pixels).
+    assert np.linalg.norm(b.landmarks_fitted[[30, 48]] - uv[[30, 48]], axis=1).max() < 6.0
+    for bad in (np.ones(67), -np.ones(68), np.full(68, np.nan), np.r_[np.ones(20),
+                                                                        np.zeros(48)]):
+        with pytest.raises(BadInputError):
+            fitter.fit(uv, (W, H), focal=F, weights=bad)
+
+
+def test_bounded_solve_meets_the_optimality_conditions():
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        a = rng.normal(size=(40, 12)) @ np.diag(rng.uniform(0.1, 3, 12))
+        b = rng.normal(size=40) * 3
+        ridge = rng.uniform(0.01, 1, 12)
+        w = ShapeFitter._bounded(a, b, ridge, np.zeros(12), rounds=30)
+        grad = (a.T @ a + np.diag(ridge)) @ w - a.T @ b
+        assert ((w >= 0) & (w <= 1)).all()
+        inside = (w > 1e-9) & (w < 1 - 1e-9)
+        np.testing.assert_allclose(grad[inside], 0.0, atol=1e-8)
+        assert (grad[w <= 1e-9] >= -1e-8).all() and (grad[w >= 1 - 1e-9] <= 1e-8).all()
+
+
+def test_pose_steps_converge_to_the_true_pose():
+    rng = np.random.default_rng(6)
+    pts = rng.normal(size=(40, 3)) * 0.05
+    angle, axis = 0.4, np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])
+    kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    rot = np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+    t = np.array([0.02, -0.01, 0.6])
+    centre = np.array([320.0, 240.0])
+    cam = pts @ rot.T + t
+    uv = 800.0 * cam[:, :2] / cam[:, 2:] + centre
+    r, tt = np.eye(3), np.array([0.0, 0.0, 0.5])  # 23 degrees and 10 cm off
+    for _ in range(8):
+        r, tt = ShapeFitter._pose_step(pts, uv, 800.0, centre, r, tt)
+    np.testing.assert_allclose(r, rot, atol=1e-7)
+    np.testing.assert_allclose(tt, t, atol=1e-8)
