@@ -126,6 +126,8 @@ class ShapeFitter:
     """
 
     def __init__(self, model: BilinearModel, config: FitConfig = FitConfig()) -> None:
+        import cv2  # noqa: F401  (loaded here, with the model, not in the first fit)
+
         self.model = model
         self.config = config
         lm = np.asarray(model.landmarks, dtype=np.int64)
