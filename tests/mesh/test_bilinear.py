@@ -147,3 +147,19 @@ def test_ict_facekit_reader(shared_data):
     assert np.abs(deltas[INDEX["browInnerUp"]]).max() > 0  # merged from its halves
     assert len(topo["landmarks"]) == 68 and topo["faces"].shape[1] == 3
     assert (topo["vertex_mirror"][topo["vertex_mirror"]] == np.arange(26719)).mean() > 0.95
+
+
+@pytest.mark.shared_data
+def test_shipped_model_is_what_its_command_builds(shared_data, tmp_path):
+    """models/bilinear.npz must match its model card's command with the current code (a
+    change to the fitter changes the landmark calibration, so the file must be rebuilt)."""
+    import dataclasses
+
+    from head360cli.mesh.build import build_model
+
+    build_model(out=tmp_path / "b.npz", calibrate=shared_data / "faces")
+    built, shipped = load_bilinear(tmp_path / "b.npz"), load_bilinear()
+    for field in dataclasses.fields(built):  # the metadata records the path as given
+        if field.name != "meta":
+            np.testing.assert_array_equal(getattr(built, field.name),
+                                          getattr(shipped, field.name), err_msg=field.name)
