@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
 
 from head360cli import __version__
-from head360cli.errors import EXIT_CODES, Head360Error
+from head360cli.errors import EXIT_CODES, BadInputError, Head360Error
 
 __all__ = ["cli", "main"]
 
@@ -394,6 +396,64 @@ def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, s
     _emit(s, "\n".join(lines))
 
 
+PRESETS = {
+    "cpu": {},
+    "gpu": {"texture_res": 256, "plane_res": 128, "render_res": 128, "samples": 12,
+            "hidden": 128, "refine_width": 64, "generator_width": 256},
+    "tiny": {"texture_res": 16, "plane_res": 16, "render_res": 16, "image_res": 32,
+             "samples": 4, "hidden": 16, "refine_width": 8, "generator_width": 32},
+}
+
+
+@cli.command()
+@click.argument("run_dir", type=click.Path(file_okay=False))
+@click.option("--preset", type=click.Choice(list(PRESETS)), default="cpu", show_default=True,
+              help="Generator size: cpu (trains in about an hour on 2 cores), gpu, or tiny "
+                   "(tests).")
+@click.option("--steps", default=3000, show_default=True, help="Optimiser steps.")
+@click.option("--minutes", default=0.0, show_default=True,
+              help="Stop after this much training time (0: no limit; for equal budgets).")
+@click.option("--batch", default=4, show_default=True, help="Views per step and process.")
+@click.option("--identities", "-n", default=100, show_default=True,
+              help="SynHead-P training heads.")
+@click.option("--seed", default=0, show_default=True, help="Corpus and training seed.")
+@click.option("--planes", type=click.Choice(["hex", "tri"]), default="hex", show_default=True,
+              help="Feature planes: six (hex) or three (tri, the ablation).")
+@click.option("--no-refine", is_flag=True, help="Without the RefineNet (the ablation).")
+@click.option("--export", "export", type=click.Path(dir_okay=False), default=None,
+              help="Also write the shippable weights here (e.g. models/generator.pt).")
+@common_options
+def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
+          identities: int, seed: int, planes: str, no_refine: bool,
+          export: str | None) -> None:
+    """Train the generator on SynHead-P (resumes a run folder that has a checkpoint).
+
+    \b
+    Examples:
+      head360 train runs/cpu --export models/generator.pt
+      head360 train runs/tri --planes tri --minutes 20
+      torchrun --nproc_per_node 2 -m head360cli train runs/ddp --steps 100
+    """
+    from head360cli.devices import resolve_device
+    from head360cli.model.config import GeneratorConfig
+    from head360cli.model.train import CHECKPOINT, TrainConfig, save_generator
+    from head360cli.model.train import train as run_training
+
+    if steps < 1 or batch < 1 or identities < 1:
+        raise BadInputError(f"expected --steps, --batch and --identities >= 1, found "
+                            f"{steps}, {batch} and {identities}")
+    device = str(resolve_device(_settings().device))
+    gen_cfg = GeneratorConfig(**PRESETS[preset], planes=planes, refine=not no_refine)
+    cfg = TrainConfig(identities=identities, seed=seed, steps=steps, minutes=minutes,
+                      batch=batch)
+    last = run_training(run_dir, cfg, gen_cfg, device=device, progress=not _settings().quiet)
+    result: dict[str, Any] = {"run": run_dir, "last": last}
+    if export and int(os.environ.get("RANK", "0")) == 0:
+        result["export"] = save_generator(Path(run_dir) / CHECKPOINT, export)
+    _emit(result, f"trained to step {last.get('step')}: L1 {last.get('l1')}"
+          + (f"; wrote {export}" if export else ""))
+
+
 @cli.group()
 def bench() -> None:
     """Speed-against-error benchmarks; each writes JSON and a Markdown table.
@@ -440,6 +500,30 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 
     result, md = bench_fit_shape(trials=trials)
     result["files"] = save(result, md, out_dir, "fit_shape")
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
+@bench.command("generator")
+@click.option("--weights", type=click.Path(dir_okay=False), default=None,
+              help="Generator weights (default: models/generator.pt).")
+@click.option("--train-ids", default=8, show_default=True,
+              help="Training identities scored on held-out views.")
+@click.option("--test-ids", default=4, show_default=True,
+              help="Held-out identities (codes fitted with the generator frozen).")
+@click.option("--fit-steps", default=100, show_default=True,
+              help="Code-fitting steps per held-out identity.")
+@click.option("--out", "out_dir", default="bench-results", show_default=True,
+              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+@common_options
+def bench_generator_cmd(weights: str | None, train_ids: int, test_ids: int, fit_steps: int,
+                        out_dir: str) -> None:
+    """Generator: PSNR and SSIM on held-out views and held-out identities, frame time, and
+    speed against quality for samples per ray and plane resolution."""
+    from head360cli.bench.generator import bench_generator
+    from head360cli.bench.report import save
+
+    result, md = bench_generator(weights, train_ids, test_ids, fit_steps)
+    result["files"] = save(result, md, out_dir, "generator")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 
 

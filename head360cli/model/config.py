@@ -1,0 +1,64 @@
+"""The generator's configuration (stored in every checkpoint)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+__all__ = ["GeneratorConfig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class GeneratorConfig:
+    """Sizes of the generator's parts. The defaults are the CPU configuration."""
+
+    code_dim: int = 64
+    """Length of the texture code ``t``."""
+    texture_channels: int = 16
+    """Channels ``C`` of the UV neural texture."""
+    texture_res: int = 128
+    """Width and height of the neural texture."""
+    generator_width: int = 128
+    """Channels of the texture generator's first (4x4) block; halved as it upsamples."""
+    planes: str = "hex"
+    """``hex``: six orthographic feature planes (front, back, left, right, top, bottom);
+    ``tri``: three (front, left, top), the tri-plane ablation."""
+    plane_res: int = 96
+    """Width and height of each feature plane."""
+    plane_half_size: float = 0.2
+    """Half the side (metres) of the cube the planes cover, centred on ``plane_centre``."""
+    plane_centre: tuple[float, float, float] = (0.0, -0.04, 0.0)
+    """Centre of that cube in head coordinates."""
+    surface_tau: float = 0.01
+    """Metres: how fast a plane's feature fades with distance from its visible surface."""
+    hidden: int = 64
+    """Width of the decoder MLP."""
+    feature_channels: int = 16
+    """Channels rendered by the volume renderer; the first three are colour."""
+    render_res: int = 64
+    """Resolution of the volume-rendered feature image."""
+    samples: int = 8
+    """Samples per ray, placed around the rasterized surface."""
+    shell: float = 0.02
+    """Metres in front of and behind the rasterized surface the samples cover."""
+    image_res: int = 256
+    """Output image resolution (the RefineNet upsamples ``render_res`` to it)."""
+    refine: bool = True
+    """Use the RefineNet; without it the low-resolution colour is upsampled bilinearly
+    (the no-RefineNet ablation)."""
+    refine_width: int = 32
+    """Channels of the RefineNet."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> GeneratorConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown generator settings {sorted(unknown)}")
+        data = dict(data)
+        if "plane_centre" in data:
+            data["plane_centre"] = tuple(data["plane_centre"])
+        return cls(**data)

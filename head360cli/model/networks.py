@@ -1,0 +1,98 @@
+"""The generator's networks: they hold the parameters; geometry and rendering live in
+:mod:`planes` and :mod:`render`."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from head360cli.model.config import GeneratorConfig
+
+__all__ = ["Decoder", "RefineNet", "TextureGenerator"]
+
+
+class TextureGenerator(nn.Module):
+    """Texture code ``t`` -> UV neural texture: a learnt mean texture plus a convolutional
+    generator's code-dependent part (4x4, doubled until ``texture_res``)."""
+
+    def __init__(self, cfg: GeneratorConfig) -> None:
+        super().__init__()
+        c, res, width = cfg.texture_channels, cfg.texture_res, cfg.generator_width
+        steps = round(math.log2(res / 4))
+        if 4 * 2 ** steps != res:
+            raise ValueError(f"expected texture_res = 4 x a power of two, found {res}")
+        self.width = width
+        self.mapping = nn.Sequential(nn.Linear(cfg.code_dim, 256), nn.LeakyReLU(0.2),
+                                     nn.Linear(256, width * 16))
+        blocks = []
+        ch = width
+        for _ in range(steps):
+            out = max(ch // 2, 32)
+            blocks += [nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False),
+                       nn.Conv2d(ch, out, 3, padding=1), nn.LeakyReLU(0.2)]
+            ch = out
+        self.blocks = nn.Sequential(*blocks)
+        self.out = nn.Conv2d(ch, c, 3, padding=1)
+        self.mean = nn.Parameter(torch.zeros(1, c, res, res))
+
+    def forward(self, code: torch.Tensor) -> torch.Tensor:
+        """``(B, code_dim)`` -> ``(B, C, R, R)``."""
+        x = self.mapping(code).view(code.shape[0], self.width, 4, 4)
+        return self.mean + self.out(self.blocks(x))
+
+
+class Decoder(nn.Module):
+    """Point features -> density and ``feature_channels`` colour features (the first three
+    are RGB in [0, 1])."""
+
+    def __init__(self, cfg: GeneratorConfig, planes: int) -> None:
+        super().__init__()
+        inp = cfg.texture_channels + planes + 1
+        self.net = nn.Sequential(nn.Linear(inp, cfg.hidden), nn.Softplus(beta=10),
+                                 nn.Linear(cfg.hidden, cfg.hidden), nn.Softplus(beta=10),
+                                 nn.Linear(cfg.hidden, 1 + cfg.feature_channels))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(..., D)`` -> ``(density (...), features (..., Cf))``; density per metre."""
+        out = self.net(x)
+        density = F.softplus(out[..., 0] - 1.0) * 1000.0
+        feats = torch.cat([torch.sigmoid(out[..., 1:4]), out[..., 4:]], -1)
+        return density, feats
+
+
+class RefineNet(nn.Module):
+    """Low-resolution feature image -> output image: a residual on the bilinearly upsampled
+    colour and coverage."""
+
+    def __init__(self, cfg: GeneratorConfig) -> None:
+        super().__init__()
+        steps = round(math.log2(cfg.image_res / cfg.render_res))
+        if cfg.render_res * 2 ** steps != cfg.image_res:
+            raise ValueError(f"expected image_res = render_res x a power of two, found "
+                             f"{cfg.image_res} and {cfg.render_res}")
+        w = cfg.refine_width
+        layers: list[nn.Module] = [nn.Conv2d(cfg.feature_channels + 1, w, 3, padding=1),
+                                   nn.LeakyReLU(0.2)]
+        for i in range(steps):
+            out = w if i < steps - 1 else max(w // 2, 8)
+            layers += [nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False),
+                       nn.Conv2d(w, out, 3, padding=1), nn.LeakyReLU(0.2)]
+            w = out
+        layers.append(nn.Conv2d(w, 4, 3, padding=1))
+        self.net = nn.Sequential(*layers)
+        nn.init.zeros_(layers[-1].weight)
+        nn.init.zeros_(layers[-1].bias)
+        self.scale = 2 ** steps
+
+    def forward(self, features: torch.Tensor, alpha: torch.Tensor, rgb: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Features ``(B, Cf, h, w)``, coverage ``(B, 1, h, w)`` and the composited colour
+        ``(B, 3, h, w)`` -> ``(rgb (B, 3, H, W), alpha (B, 1, H, W))``."""
+        res = self.net(torch.cat([features, alpha], 1))
+        up = F.interpolate(torch.cat([rgb, alpha], 1), scale_factor=self.scale,
+                           mode="bilinear", align_corners=False)
+        out = up + res
+        return out[:, :3], out[:, 3:].clamp(0.0, 1.0)

@@ -1,0 +1,134 @@
+"""Hex-planes: the mesh and its neural texture rasterized onto orthographic feature planes.
+
+Each plane looks at the head from one side (front, back, left, right, top, bottom) and holds,
+per pixel, the neural texture at the visible surface, that surface's height towards the
+viewer, and coverage. A 3D point reads every plane at its projection; a plane's feature
+counts in proportion to how close the point lies to the surface that plane sees, so a
+point on the cheek takes its feature from the planes that see the cheek. The plane set is
+a parameter: ``hex`` (all six) or ``tri`` (front, left, top: the tri-plane ablation).
+
+Pure functions; nothing here holds parameters.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+
+__all__ = ["PLANES", "PLANE_SETS", "plane_coordinates", "rasterize_planes", "sample_planes"]
+
+# name: (u axis, u sign, v axis, v sign, height axis, height sign). Model axes: +x the
+# subject's left, +y up, +z the way the face looks. Height grows towards the viewer.
+PLANES = {
+    "front": (0, 1.0, 1, -1.0, 2, 1.0),
+    "back": (0, -1.0, 1, -1.0, 2, -1.0),
+    "left": (2, -1.0, 1, -1.0, 0, 1.0),
+    "right": (2, 1.0, 1, -1.0, 0, -1.0),
+    "top": (0, 1.0, 2, 1.0, 1, 1.0),
+    "bottom": (0, 1.0, 2, -1.0, 1, -1.0),
+}
+PLANE_SETS = {"hex": ("front", "back", "left", "right", "top", "bottom"),
+              "tri": ("front", "left", "top")}
+
+
+def _axes(names: tuple[str, ...], like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    table = torch.tensor([PLANES[n] for n in names], dtype=like.dtype, device=like.device)
+    return table[:, 0::2].long(), table[:, 1::2]  # (P, 3) axes, (P, 3) signs
+
+
+def plane_coordinates(points: torch.Tensor, names: tuple[str, ...],
+                      centre: tuple[float, float, float], half: float
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where points fall on each plane.
+
+    Args:
+        points: ``(B, N, 3)`` head coordinates (metres).
+        names: Plane names (``P`` of them).
+        centre: Centre of the planes' cube.
+        half: Half its side (metres).
+
+    Returns:
+        ``(uv (B, P, N, 2) in [-1, 1], height (B, P, N) in metres towards each viewer)``.
+    """
+    axes, signs = _axes(names, points)
+    q = points - torch.tensor(centre, dtype=points.dtype, device=points.device)
+    picked = q[:, None, :, :].expand(-1, len(names), -1, -1)  # (B, P, N, 3)
+    idx = axes[None, :, None, :].expand(q.shape[0], -1, q.shape[1], -1)
+    coords = torch.gather(picked, 3, idx) * signs[None, :, None, :]
+    return coords[..., :2] / half, coords[..., 2]
+
+
+def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
+                     faces_uv: torch.Tensor, texture: torch.Tensor, names: tuple[str, ...],
+                     res: int, centre: tuple[float, float, float], half: float
+                     ) -> torch.Tensor:
+    """Rasterize the textured mesh onto the planes.
+
+    Args:
+        verts: ``(B, V, 3)`` head coordinates.
+        faces: ``(F, 3)``.
+        uv: ``(T, 2)`` texture coordinates (v = 0 at the top of the texture).
+        faces_uv: ``(F, 3)``.
+        texture: ``(B, C, R, R)`` neural texture.
+        names: Plane names (``P``).
+        res: Plane resolution.
+        centre, half: The planes' cube.
+
+    Returns:
+        ``(B, P, C + 2, res, res)``: texture features, surface height (metres towards the
+        viewer) and coverage.
+    """
+    b, p = verts.shape[0], len(names)
+    coords, height = plane_coordinates(verts, names, centre, half)  # (B, P, V, 2), (B,P,V)
+    screen = ((coords + 1.0) * 0.5 * res).reshape(b * p, -1, 2)
+    frags = rasterize(screen, -height.reshape(b * p, -1), faces, res, res,
+                      perspective_correct=False, near=float("-inf"))
+    corner_uv = uv[faces_uv]  # (F, 3, 2)
+    uvs = interpolate_face_corners(corner_uv, frags)  # (BP, res, res, 2)
+    tex = texture.repeat_interleave(p, 0)
+    feat = F.grid_sample(tex, uvs * 2.0 - 1.0, mode="bilinear", padding_mode="border",
+                         align_corners=False)  # (BP, C, res, res)
+    mask = frags.mask.to(feat.dtype)
+    feat = feat * mask[:, None]
+    surface = -frags.depth * mask
+    out = torch.cat([feat, surface[:, None], mask[:, None]], 1)
+    return out.view(b, p, -1, res, res)
+
+
+def sample_planes(points: torch.Tensor, planes: torch.Tensor, names: tuple[str, ...],
+                  centre: tuple[float, float, float], half: float, tau: float
+                  ) -> torch.Tensor:
+    """Features of points from the planes.
+
+    Args:
+        points: ``(B, N, 3)`` head coordinates.
+        planes: ``(B, P, C + 2, R, R)`` from :func:`rasterize_planes`.
+        names, centre, half: As there.
+        tau: Metres over which a plane's feature fades away from its visible surface.
+
+    Returns:
+        ``(B, N, C + P + 1)``: the planes' features averaged with weights that favour the
+        planes whose visible surface is near the point, each plane's offset from its
+        surface (in units of ``tau``, clipped to +-4; +4 where the plane sees nothing),
+        and the total weight.
+    """
+    b, n, _ = points.shape
+    p, c2, r = planes.shape[1], planes.shape[2], planes.shape[-1]
+    uv, height = plane_coordinates(points, names, centre, half)
+    grid = uv.reshape(b * p, n, 1, 2)
+    got = F.grid_sample(planes.reshape(b * p, c2, r, r), grid, mode="bilinear",
+                        padding_mode="zeros", align_corners=False)  # (BP, C+2, N, 1)
+    got = got[..., 0].view(b, p, c2, n)
+    feat, surface, cover = got[:, :, :-2], got[:, :, -2], got[:, :, -1]
+    # Coverage blends towards 0 at silhouettes; the surface height there is blended with
+    # 0 too, so divide it back out where coverage is partial.
+    seen = cover > 0.5
+    surface = surface / cover.clamp_min(1e-3)
+    offset = torch.where(seen, (height - surface) / tau, torch.full_like(height, 4.0))
+    offset = offset.clamp(-4.0, 4.0)
+    weight = cover * torch.exp(-offset.square())  # (B, P, N)
+    total = weight.sum(1, keepdim=True)
+    mixed = (feat * weight[:, :, None]).sum(1) / (total + 1e-3)  # (B, C, N)
+    return torch.cat([mixed, offset, total], 1).transpose(1, 2)

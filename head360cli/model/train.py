@@ -1,0 +1,257 @@
+"""Training the generator on SynHead-P (head branch): auto-decoded texture codes, an L1
+photometric loss at both resolutions, a coverage (mask) loss and a code prior.
+
+Resumable (``checkpoint.pt`` in the run folder holds everything: configs, weights, codes,
+optimiser, step, random states), logged (``log.jsonl``, one line per logged step),
+deterministic for a seed and a process count, and data parallel under ``torchrun`` (gloo on
+CPU, NCCL on GPUs): every process draws its own views, gradients are averaged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from head360cli.model.config import GeneratorConfig
+from head360cli.model.generator import Generator
+
+__all__ = ["TrainConfig", "load_generator", "save_generator", "train"]
+
+CHECKPOINT = "checkpoint.pt"
+WEIGHTS_FORMAT = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """How to train."""
+
+    identities: int = 100
+    """SynHead-P training heads (the first ones of the train split)."""
+    seed: int = 0
+    """Seed of the corpus, the initialisation and the view sampling."""
+    steps: int = 3000
+    """Optimiser steps (each process renders ``batch`` views per step)."""
+    minutes: float = 0.0
+    """Stop after this many minutes of training (0: no limit), for equal-budget runs."""
+    batch: int = 4
+    """Views per step and process."""
+    lr: float = 2e-3
+    """Adam learning rate of the networks."""
+    code_lr: float = 1e-2
+    """Adam learning rate of the texture codes."""
+    code_prior: float = 1e-3
+    """Weight of the squared norm of the codes."""
+    low_res_weight: float = 0.5
+    """Weight of the L1 loss on the volume-rendered colour (before the RefineNet)."""
+    mask_weight: float = 0.5
+    """Weight of the L1 loss on the coverage."""
+    log_every: int = 25
+    """Steps between log lines."""
+    checkpoint_every: int = 200
+    """Steps between checkpoints."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class _Model(nn.Module):
+    """The generator and the training identities' texture codes, trained together."""
+
+    def __init__(self, gen: Generator, identities: int) -> None:
+        super().__init__()
+        self.generator = gen
+        self.codes = nn.Parameter(torch.randn(identities, gen.cfg.code_dim) * 0.01)
+
+    def forward(self, batch, jitter: bool = True):
+        return self.generator(batch.verts, batch.c2w, batch.intrinsics,
+                              code=self.codes[batch.identity], jitter=jitter)
+
+
+def _topology():
+    from head360cli.mesh.bilinear import load_bilinear
+
+    m = load_bilinear()
+    return m.faces, m.uv, m.faces_uv
+
+
+def losses(out: dict[str, torch.Tensor], batch, cfg: TrainConfig) -> dict[str, torch.Tensor]:
+    """The training losses (and their weighted sum under ``total``)."""
+    res = out["rgb_low"].shape[-1]
+    rgb_low = F.interpolate(batch.rgb, size=(res, res), mode="area")
+    alpha_low = F.interpolate(batch.alpha, size=(res, res), mode="area")
+    parts = {"l1": (out["rgb"] - batch.rgb).abs().mean(),
+             "l1_low": (out["rgb_low"] - rgb_low).abs().mean(),
+             "mask": (out["alpha"] - batch.alpha).abs().mean()
+             + (out["alpha_low"] - alpha_low).abs().mean()}
+    parts["total"] = (parts["l1"] + cfg.low_res_weight * parts["l1_low"]
+                      + cfg.mask_weight * parts["mask"])
+    return parts
+
+
+def _dist() -> tuple[int, int]:
+    """``(rank, world)``; starts the process group under torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not torch.distributed.is_initialized():
+        backend = "nccl" if torch.cuda.is_available() else "gloo"
+        torch.distributed.init_process_group(backend)
+    rank = torch.distributed.get_rank() if world > 1 else 0
+    return rank, world
+
+
+def train(out: str | Path, cfg: TrainConfig | None = None,
+          gen_cfg: GeneratorConfig | None = None, device: str = "cpu",
+          progress: bool = True) -> dict[str, Any]:
+    """Train (or resume) a run in folder ``out``; returns the last logged metrics."""
+    cfg = cfg or TrainConfig()
+    gen_cfg = gen_cfg or GeneratorConfig()
+    from head360cli.model.data import Views
+    from head360cli.progress import progress_bar
+
+    rank, world = _dist()
+    if world > 1 and device.startswith("cuda"):
+        device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
+    out = Path(out)
+    ckpt_path = out / CHECKPOINT
+    start = 0
+    state = None
+    if ckpt_path.is_file():  # resume: the checkpoint's configs win
+        state = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        cfg = dataclasses.replace(TrainConfig(**state["train_config"]), steps=cfg.steps,
+                                  minutes=cfg.minutes)
+        gen_cfg = GeneratorConfig.from_dict(state["generator_config"])
+        start = int(state["step"])
+    torch.manual_seed(cfg.seed)
+    model = _Model(Generator(gen_cfg, *_topology()), cfg.identities).to(device)
+    opt = torch.optim.Adam([
+        {"params": model.generator.parameters(), "lr": cfg.lr},
+        {"params": [model.codes], "lr": cfg.code_lr}])
+    rng = np.random.default_rng([cfg.seed, rank])
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        rng.bit_generator.state = state["rng"][rank] if rank < len(state["rng"]) else \
+            rng.bit_generator.state
+        torch.set_rng_state(state["torch_rng"])
+    run = model
+    if world > 1:
+        run = nn.parallel.DistributedDataParallel(model)
+    views = Views(cfg.identities, "train", cfg.seed, gen_cfg.image_res)
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    last: dict[str, Any] = {}
+    sums: dict[str, float] = {}
+    count = 0
+    bar = progress_bar(range(start, cfg.steps), total=cfg.steps - start, desc="train",
+                       enabled=progress and rank == 0)
+    step = start
+    for step in bar:
+        batch = views.sample(rng, cfg.batch)
+        batch = dataclasses.replace(batch, **{f.name: getattr(batch, f.name).to(device)
+                                              for f in dataclasses.fields(batch)})
+        output = run(batch, jitter=True)
+        parts = losses(output, batch, cfg)
+        total = parts["total"] + cfg.code_prior * model.codes[batch.identity].square().sum(
+            1).mean()
+        opt.zero_grad(set_to_none=True)
+        total.backward()
+        opt.step()
+        for k, v in parts.items():
+            sums[k] = sums.get(k, 0.0) + v.item()
+        count += 1
+        done = step + 1
+        elapsed = time.perf_counter() - t0
+        stop = cfg.minutes > 0 and elapsed > 60.0 * cfg.minutes
+        if world > 1:  # every process stops at the same step
+            flag = torch.tensor([float(stop)], device=device)
+            torch.distributed.all_reduce(flag, op=torch.distributed.ReduceOp.MAX)
+            stop = bool(flag.item())
+        if done % cfg.log_every == 0 or done == cfg.steps or stop:
+            last = {"step": done, "seconds": round(elapsed, 1),
+                    **{k: round(v / count, 5) for k, v in sums.items()}}
+            sums, count = {}, 0
+            if rank == 0:
+                with open(out / "log.jsonl", "a") as f:
+                    f.write(json.dumps(last) + "\n")
+        if done % cfg.checkpoint_every == 0 or done == cfg.steps or stop:
+            _checkpoint(out, model, opt, cfg, gen_cfg, done, rng, world, rank)
+        if stop:
+            break
+    if world > 1:
+        torch.distributed.barrier()
+    return last
+
+
+def _checkpoint(out, model, opt, cfg, gen_cfg, step, rng, world, rank) -> None:
+    """Write the resumable checkpoint (rank 0), with every process's sampler state."""
+    from head360cli.io.atomic import atomic_path
+
+    states = [rng.bit_generator.state]
+    if world > 1:
+        gathered: list[Any] = [None] * world
+        torch.distributed.all_gather_object(gathered, states[0])
+        states = gathered
+    if rank != 0:
+        return
+    state = {"format": "head360-train", "step": step, "train_config": cfg.to_dict(),
+             "generator_config": gen_cfg.to_dict(), "model": model.state_dict(),
+             "optimizer": opt.state_dict(), "rng": states, "torch_rng": torch.get_rng_state()}
+    with atomic_path(out / CHECKPOINT) as tmp:
+        torch.save(state, tmp)
+
+
+def save_generator(checkpoint: str | Path, path: str | Path) -> dict[str, Any]:
+    """Write the shippable weights (generator, training codes, configs) from a training
+    checkpoint; returns a summary."""
+    from head360cli.io.atomic import atomic_path
+
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    model = {k: v.to(torch.float32) if v.is_floating_point() else v
+             for k, v in state["model"].items()}
+    weights = {"format": "head360-generator", "format_version": WEIGHTS_FORMAT,
+               "generator_config": state["generator_config"],
+               "train_config": state["train_config"], "step": state["step"],
+               "generator": {k[len("generator."):]: v for k, v in model.items()
+                             if k.startswith("generator.")},
+               "codes": model["codes"]}
+    with atomic_path(path) as tmp:
+        torch.save(weights, tmp)
+    return {"path": str(path), "bytes": Path(path).stat().st_size, "step": state["step"]}
+
+
+def load_generator(path: str | Path | None = None, device: str = "cpu"
+                   ) -> tuple[Generator, torch.Tensor]:
+    """The shipped generator and its training identities' texture codes.
+
+    Raises:
+        ModelNotFoundError: No weights at ``path`` (default ``models/generator.pt``).
+        FileFormatError: Not head360 generator weights.
+    """
+    from head360cli.errors import FileFormatError, ModelNotFoundError
+
+    if path is None:
+        from head360cli.paths import models_dir
+
+        path = models_dir() / "generator.pt"
+    path = Path(path)
+    if not path.is_file():
+        raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
+                                 "with 'head360 train'")
+    try:
+        w = torch.load(path, map_location="cpu", weights_only=True)
+        assert w.get("format") == "head360-generator"
+        cfg = GeneratorConfig.from_dict(w["generator_config"])
+        gen = Generator(cfg, *_topology())
+        gen.load_state_dict(w["generator"])
+    except Exception as exc:  # pickle, zip, key and shape errors alike
+        raise FileFormatError(f"{path}: expected head360 generator weights ({exc})") from exc
+    return gen.to(device).eval(), w["codes"].to(device)

@@ -1,0 +1,84 @@
+"""The generator: shapes, gradients, configs and the shipped-weights loader."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from head360cli.errors import FileFormatError, ModelNotFoundError
+from head360cli.geometry.cameras import intrinsics_from_fov, rig72
+from head360cli.mesh.bilinear import BilinearHead, load_bilinear
+from head360cli.model.config import GeneratorConfig
+from head360cli.model.generator import Generator
+
+TINY = GeneratorConfig(texture_res=16, plane_res=16, render_res=16, image_res=32, samples=4,
+                       hidden=16, refine_width=8, generator_width=32)
+
+
+@pytest.fixture(scope="module")
+def parts():
+    model = load_bilinear()
+    head = BilinearHead(model)
+    verts = head.vertices(torch.zeros(2, model.rank), torch.zeros(2, 52))
+    c2w = rig72()[0][[24, 30]]
+    return model, verts, c2w, intrinsics_from_fov(24.0, 32, 32)
+
+
+@pytest.mark.parametrize("cfg", [TINY, dataclasses.replace(TINY, planes="tri"),
+                                 dataclasses.replace(TINY, refine=False)])
+def test_outputs_and_gradients(parts, cfg):
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(cfg, model.faces, model.uv, model.faces_uv)
+    code = torch.randn(2, cfg.code_dim, requires_grad=True)
+    out = gen(verts, c2w, k, code=code, jitter=True)
+    assert out["rgb"].shape == (2, 3, 32, 32) and out["alpha"].shape == (2, 1, 32, 32)
+    assert out["rgb_low"].shape == (2, 3, 16, 16)
+    assert torch.isfinite(out["rgb"]).all()
+    # The head covers the middle of a frontal view and not the corners.
+    assert out["alpha_low"][0, 0, 8, 8] > 0.5 and out["alpha_low"][0, 0, 0, 0] == 0
+    out["rgb"].mean().backward()
+    assert code.grad is not None and code.grad.abs().sum() > 0
+    grads = [p.grad for p in gen.decoder.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+
+
+def test_a_given_texture_replaces_the_code(parts):
+    model, verts, c2w, k = parts
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv).eval()
+    code = torch.zeros(2, TINY.code_dim)
+    with torch.no_grad():
+        a = gen(verts, c2w, k, code=code)
+        b = gen(verts, c2w, k, texture=gen.texture(code))
+    assert torch.equal(a["rgb"], b["rgb"])
+    with pytest.raises(ValueError, match="texture code"):
+        gen(verts, c2w, k)
+
+
+def test_config_round_trip_and_checks():
+    cfg = dataclasses.replace(TINY, plane_centre=(0.0, 0.1, 0.0))
+    assert GeneratorConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(ValueError, match="unknown"):
+        GeneratorConfig.from_dict({"bogus": 1})
+    model = load_bilinear()
+    with pytest.raises(ValueError, match="power of two"):
+        Generator(dataclasses.replace(TINY, texture_res=24), model.faces, model.uv,
+                  model.faces_uv)
+    with pytest.raises(ValueError, match="hex or tri"):
+        Generator(dataclasses.replace(TINY, planes="quad"), model.faces, model.uv,
+                  model.faces_uv)
+
+
+def test_loading_weights_errors(tmp_path):
+    from head360cli.model.train import load_generator
+
+    with pytest.raises(ModelNotFoundError, match="head360 train"):
+        load_generator(tmp_path / "none.pt")
+    (tmp_path / "bad.pt").write_bytes(b"not torch")
+    with pytest.raises(FileFormatError):
+        load_generator(tmp_path / "bad.pt")
+    torch.save({"format": "other"}, tmp_path / "other.pt")
+    with pytest.raises(FileFormatError):
+        load_generator(tmp_path / "other.pt")

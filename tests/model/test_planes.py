@@ -1,0 +1,76 @@
+"""Hex-plane rasterization and sampling."""
+
+from __future__ import annotations
+
+import torch
+
+from head360cli.model.planes import (
+    PLANE_SETS,
+    plane_coordinates,
+    rasterize_planes,
+    sample_planes,
+)
+
+CENTRE, HALF = (0.0, 0.0, 0.0), 0.2
+
+
+def cube(side: float = 0.1):
+    """A closed axis-aligned cube (8 vertices, 12 outward triangles) and per-corner UVs."""
+    h = side / 2
+    v = torch.tensor([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4),
+             (1, 5, 7, 3)]
+    faces = torch.tensor([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    uv = torch.tensor([[0.25, 0.25], [0.75, 0.25], [0.75, 0.75]])
+    faces_uv = torch.tensor([[0, 1, 2]] * len(faces))
+    return v, faces, uv, faces_uv
+
+
+def test_plane_coordinates_follow_the_table():
+    p = torch.tensor([[[0.02, -0.04, 0.1]]])
+    uv, h = plane_coordinates(p, ("front", "back", "left", "top"), CENTRE, HALF)
+    assert torch.allclose(uv[0, 0, 0], torch.tensor([0.1, 0.2]))  # x, -y
+    assert torch.allclose(h[0, :, 0], torch.tensor([0.1, -0.1, 0.02, -0.04]))
+
+
+def test_a_cube_shows_its_faces_on_every_plane():
+    v, faces, uv, faces_uv = cube()
+    texture = torch.arange(2.0).view(1, 2, 1, 1).expand(1, 2, 8, 8).contiguous()
+    planes = rasterize_planes(v[None], faces, uv, faces_uv, texture, PLANE_SETS["hex"], 32,
+                              CENTRE, HALF)
+    assert planes.shape == (1, 6, 4, 32, 32)
+    cover = planes[0, :, -1]
+    # The cube spans a quarter of each plane's side: 8 x 8 of 32 x 32 pixels.
+    assert torch.allclose(cover.sum((1, 2)), torch.full((6,), 64.0))
+    height = planes[0, :, -2][cover > 0]
+    assert torch.allclose(height, torch.full_like(height, 0.05), atol=1e-5)
+    assert torch.allclose(planes[0, :, 1][cover > 0], torch.ones(6 * 64))  # the texture
+
+
+def test_points_on_a_face_weigh_the_plane_that_sees_it():
+    v, faces, uv, faces_uv = cube()
+    tex = torch.zeros(1, 6, 4, 4)
+    planes = rasterize_planes(v[None], faces, uv, faces_uv, tex, PLANE_SETS["hex"], 64,
+                              CENTRE, HALF)
+    # Mark each plane's features with its own index, so the mix shows who contributed.
+    ids = torch.arange(6.0).view(1, 6, 1, 1, 1)
+    planes[:, :, :6] = torch.nn.functional.one_hot(ids.long().view(6), 6).float().view(
+        1, 6, 6, 1, 1) * planes[:, :, -1:]
+    pts = torch.tensor([[[0.0, 0.0, 0.05], [0.05, 0.0, 0.0], [0.0, 0.0, 0.3]]])
+    got = sample_planes(pts, planes, PLANE_SETS["hex"], CENTRE, HALF, tau=0.01)
+    feat, offset, total = got[0, :, :6], got[0, :, 6:12], got[0, :, 12]
+    assert feat[0].argmax() == 0 and feat[0, 0] > 0.95  # front face: the front plane
+    assert feat[1].argmax() == 2 and feat[1, 2] > 0.95  # +x face: the left plane
+    assert abs(offset[0, 0]) < 0.1 and offset[0, 1] < -4 + 1e-6  # behind the back face
+    assert total[2] < 1e-6  # far outside: no plane claims it
+    assert torch.isfinite(got).all()
+
+
+def test_tri_planes_are_a_subset():
+    v, faces, uv, faces_uv = cube()
+    tex = torch.rand(1, 3, 4, 4)
+    hexp = rasterize_planes(v[None], faces, uv, faces_uv, tex, PLANE_SETS["hex"], 16,
+                            CENTRE, HALF)
+    tri = rasterize_planes(v[None], faces, uv, faces_uv, tex, PLANE_SETS["tri"], 16,
+                           CENTRE, HALF)
+    assert torch.equal(tri[0, 0], hexp[0, 0]) and torch.equal(tri[0, 1], hexp[0, 2])
