@@ -148,6 +148,8 @@ class ShapeFitter:
             [where[int(v)] for v in self.contour_candidates[k]]
             + [where[int(self.contour_candidates[k][0])]] * (width - len(
                 self.contour_candidates[k])) for k in self.sliding])
+        # Each sliding point starts on its own landmark vertex.
+        self.start_choice = np.searchsorted(cand, lm[self.sliding])
         self.cand_side = np.sign(model.neutral_mean[lm[self.sliding], 0]).astype(np.float64)
         self.fix_blocks = self._embedded_blocks(
             model, np.asarray(model.landmark_tri)[self.fixed],
@@ -364,11 +366,7 @@ class ShapeFitter:
         vis = self.visible_shapes
         used = np.nonzero(sw > 0)[0]
         row_w = np.repeat(sw, 2)[:, None]
-        # Sliding points start on their own landmark vertex.
-        choice = self.cand_table[:, 0].copy()
-        start = [np.nonzero(self.cand_vertices == v)[0][0]
-                 for v in self.landmarks[self.sliding]]
-        choice[:] = start
+        choice = self.start_choice.copy()
         blocks = self._landmark_bases(choice)
         inner = used[(used < nf) & np.isin(self.order[used], np.arange(17, 68))]
         pts = blocks["a0"] + _mv(blocks["b0"], s)
