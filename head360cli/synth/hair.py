@@ -21,7 +21,8 @@ import numpy as np
 
 from head360cli.synth.sculpt import HeadFrame, _column_angles, topology
 
-__all__ = ["HAIRSTYLES", "HAIR_COLOURS", "HairMesh", "HairStyle", "build_hair", "style_index"]
+__all__ = ["HAIRSTYLES", "HAIR_COLOURS", "HairMesh", "HairStyle", "build_hair", "fit_hair",
+           "style_index"]
 
 INNER_GAP = 0.0015
 """Distance between the scalp and the hair shell's inner surface, metres."""
@@ -427,6 +428,15 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int) -> H
         all_uv.append(uv)
         offset += len(v)
     return HairMesh(np.concatenate(all_v), np.concatenate(all_f), np.concatenate(all_uv))
+
+
+def fit_hair(verts: np.ndarray, style: HairStyle | int) -> HairMesh:
+    """Fit a hairstyle to any head of this topology, its frame read off the vertices
+    (:func:`head360cli.synth.sculpt.frame_from_vertices`); for a corpus head this is the
+    same mesh as :func:`build_hair` with the head's own frame."""
+    from head360cli.synth.sculpt import frame_from_vertices
+
+    return build_hair(verts, frame_from_vertices(verts), style)
 
 
 def hair_texture(colour: tuple[float, float, float], size: int = 256, seed: int = 0

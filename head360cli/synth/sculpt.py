@@ -28,7 +28,7 @@ import numpy as np
 from head360cli.synth.fields import gauss2d, smoothstep
 from head360cli.synth.identity import IdentityParams
 
-__all__ = ["N_COLS", "HeadFrame", "Topology", "build_head", "topology"]
+__all__ = ["N_COLS", "HeadFrame", "Topology", "build_head", "frame_from_vertices", "topology"]
 
 N_COLS = 80
 """Columns of the skin grid."""
@@ -627,3 +627,47 @@ def build_head(p: IdentityParams) -> tuple[np.ndarray, HeadFrame]:
             grid[names.index("eye_bottom")][:, 2] > 0.03]).max()),
     )
     return verts, frame
+
+
+def frame_from_vertices(verts: np.ndarray) -> HeadFrame:
+    """Recover a head's feature frame from its vertices alone.
+
+    Works for any mesh in this topology (a corpus head, or the parametric model's head
+    after a fit): each key level is the median height of the skin row built at it, ears
+    and eyes are the centres of their parts. For a corpus head's neutral mesh the levels
+    and the ear centres, which is what hair needs, come out exactly as
+    :func:`build_head` made them; the eye and mouth sizes are estimates.
+
+    Args:
+        verts: ``(V, 3)`` neutral head vertices in :func:`topology` order.
+
+    Returns:
+        The frame.
+    """
+    topo = topology()
+    names = topo.row_names
+    verts = np.asarray(verts, dtype=np.float64)
+    rows = {n: float(np.median(verts[topo.skin_rows[names.index(n)], 1]))
+            for n in _LEVELS if n in names}
+    rows["seam"] = float(np.median(verts[topo.skin_rows[names.index("seam_upper")], 1]))
+    skin = verts[slice(*topo.parts["skin"])]
+    eye_size = (rows["eye_top"] - rows["eye_bottom"]) / 0.012
+    eye = rows["eye_top"] - 0.0065 * eye_size
+    lv = dict(rows, crown=float(skin[:, 1].max()), eye=eye, nasion=eye + 0.009)
+    part_mean = {k: verts[slice(*topo.parts[k])].mean(0) for k in
+                 ("eye_l", "eye_r", "ear_l", "ear_r")}
+    eb = verts[topo.skin_rows[names.index("eye_bottom")]]
+    seam = verts[topo.skin_rows[names.index("seam_upper")]]
+    return HeadFrame(
+        levels=lv,
+        eye_centres=np.stack([part_mean["eye_l"], part_mean["eye_r"]]),
+        eye_half_width=0.0150 * eye_size,
+        eye_half_height_up=lv["eye_top"] - eye,
+        eye_half_height_down=eye - lv["eye_bottom"],
+        mouth_half_width=float(np.abs(seam[seam[:, 2] > 0.03][:, 0]).max()) * 0.5,
+        jaw_pivot=np.array([0.0, 0.5 * (lv["eye_bottom"] + lv["nose_base"]) - 0.004,
+                            -0.012]),
+        ear_centres=np.stack([part_mean["ear_l"], part_mean["ear_r"]]),
+        nose_tip=verts[topo.skin_rows[names.index("nose_tip"), N_COLS // 2]],
+        face_half_width=float(np.abs(eb[eb[:, 2] > 0.03][:, 0]).max()),
+    )

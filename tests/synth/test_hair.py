@@ -57,3 +57,34 @@ def test_hair_texture_tints_by_colour():
     dark = hair_texture(HAIR_COLOURS["black"], 64, 0)
     blonde = hair_texture(HAIR_COLOURS["blonde"], 64, 0)
     assert dark.shape == (64, 64, 3) and dark.mean() < 0.1 < 0.4 < blonde.mean()
+
+
+@pytest.mark.parametrize("seed", [2, 9])
+def test_hair_fits_from_the_vertices_alone(seed):
+    """A fitted head has no sculpt frame: reading it off the vertices must give the frame
+    the sculptor used (levels, ears) and therefore the same hair."""
+    from head360cli.synth.hair import fit_hair
+    from head360cli.synth.sculpt import frame_from_vertices
+
+    verts, frame = build_head(sample_identity(seed))
+    got = frame_from_vertices(verts)
+    for name, level in frame.levels.items():
+        assert got.levels[name] == pytest.approx(level, abs=1e-9), name
+    np.testing.assert_allclose(got.ear_centres, frame.ear_centres, atol=1e-9)
+    np.testing.assert_allclose(got.eye_centres, frame.eye_centres, atol=1e-4)
+    for k in (3, 17, 24):
+        a, b = fit_hair(verts, k), build_hair(verts, frame, k)
+        np.testing.assert_allclose(a.verts, b.verts, atol=1e-9)
+        assert np.array_equal(a.faces, b.faces)
+
+
+def test_hair_fits_the_parametric_models_mean_head():
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.synth.hair import fit_hair
+
+    model = load_bilinear()
+    verts = model.vertices(np.zeros(model.rank), np.zeros(52))
+    hair = fit_hair(verts, 17)
+    assert len(hair.faces) > 1000 and np.isfinite(hair.verts).all()
+    # The hair sits on the head: its top within 3 cm above the scalp's.
+    assert 0 < hair.verts[:, 1].max() - verts[:, 1].max() < 0.03
