@@ -401,7 +401,8 @@ PRESETS = {
     "gpu": {"texture_res": 256, "plane_res": 128, "render_res": 128, "samples": 12,
             "hidden": 128, "refine_width": 64, "generator_width": 256},
     "tiny": {"texture_res": 16, "plane_res": 16, "render_res": 16, "image_res": 32,
-             "samples": 4, "hidden": 16, "refine_width": 8, "generator_width": 32},
+             "samples": 4, "hidden": 16, "refine_width": 8, "generator_width": 32,
+             "hair_texture_res": 8},
 }
 
 
@@ -420,18 +421,27 @@ PRESETS = {
 @click.option("--planes", type=click.Choice(["hex", "tri"]), default="hex", show_default=True,
               help="Feature planes: six (hex) or three (tri, the ablation).")
 @click.option("--no-refine", is_flag=True, help="Without the RefineNet (the ablation).")
+@click.option("--no-detach", is_flag=True,
+              help="Without hair detachment: every view with its hair (the ablation).")
+@click.option("--no-hair", is_flag=True, help="Head branch only, trained on bald views.")
+@click.option("--lr", default=2e-3, show_default=True, help="Learning rate of the networks.")
+@click.option("--group", default=1, show_default=True,
+              help="Views per head in a batch, rendered together (faster data).")
+@click.option("--workers", default=1, show_default=True,
+              help="Processes that build the corpus heads before training.")
 @click.option("--export", "export", type=click.Path(dir_okay=False), default=None,
               help="Also write the shippable weights here (e.g. models/generator.pt).")
 @common_options
 def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
-          identities: int, seed: int, planes: str, no_refine: bool,
-          export: str | None) -> None:
+          identities: int, seed: int, planes: str, no_refine: bool, no_detach: bool,
+          no_hair: bool, lr: float, group: int, workers: int, export: str | None) -> None:
     """Train the generator on SynHead-P (resumes a run folder that has a checkpoint).
 
     \b
     Examples:
       head360 train runs/cpu --export models/generator.pt
       head360 train runs/tri --planes tri --minutes 20
+      head360 train runs/gpu --preset gpu --device cuda --batch 16 --steps 6000
       torchrun --nproc_per_node 2 -m head360cli train runs/ddp --steps 100
     """
     from head360cli.devices import resolve_device
@@ -443,9 +453,11 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
         raise BadInputError(f"expected --steps, --batch and --identities >= 1, found "
                             f"{steps}, {batch} and {identities}")
     device = str(resolve_device(_settings().device))
-    gen_cfg = GeneratorConfig(**PRESETS[preset], planes=planes, refine=not no_refine)
+    gen_cfg = GeneratorConfig(**PRESETS[preset], planes=planes, refine=not no_refine,
+                              hair=not no_hair)
     cfg = TrainConfig(identities=identities, seed=seed, steps=steps, minutes=minutes,
-                      batch=batch)
+                      batch=batch, lr=lr, detach=not no_detach, group=group,
+                      workers=workers)
     last = run_training(run_dir, cfg, gen_cfg, device=device, progress=not _settings().quiet)
     result: dict[str, Any] = {"run": run_dir, "last": last}
     if export and int(os.environ.get("RANK", "0")) == 0:

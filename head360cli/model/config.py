@@ -48,6 +48,18 @@ class GeneratorConfig:
     (the no-RefineNet ablation)."""
     refine_width: int = 32
     """Channels of the RefineNet."""
+    hair: bool = True
+    """Build the hair branch (hairstyle and colour -> hair planes on the style's mesh)."""
+    hair_styles: int = 30
+    """Hairstyles the hair branch knows (the corpus's style library)."""
+    hair_embed_dim: int = 16
+    """Length of a hairstyle's learnt embedding; the hair colour (RGB) is appended."""
+    hair_texture_res: int = 64
+    """Width and height of the hair neural texture (over the hair mesh's strand UVs)."""
+    hair_plane_centre: tuple[float, float, float] = (0.0, -0.07, 0.0)
+    """Centre of the hair planes' cube (long hair falls below the head's cube)."""
+    hair_plane_half_size: float = 0.25
+    """Half the side (metres) of the hair planes' cube."""
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -59,6 +71,7 @@ class GeneratorConfig:
         if unknown:
             raise ValueError(f"unknown generator settings {sorted(unknown)}")
         data = dict(data)
-        if "plane_centre" in data:
-            data["plane_centre"] = tuple(data["plane_centre"])
+        for key in ("plane_centre", "hair_plane_centre"):
+            if key in data:
+                data[key] = tuple(data[key])
         return cls(**data)

@@ -10,7 +10,6 @@ every evaluation view is a view the generator never saw.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 import torch
@@ -22,6 +21,7 @@ from head360cli.geometry.cameras import (
     intrinsics_from_fov,
     rig72,
 )
+from head360cli.model.generator import Hair
 
 __all__ = ["Views", "eval_cameras", "sample_expression"]
 
@@ -45,15 +45,32 @@ def sample_expression(rng: np.random.Generator, p_neutral: float = 0.4) -> np.nd
 @dataclasses.dataclass
 class Batch:
     """Views ready for the generator: ``verts (B, V, 3)``, ``c2w (B, 4, 4)``,
-    ``intrinsics (3, 3)``, targets ``rgb (B, 3, H, W)`` and ``alpha (B, 1, H, W)``, and
-    the ``identity (B,)`` indices."""
+    ``intrinsics (3, 3)``, targets ``rgb (B, 3, H, W)``, ``alpha`` and ``hair_alpha``
+    ``(B, 1, H, W)``, the ``identity (B,)`` indices, ``with_hair (B,)`` and the ``hair``
+    to render them with (meshes ``None`` for bald views)."""
 
     verts: torch.Tensor
     c2w: torch.Tensor
     intrinsics: torch.Tensor
     rgb: torch.Tensor
     alpha: torch.Tensor
+    hair_alpha: torch.Tensor
     identity: torch.Tensor
+    with_hair: torch.Tensor
+    hair: Hair
+
+    def to(self, device: torch.device | str) -> Batch:
+        return Batch(**{f.name: getattr(self, f.name).to(device)
+                        for f in dataclasses.fields(self)})
+
+    @staticmethod
+    def cat(parts: list[Batch]) -> Batch:
+        fields = {f.name: torch.cat([getattr(p, f.name) for p in parts])
+                  for f in dataclasses.fields(Batch) if f.name not in ("intrinsics", "hair")}
+        hair = Hair([m for p in parts for m in p.hair.meshes],
+                    torch.cat([p.hair.style for p in parts]),
+                    torch.cat([p.hair.colour for p in parts]))
+        return Batch(intrinsics=parts[0].intrinsics, hair=hair, **fields)
 
 
 class Views:
@@ -65,40 +82,99 @@ class Views:
         seed: Corpus seed.
         size: Image resolution.
         texture_size: Atlas size of the synthetic heads.
+        device: Where the corpus renderer runs (the targets stay there).
     """
 
     def __init__(self, identities: int, split: str = "train", seed: int = 0,
-                 size: int = 256, texture_size: int = 512) -> None:
+                 size: int = 256, texture_size: int = 512, device: str = "cpu") -> None:
         self.identities, self.split, self.seed, self.size = identities, split, seed, size
         self.texture_size = texture_size
-        self.intrinsics = intrinsics_from_fov(RIG_FOV_DEG, size, size)
+        self.device = torch.device(device)
+        self.intrinsics = intrinsics_from_fov(RIG_FOV_DEG, size, size).to(self.device)
         self.rig, _, _ = rig72()
+        self._heads: dict[tuple, object] = {}
 
-    @functools.lru_cache(maxsize=128)  # noqa: B019  (one Views per run)
-    def head(self, index: int):
-        from head360cli.synth.scene import make_head
+    def head(self, index: int, style: int | None = None, colour: str | None = None):
+        """Corpus head ``index``, optionally with another hairstyle and colour (built once,
+        kept)."""
+        key = (index, style, colour)
+        if key not in self._heads:
+            from head360cli.synth.scene import make_head, prepare_render
 
-        return make_head(index, self.split, self.seed, texture_size=self.texture_size)
+            head = make_head(index, self.split, self.seed, texture_size=self.texture_size,
+                             hair_style=style, hair_colour=colour)
+            prepare_render(head, self.device)
+            self._heads[key] = head
+        return self._heads[key]
 
-    def render(self, index: int, weights: np.ndarray, c2w: torch.Tensor) -> Batch:
-        """Views of one head with one expression from cameras ``c2w (B, 4, 4)``."""
+    def prefetch(self, workers: int = 1) -> None:
+        """Build every head of the split now, in ``workers`` processes."""
+        from head360cli.synth.scene import make_head, prepare_render
+
+        todo = [i for i in range(self.identities) if (i, None, None) not in self._heads]
+        if workers > 1 and len(todo) > 1:
+            import concurrent.futures
+            import multiprocessing
+
+            ctx = multiprocessing.get_context("spawn")
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+                heads = list(pool.map(_make_head, [(i, self.split, self.seed,
+                                                    self.texture_size) for i in todo]))
+        else:
+            heads = [make_head(i, self.split, self.seed, texture_size=self.texture_size)
+                     for i in todo]
+        for i, head in zip(todo, heads, strict=True):
+            prepare_render(head, self.device)
+            self._heads[(i, None, None)] = head
+
+    def render(self, index: int, weights: np.ndarray, c2w: torch.Tensor,
+               with_hair: bool = False, style: int | None = None,
+               colour: str | None = None) -> Batch:
+        """Views of one head with one expression from cameras ``c2w (B, 4, 4)``, with its
+        hair (or hairstyle ``style`` in ``colour``) or bald."""
+        from head360cli.synth.hair import HAIR_COLOURS
         from head360cli.synth.scene import render_head
 
-        head = self.head(index)
-        out = render_head(head, weights, c2w, self.intrinsics, self.size, with_hair=False)
+        head = self.head(index, style, colour)
+        c2w = c2w.to(self.device)
+        out = render_head(head, weights, c2w, self.intrinsics, self.size,
+                          with_hair=with_hair)
         verts = torch.tensor(head.verts + np.tensordot(weights, head.deltas, 1),
-                             dtype=torch.float32)
+                             dtype=torch.float32, device=self.device)
         b = c2w.shape[0]
+        mesh = None
+        if with_hair and len(head.hair.faces):
+            mesh = tuple(torch.tensor(a, dtype=d, device=self.device) for a, d in
+                         ((head.hair.verts, torch.float32), (head.hair.faces, torch.long),
+                          (head.hair.uv, torch.float32)))
+        colour_rgb = torch.tensor(HAIR_COLOURS[head.hair_colour], dtype=torch.float32,
+                                  device=self.device)
+        hair = Hair([mesh] * b, torch.full((b,), head.hair_style, device=self.device),
+                    colour_rgb.expand(b, 3))
+        hair_alpha = out.labels[:, :1] if with_hair else torch.zeros_like(out.alpha)
         return Batch(verts[None].expand(b, -1, -1).contiguous(), c2w, self.intrinsics,
-                     out.rgb, out.alpha, torch.full((b,), index, dtype=torch.long))
+                     out.rgb, out.alpha, hair_alpha,
+                     torch.full((b,), index, dtype=torch.long, device=self.device),
+                     torch.full((b,), with_hair, dtype=torch.bool, device=self.device),
+                     hair)
 
-    def sample(self, rng: np.random.Generator, batch: int) -> Batch:
-        """A training batch: ``batch`` random (head, expression, rig camera) views."""
+    def sample(self, rng: np.random.Generator, batch: int, bald_share: float = 0.5,
+               group: int = 1) -> Batch:
+        """A training batch of ``batch`` views: groups of ``group`` rig cameras on one
+        random head and expression (one render call per group), each group bald with
+        probability ``bald_share``."""
         parts = []
-        for _ in range(batch):
+        for start in range(0, batch, group):
+            n = min(group, batch - start)
             index = int(rng.integers(self.identities))
-            cam = self.rig[int(rng.integers(len(self.rig)))][None]
-            parts.append(self.render(index, sample_expression(rng), cam))
-        return Batch(*(torch.cat([getattr(p, f.name) for p in parts]) if f.name !=
-                       "intrinsics" else parts[0].intrinsics
-                       for f in dataclasses.fields(Batch)))
+            cams = self.rig[torch.as_tensor(rng.choice(len(self.rig), n, replace=False))]
+            bald = bool(rng.random() < bald_share)
+            parts.append(self.render(index, sample_expression(rng), cams, with_hair=not bald))
+        return Batch.cat(parts)
+
+
+def _make_head(args):
+    from head360cli.synth.scene import make_head
+
+    index, split, seed, size = args
+    return make_head(index, split, seed, texture_size=size)

@@ -1,17 +1,22 @@
-"""The generator: (mesh vertices, texture code or neural texture, camera) -> image.
+"""The generator: (mesh vertices, texture code or neural texture, hair, camera) -> image.
 
     t --TextureGenerator--> neural texture (C, R, R)
-    vertices + texture --rasterize_planes--> hex-planes (P, C + 2, res, res)
-    camera --surface_samples--> points around the rasterized surface
-    points --sample_planes--> features --Decoder--> density, colour features
-    --composite--> feature image (render_res) --RefineNet--> RGB, alpha (image_res)
+    vertices + texture --rasterize_planes--> head hex-planes (P, C + 2, res, res)
+    style, colour --HairTextureGenerator--> hair texture --on the style's mesh--> hair planes
+    camera --screen_depth of head and hair--> points around the nearest surface
+    points --sample_planes--> features --Decoder (head), Decoder (hair)--> densities, colours
+    --composite--> feature image, alpha, hair alpha (render_res) --RefineNet--> RGB, alpha
 
 The vertices come from the parametric head (:class:`head360cli.mesh.bilinear.BilinearHead`
-for codes ``s`` and ARKit weights ``w``) or straight from a mesh of the same topology.
+for codes ``s`` and ARKit weights ``w``) or straight from a mesh of the same topology. The
+hair's geometry is the hairstyle's mesh fitted to the neutral head
+(:func:`head360cli.synth.hair.fit_hair`); what the hair branch learns is its appearance and
+density around that mesh. Items without hair skip the hair branch.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -20,15 +25,51 @@ import torch.nn.functional as F
 from torch import nn
 
 from head360cli.model.config import GeneratorConfig
-from head360cli.model.networks import Decoder, RefineNet, TextureGenerator
+from head360cli.model.networks import Decoder, HairTextureGenerator, RefineNet, TextureGenerator
 from head360cli.model.planes import PLANE_SETS, rasterize_planes, sample_planes
-from head360cli.model.render import composite, surface_samples
+from head360cli.model.render import composite, samples_around, screen_depth
 
-__all__ = ["Generator"]
+__all__ = ["Generator", "Hair", "hair_for"]
+
+
+@dataclasses.dataclass
+class Hair:
+    """The hair of each item of a batch.
+
+    Attributes:
+        meshes: Per item ``(verts (H, 3), faces (G, 3), uv (H, 2))`` tensors of the
+            hairstyle's mesh, or ``None`` for a bald item.
+        style: ``(B,)`` hairstyle ids.
+        colour: ``(B, 3)`` hair colours, RGB in [0, 1].
+    """
+
+    meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]
+    style: torch.Tensor
+    colour: torch.Tensor
+
+    def to(self, device: torch.device | str) -> Hair:
+        return Hair([None if m is None else tuple(t.to(device) for t in m)
+                     for m in self.meshes], self.style.to(device), self.colour.to(device))
+
+
+def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray) -> Hair:
+    """Hair of hairstyles ``styles`` and ``colours (B, 3)`` fitted to neutral heads
+    ``(B, V, 3)`` (or one ``(V, 3)`` head for all)."""
+    from head360cli.synth.hair import fit_hair
+
+    neutral = np.asarray(neutral)
+    meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None] = []
+    for i, style in enumerate(styles):
+        m = fit_hair(neutral if neutral.ndim == 2 else neutral[i], int(style))
+        meshes.append(None if len(m.faces) == 0 else (
+            torch.tensor(m.verts, dtype=torch.float32), torch.tensor(m.faces),
+            torch.tensor(m.uv, dtype=torch.float32)))
+    return Hair(meshes, torch.tensor(list(styles), dtype=torch.long),
+                torch.as_tensor(np.asarray(colours, dtype=np.float32)).reshape(-1, 3))
 
 
 class Generator(nn.Module):
-    """The head generator (head branch).
+    """The head generator: head branch, hair branch, volume renderer and RefineNet.
 
     Args:
         cfg: Sizes.
@@ -48,9 +89,12 @@ class Generator(nn.Module):
         self.register_buffer("uv", torch.as_tensor(np.asarray(uv), dtype=torch.float32))
         self.register_buffer("faces_uv",
                              torch.as_tensor(np.asarray(faces_uv), dtype=torch.long))
-        self.texture_generator = TextureGenerator(cfg)
+        self.texture_generator = TextureGenerator.from_config(cfg)
         self.decoder = Decoder(cfg, len(self.plane_names))
         self.refine = RefineNet(cfg) if cfg.refine else None
+        if cfg.hair:
+            self.hair_texture_generator = HairTextureGenerator(cfg)
+            self.hair_decoder = Decoder(cfg, len(self.plane_names))
 
     def texture(self, code: torch.Tensor) -> torch.Tensor:
         """``(B, code_dim)`` -> neural texture ``(B, C, R, R)``."""
@@ -63,9 +107,18 @@ class Generator(nn.Module):
                                 self.plane_names, c.plane_res, c.plane_centre,
                                 c.plane_half_size)
 
+    def hair_planes(self, mesh: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+                    texture: torch.Tensor) -> torch.Tensor:
+        """Hair planes ``(1, P, C + 2, res, res)`` of one hair mesh and its texture
+        ``(1, C, R, R)``. They depend on the hair only, so animation reuses them."""
+        c = self.cfg
+        verts, faces, uv = mesh
+        return rasterize_planes(verts[None], faces, uv, faces, texture, self.plane_names,
+                                c.plane_res, c.hair_plane_centre, c.hair_plane_half_size)
+
     def forward(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, *,
                 code: torch.Tensor | None = None, texture: torch.Tensor | None = None,
-                jitter: bool = False) -> dict[str, Any]:
+                hair: Hair | None = None, jitter: bool = False) -> dict[str, Any]:
         """Render heads.
 
         Args:
@@ -74,43 +127,81 @@ class Generator(nn.Module):
             intrinsics: ``(B, 3, 3)`` or ``(3, 3)`` for an ``image_res`` image.
             code: ``(B, code_dim)`` texture codes, or
             texture: ``(B, C, R, R)`` neural textures (inversion optimises these).
+            hair: The items' hair; ``None`` renders bald heads.
             jitter: Stratified random sample positions (training).
 
         Returns:
-            ``rgb (B, 3, H, W)`` on a white background, ``alpha (B, 1, H, W)``,
-            ``rgb_low``/``alpha_low``/``depth_low`` at ``render_res``.
+            ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
+            ``(B, 1, H, W)``, and ``rgb_low``/``alpha_low``/``hair_alpha_low``/``depth_low``
+            at ``render_res``, and the ``texture``.
         """
         c = self.cfg
         if texture is None:
             if code is None:
                 raise ValueError("expected a texture code or a neural texture, found neither")
             texture = self.texture(code)
+        if hair is not None and not c.hair:
+            raise ValueError("expected no hair: this generator was built without a hair "
+                             "branch")
         b = verts.shape[0]
-        planes = self.planes(verts, texture)
         k = intrinsics.expand(b, 3, 3).clone()
         k[:, :2] *= c.render_res / c.image_res
+        depth = screen_depth(verts, self.faces, c2w, k, c.render_res)
+        hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
+                                               if m is not None]
+        if hair_items:
+            depth = depth.clone()
+            for i in hair_items:
+                hv, hf, _ = hair.meshes[i]
+                hd = screen_depth(hv[None], hf, c2w[i:i + 1], k[i:i + 1], c.render_res)
+                depth[i] = torch.minimum(depth[i], hd[0])
         rays = c.render_res * c.render_res
         noise = (torch.rand(b, rays, c.samples, dtype=verts.dtype, device=verts.device)
                  if jitter else None)
-        points, depths, near = surface_samples(verts, self.faces, c2w, k, c.render_res,
-                                               c.samples, c.shell, noise)
-        feats = sample_planes(points.reshape(b, -1, 3), planes, self.plane_names,
+        points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise)
+        points = points.reshape(b, -1, 3)
+        feats = sample_planes(points, self.planes(verts, texture), self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
         density, colour = self.decoder(feats)
+        hair_part = torch.zeros_like(density)
+        if hair_items:
+            idx = torch.tensor(hair_items, device=verts.device)
+            hair_tex = self.hair_texture_generator(hair.style[idx], hair.colour[idx])
+            d_hair, c_hair = [], []
+            for j, i in enumerate(hair_items):
+                planes = self.hair_planes(hair.meshes[i], hair_tex[j:j + 1])
+                f = sample_planes(points[i:i + 1], planes, self.plane_names,
+                                  c.hair_plane_centre, c.hair_plane_half_size,
+                                  c.surface_tau)
+                dh, ch = self.hair_decoder(f)
+                d_hair.append(dh[0])
+                c_hair.append(ch[0])
+            dh, ch = torch.stack(d_hair), torch.stack(c_hair)
+            dh_full = torch.zeros_like(density).index_copy(0, idx, dh)
+            ch_full = torch.zeros_like(colour).index_copy(0, idx, ch)
+            total = density + dh_full
+            share = dh_full / (total + 1e-6)
+            colour = colour * (1.0 - share[..., None]) + ch_full * share[..., None]
+            density, hair_part = total, share
+        colour = torch.cat([colour, hair_part[..., None]], -1)
         density = density.view(b, rays, c.samples)
         colour = colour.view(b, rays, c.samples, -1)
-        image, alpha, depth = composite(density, colour, depths, near, c.shell)
+        image, alpha, depth_low = composite(density, colour, depths, near, c.shell)
         shape = (b, c.render_res, c.render_res)
         image = image.transpose(1, 2).reshape(b, -1, *shape[1:])
+        image, hair_low = image[:, :-1], image[:, -1:]
         alpha = alpha.view(b, 1, *shape[1:])
         rgb_low = image[:, :3] + (1.0 - alpha)  # on white
+        scale = c.image_res / c.render_res
         if self.refine is not None:
             rgb, alpha_hi = self.refine(image, alpha, rgb_low)
         else:
-            scale = c.image_res / c.render_res
             rgb = F.interpolate(rgb_low, scale_factor=scale, mode="bilinear",
                                 align_corners=False)
             alpha_hi = F.interpolate(alpha, scale_factor=scale, mode="bilinear",
                                      align_corners=False)
-        return {"rgb": rgb, "alpha": alpha_hi, "rgb_low": rgb_low, "alpha_low": alpha,
-                "depth_low": depth.view(b, 1, *shape[1:]), "texture": texture}
+        hair_hi = F.interpolate(hair_low, scale_factor=scale, mode="bilinear",
+                                align_corners=False)
+        return {"rgb": rgb, "alpha": alpha_hi, "hair_alpha": hair_hi, "rgb_low": rgb_low,
+                "alpha_low": alpha, "hair_alpha_low": hair_low,
+                "depth_low": depth_low.view(b, 1, *shape[1:]), "texture": texture}

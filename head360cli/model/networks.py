@@ -11,21 +11,21 @@ from torch import nn
 
 from head360cli.model.config import GeneratorConfig
 
-__all__ = ["Decoder", "RefineNet", "TextureGenerator"]
+__all__ = ["Decoder", "HairTextureGenerator", "RefineNet", "TextureGenerator"]
 
 
 class TextureGenerator(nn.Module):
     """Texture code ``t`` -> UV neural texture: a learnt mean texture plus a convolutional
     generator's code-dependent part (4x4, doubled until ``texture_res``)."""
 
-    def __init__(self, cfg: GeneratorConfig) -> None:
+    def __init__(self, code_dim: int, channels: int, res: int, width: int) -> None:
         super().__init__()
-        c, res, width = cfg.texture_channels, cfg.texture_res, cfg.generator_width
+        c = channels
         steps = round(math.log2(res / 4))
         if 4 * 2 ** steps != res:
             raise ValueError(f"expected texture_res = 4 x a power of two, found {res}")
         self.width = width
-        self.mapping = nn.Sequential(nn.Linear(cfg.code_dim, 256), nn.LeakyReLU(0.2),
+        self.mapping = nn.Sequential(nn.Linear(code_dim, 256), nn.LeakyReLU(0.2),
                                      nn.Linear(256, width * 16))
         blocks = []
         ch = width
@@ -42,6 +42,29 @@ class TextureGenerator(nn.Module):
         """``(B, code_dim)`` -> ``(B, C, R, R)``."""
         x = self.mapping(code).view(code.shape[0], self.width, 4, 4)
         return self.mean + self.out(self.blocks(x))
+
+    @classmethod
+    def from_config(cls, cfg: GeneratorConfig) -> TextureGenerator:
+        """The head branch's texture generator."""
+        return cls(cfg.code_dim, cfg.texture_channels, cfg.texture_res, cfg.generator_width)
+
+
+class HairTextureGenerator(nn.Module):
+    """Hairstyle id and hair colour -> the hair mesh's neural texture: a learnt embedding
+    per style, the colour appended, through a :class:`TextureGenerator`."""
+
+    def __init__(self, cfg: GeneratorConfig) -> None:
+        super().__init__()
+        self.embedding = nn.Embedding(cfg.hair_styles, cfg.hair_embed_dim)
+        nn.init.normal_(self.embedding.weight, std=0.1)
+        self.generator = TextureGenerator(cfg.hair_embed_dim + 3, cfg.texture_channels,
+                                          cfg.hair_texture_res, cfg.generator_width // 2)
+
+    def forward(self, style: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
+        """``style (B,)`` ids and ``colour (B, 3)`` linear RGB in [0, 1] ->
+        ``(B, C, R, R)``."""
+        code = torch.cat([self.embedding(style), colour.to(self.embedding.weight.dtype)], -1)
+        return self.generator(code)
 
 
 class Decoder(nn.Module):

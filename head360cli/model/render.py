@@ -16,14 +16,16 @@ import torch.nn.functional as F
 from head360cli.geometry.cameras import project
 from head360cli.geometry.rasterize import rasterize
 
-__all__ = ["composite", "surface_samples"]
+__all__ = ["EMPTY", "composite", "samples_around", "screen_depth", "surface_samples"]
 
 
-def surface_samples(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
-                    intrinsics: torch.Tensor, res: int, samples: int, shell: float,
-                    jitter: torch.Tensor | None = None
-                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Points along each pixel's ray around the mesh.
+EMPTY = 1e3
+"""Depth (metres) of pixels where the rasterizer found no surface."""
+
+
+def screen_depth(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
+                 intrinsics: torch.Tensor, res: int) -> torch.Tensor:
+    """Depth of the nearest front-facing surface per pixel.
 
     Args:
         verts: ``(B, V, 3)`` head (world) coordinates.
@@ -31,6 +33,25 @@ def surface_samples(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
         c2w: ``(B, 4, 4)``.
         intrinsics: ``(B, 3, 3)`` for a ``res x res`` image.
         res: Image resolution.
+
+    Returns:
+        ``(B, res, res)`` depth, :data:`EMPTY` where no surface covers the pixel. The depth
+        of several meshes seen together is the minimum of theirs.
+    """
+    pix, depth = project(verts, c2w, intrinsics)
+    frags = rasterize(pix, depth, faces, res, res, cull_backfaces=True)
+    return torch.where(frags.mask, frags.depth, torch.full_like(frags.depth, EMPTY))
+
+
+def samples_around(depth: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
+                   samples: int, shell: float, jitter: torch.Tensor | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Points along each pixel's ray around a depth map's surface.
+
+    Args:
+        depth: ``(B, res, res)`` from :func:`screen_depth`.
+        c2w: ``(B, 4, 4)``.
+        intrinsics: ``(B, 3, 3)`` for a ``res x res`` image.
         samples: Points per ray ``S``.
         shell: Metres covered in front of and behind the surface.
         jitter: Optional ``(B, res * res, S)`` in [0, 1): stratified offsets (training).
@@ -39,24 +60,21 @@ def surface_samples(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
         ``(points (B, res*res, S, 3), depths (B, res*res, S), near (B, res*res))`` where
         ``near`` is 1 for pixels with a surface within one pixel, else 0.
     """
-    b = verts.shape[0]
-    pix, depth = project(verts, c2w, intrinsics)
-    frags = rasterize(pix, depth, faces, res, res, cull_backfaces=True)
-    mask = frags.mask.to(verts.dtype)[:, None]
-    big = torch.full_like(frags.depth, 1e3)
-    d = torch.where(frags.mask, frags.depth, big)[:, None]
+    b, res = depth.shape[0], depth.shape[-1]
+    dtype, device = c2w.dtype, c2w.device
+    d = depth[:, None]
+    mask = (d < EMPTY).to(dtype)
     # Fill one pixel around the silhouette with the nearest covered depth.
     d_fill = -F.max_pool2d(-d, 3, stride=1, padding=1)
     near = F.max_pool2d(mask, 3, stride=1, padding=1)
     d_fill = torch.where(near > 0, d_fill, torch.ones_like(d_fill))  # arbitrary, weight 0
     d_fill = d_fill.view(b, res * res)
-    steps = torch.arange(samples, dtype=verts.dtype, device=verts.device)
+    steps = torch.arange(samples, dtype=dtype, device=device)
     u = (steps + 0.5)[None, None] if jitter is None else steps + jitter
     t = d_fill[..., None] + shell * (2.0 * u / samples - 1.0)  # (B, HW, S)
     # Ray directions with unit depth, in world coordinates.
-    ys, xs = torch.meshgrid(torch.arange(res, dtype=verts.dtype, device=verts.device),
-                            torch.arange(res, dtype=verts.dtype, device=verts.device),
-                            indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(res, dtype=dtype, device=device),
+                            torch.arange(res, dtype=dtype, device=device), indexing="ij")
     k = intrinsics
     dx = (xs.reshape(-1)[None] + 0.5 - k[:, 0, 2, None]) / k[:, 0, 0, None]
     dy = (ys.reshape(-1)[None] + 0.5 - k[:, 1, 2, None]) / k[:, 1, 1, None]
@@ -65,6 +83,15 @@ def surface_samples(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
     origin = c2w[:, None, None, :3, 3]
     points = origin + t[..., None] * dirs[:, :, None, :]
     return points, t, near.view(b, res * res)
+
+
+def surface_samples(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
+                    intrinsics: torch.Tensor, res: int, samples: int, shell: float,
+                    jitter: torch.Tensor | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`samples_around` the surface of one mesh (see :func:`screen_depth`)."""
+    return samples_around(screen_depth(verts, faces, c2w, intrinsics, res), c2w,
+                          intrinsics, samples, shell, jitter)
 
 
 def composite(density: torch.Tensor, features: torch.Tensor, depths: torch.Tensor,

@@ -1,5 +1,12 @@
-"""Training the generator on SynHead-P (head branch): auto-decoded texture codes, an L1
-photometric loss at both resolutions, a coverage (mask) loss and a code prior.
+"""Training the generator on SynHead-P: auto-decoded texture codes, an L1 photometric loss
+at both resolutions, coverage (mask) and hair-coverage losses, and a code prior.
+
+Hair detachment: a share of the views are rendered bald and supervise the head branch
+alone; the others, with their hair, supervise the composite. Without detachment every view
+has its hair, so nothing says what the head looks like under it.
+
+Adam with a short warm-up and a cosine decay, gradients clipped; a step whose loss is not
+finite is skipped rather than applied.
 
 Resumable (``checkpoint.pt`` in the run folder holds everything: configs, weights, codes,
 optimiser, step, random states), logged (``log.jsonl``, one line per logged step),
@@ -54,6 +61,22 @@ class TrainConfig:
     """Weight of the L1 loss on the volume-rendered colour (before the RefineNet)."""
     mask_weight: float = 0.5
     """Weight of the L1 loss on the coverage."""
+    hair_weight: float = 0.5
+    """Weight of the L1 loss on the hair coverage (with detachment only)."""
+    detach: bool = True
+    """Hair detachment: render a share of the views bald (see ``bald_share``)."""
+    bald_share: float = 0.5
+    """With detachment, the probability that a view is rendered bald."""
+    warmup: int = 100
+    """Steps of linear learning-rate warm-up."""
+    final_lr: float = 0.1
+    """Learning rate at the last step, as a fraction of the initial one (cosine decay)."""
+    clip: float = 1.0
+    """Gradient-norm clipping."""
+    group: int = 1
+    """Views per head in a batch (rendered together: faster data, less variety)."""
+    workers: int = 1
+    """Processes that build the corpus heads before training starts."""
     log_every: int = 25
     """Steps between log lines."""
     checkpoint_every: int = 200
@@ -72,8 +95,9 @@ class _Model(nn.Module):
         self.codes = nn.Parameter(torch.randn(identities, gen.cfg.code_dim) * 0.01)
 
     def forward(self, batch, jitter: bool = True):
+        hair = batch.hair if self.generator.cfg.hair else None
         return self.generator(batch.verts, batch.c2w, batch.intrinsics,
-                              code=self.codes[batch.identity], jitter=jitter)
+                              code=self.codes[batch.identity], hair=hair, jitter=jitter)
 
 
 def _topology():
@@ -94,14 +118,32 @@ def losses(out: dict[str, torch.Tensor], batch, cfg: TrainConfig) -> dict[str, t
              + (out["alpha_low"] - alpha_low).abs().mean()}
     parts["total"] = (parts["l1"] + cfg.low_res_weight * parts["l1_low"]
                       + cfg.mask_weight * parts["mask"])
+    if cfg.detach:
+        parts["hair"] = (out["hair_alpha"] - batch.hair_alpha).abs().mean()
+        parts["total"] = parts["total"] + cfg.hair_weight * parts["hair"]
     return parts
+
+
+def learning_rate_scale(step: int, cfg: TrainConfig, elapsed: float = 0.0) -> float:
+    """Multiplier of the learning rates at ``step`` (warm-up, then cosine decay over the
+    steps, or over the minutes when those run out first)."""
+    import math
+
+    if step < cfg.warmup:
+        return (step + 1) / cfg.warmup
+    frac = min(1.0, (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup))
+    if cfg.minutes > 0:
+        frac = max(frac, min(1.0, elapsed / (60.0 * cfg.minutes)))
+    return cfg.final_lr + (1.0 - cfg.final_lr) * 0.5 * (1.0 + math.cos(math.pi * frac))
 
 
 def _dist() -> tuple[int, int]:
     """``(rank, world)``; starts the process group under torchrun."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not torch.distributed.is_initialized():
-        backend = "nccl" if torch.cuda.is_available() else "gloo"
+        # HEAD360_DIST_BACKEND=gloo lets several processes share one GPU.
+        backend = os.environ.get("HEAD360_DIST_BACKEND") or (
+            "nccl" if torch.cuda.is_available() else "gloo")
         torch.distributed.init_process_group(backend)
     rank = torch.distributed.get_rank() if world > 1 else 0
     return rank, world
@@ -109,8 +151,11 @@ def _dist() -> tuple[int, int]:
 
 def train(out: str | Path, cfg: TrainConfig | None = None,
           gen_cfg: GeneratorConfig | None = None, device: str = "cpu",
-          progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) a run in folder ``out``; returns the last logged metrics."""
+          progress: bool = True, stop_at: int | None = None) -> dict[str, Any]:
+    """Train (or resume) a run in folder ``out``; returns the last logged metrics.
+
+    ``stop_at`` ends this call after that step with a checkpoint, as an interruption
+    would; the learning-rate schedule still runs to ``cfg.steps``."""
     cfg = cfg or TrainConfig()
     gen_cfg = gen_cfg or GeneratorConfig()
     from head360cli.model.data import Views
@@ -142,41 +187,53 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
             rng.bit_generator.state
         torch.set_rng_state(state["torch_rng"])
     run = model
-    if world > 1:
-        run = nn.parallel.DistributedDataParallel(model)
-    views = Views(cfg.identities, "train", cfg.seed, gen_cfg.image_res)
+    if world > 1:  # a bald-only step leaves the hair branch without gradients
+        run = nn.parallel.DistributedDataParallel(model, find_unused_parameters=gen_cfg.hair)
+    views = Views(cfg.identities, "train", cfg.seed, gen_cfg.image_res, device=device)
+    bald_share = cfg.bald_share if (cfg.detach and gen_cfg.hair) else (
+        0.0 if gen_cfg.hair else 1.0)
+    base_lrs = [cfg.lr, cfg.code_lr]
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
+    views.prefetch(cfg.workers)
     t0 = time.perf_counter()
     last: dict[str, Any] = {}
     sums: dict[str, float] = {}
-    count = 0
+    count = skipped = 0
     bar = progress_bar(range(start, cfg.steps), total=cfg.steps - start, desc="train",
                        enabled=progress and rank == 0)
     step = start
     for step in bar:
-        batch = views.sample(rng, cfg.batch)
-        batch = dataclasses.replace(batch, **{f.name: getattr(batch, f.name).to(device)
-                                              for f in dataclasses.fields(batch)})
+        batch = views.sample(rng, cfg.batch, bald_share, cfg.group).to(device)
+        scale = learning_rate_scale(step, cfg, time.perf_counter() - t0)
+        for group, lr in zip(opt.param_groups, base_lrs, strict=True):
+            group["lr"] = lr * scale
         output = run(batch, jitter=True)
-        parts = losses(output, batch, cfg)
+        parts = losses(output, batch, dataclasses.replace(
+            cfg, detach=cfg.detach and gen_cfg.hair))
         total = parts["total"] + cfg.code_prior * model.codes[batch.identity].square().sum(
             1).mean()
         opt.zero_grad(set_to_none=True)
         total.backward()
-        opt.step()
+        norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.clip)
+        if torch.isfinite(total) and torch.isfinite(norm):
+            opt.step()
+        else:
+            skipped += 1
+        parts["grad_norm"] = norm
         for k, v in parts.items():
             sums[k] = sums.get(k, 0.0) + v.item()
         count += 1
         done = step + 1
         elapsed = time.perf_counter() - t0
-        stop = cfg.minutes > 0 and elapsed > 60.0 * cfg.minutes
+        stop = (cfg.minutes > 0 and elapsed > 60.0 * cfg.minutes) or done == stop_at
         if world > 1:  # every process stops at the same step
             flag = torch.tensor([float(stop)], device=device)
             torch.distributed.all_reduce(flag, op=torch.distributed.ReduceOp.MAX)
             stop = bool(flag.item())
         if done % cfg.log_every == 0 or done == cfg.steps or stop:
-            last = {"step": done, "seconds": round(elapsed, 1),
+            last = {"step": done, "seconds": round(elapsed, 1), "skipped": skipped,
+                    "lr": round(opt.param_groups[0]["lr"], 7),
                     **{k: round(v / count, 5) for k, v in sums.items()}}
             sums, count = {}, 0
             if rank == 0:

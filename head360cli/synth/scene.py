@@ -19,7 +19,8 @@ from head360cli.synth.identity import IdentityParams, sample_identity
 from head360cli.synth.render import RenderOutput, render_mesh
 from head360cli.synth.sculpt import HeadFrame, build_head, topology
 
-__all__ = ["LABEL_FACE", "LABEL_HAIR", "SynthHead", "head_seed", "make_head", "render_head"]
+__all__ = ["LABEL_FACE", "LABEL_HAIR", "SynthHead", "head_seed", "make_head", "prepare_render",
+           "render_head"]
 
 LABEL_HAIR = 0
 LABEL_FACE = 1
@@ -128,6 +129,19 @@ def _render_inputs(head: SynthHead, with_hair: bool) -> dict[str, torch.Tensor]:
     return cache[with_hair]
 
 
+def prepare_render(head: SynthHead, device: torch.device | str = "cpu") -> None:
+    """Build a head's render inputs (with and without hair) once, on ``device``; later
+    renders run there."""
+    for with_hair in (False, True):
+        _render_inputs(head, with_hair)
+    cache = head.__dict__["_render_cache"]
+    for key, value in cache.items():
+        if isinstance(value, dict):
+            cache[key] = {k: v.to(device) for k, v in value.items()}
+        else:
+            cache[key] = value.to(device)
+
+
 def render_head(head: SynthHead, weights: np.ndarray, c2w: torch.Tensor,
                 intrinsics: torch.Tensor, size: int, *, with_hair: bool = True,
                 samples: int = 2) -> RenderOutput:
@@ -137,7 +151,7 @@ def render_head(head: SynthHead, weights: np.ndarray, c2w: torch.Tensor,
     """
     inputs = _render_inputs(head, with_hair)
     cache = head.__dict__["_render_cache"]
-    w = torch.as_tensor(np.asarray(weights, dtype=np.float32))
+    w = torch.as_tensor(np.asarray(weights, dtype=np.float32), device=cache["neutral"].device)
     verts = cache["neutral"] + (w @ cache["deltas"]).view(-1, 3)
     v = torch.cat([verts, inputs["hair_verts"]])
     b = c2w.shape[0]

@@ -14,7 +14,7 @@ from head360cli.model.config import GeneratorConfig
 from head360cli.model.generator import Generator
 
 TINY = GeneratorConfig(texture_res=16, plane_res=16, render_res=16, image_res=32, samples=4,
-                       hidden=16, refine_width=8, generator_width=32)
+                       hidden=16, refine_width=8, generator_width=32, hair_texture_res=8)
 
 
 @pytest.fixture(scope="module")
@@ -82,3 +82,48 @@ def test_loading_weights_errors(tmp_path):
     torch.save({"format": "other"}, tmp_path / "other.pt")
     with pytest.raises(FileFormatError):
         load_generator(tmp_path / "other.pt")
+
+
+@pytest.fixture(scope="module")
+def hair(parts):
+    from head360cli.model.generator import hair_for
+
+    _, verts, _, _ = parts
+    neutral = verts[0].numpy()
+    return hair_for(neutral, [17, 0], [[0.2, 0.1, 0.05], [0.5, 0.5, 0.5]])
+
+
+def test_hair_branch_adds_hair_and_skips_bald_items(parts, hair):
+    from head360cli.model.generator import Hair
+
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv)
+    assert hair.meshes[1] is None  # style 0 is bald: no mesh, no hair branch
+    code = torch.zeros(2, TINY.code_dim)
+    out = gen(verts, c2w, k, code=code, hair=hair)
+    assert out["hair_alpha"].shape == (2, 1, 32, 32) and torch.isfinite(out["rgb"]).all()
+    # Long hair covers the top of the frontal view's head, and nothing of the bald one.
+    assert out["hair_alpha_low"][0, 0, 2:5, 6:10].mean() > 0.3
+    assert out["hair_alpha"][1].abs().max() == 0
+    # A bald item renders exactly as without any hair.
+    bald = gen(verts, c2w, k, code=code)
+    assert torch.allclose(out["rgb"][1], bald["rgb"][1], atol=1e-6)
+    assert not torch.allclose(out["rgb"][0], bald["rgb"][0], atol=1e-3)
+    # Nothing is learnt from nowhere: gradients reach the hair embedding and decoder.
+    out["rgb"].mean().backward()
+    assert gen.hair_texture_generator.embedding.weight.grad[17].abs().sum() > 0
+    assert gen.hair_texture_generator.embedding.weight.grad[3].abs().sum() == 0
+    assert all(p.grad is not None for p in gen.hair_decoder.parameters())
+    none = Hair([None, None], hair.style, hair.colour)
+    with torch.no_grad():
+        assert torch.equal(gen(verts, c2w, k, code=code, hair=none)["rgb"], bald["rgb"])
+
+
+def test_a_generator_without_hair_refuses_hair(parts, hair):
+    model, verts, c2w, k = parts
+    gen = Generator(dataclasses.replace(TINY, hair=False), model.faces, model.uv,
+                    model.faces_uv)
+    assert not hasattr(gen, "hair_decoder")
+    with pytest.raises(ValueError, match="without a hair branch"):
+        gen(verts, c2w, k, code=torch.zeros(2, TINY.code_dim), hair=hair)

@@ -27,8 +27,8 @@ def test_same_seed_same_run_and_resume_continues_it(tmp_path):
     assert a["step"] == 4 and a["l1"] == b["l1"]
     for k, v in _weights(tmp_path / "a").items():
         assert torch.equal(v, _weights(tmp_path / "b")[k]), k
-    # Two steps, stop, then resume to four: the same weights as four in one go.
-    train(tmp_path / "c", TrainConfig(**{**CFG.to_dict(), "steps": 2}), TINY, progress=False)
+    # Interrupted after two steps, then resumed to four: the same weights as four in one go.
+    train(tmp_path / "c", CFG, TINY, progress=False, stop_at=2)
     c = train(tmp_path / "c", CFG, TINY, progress=False)
     assert c["step"] == 4
     for k, v in _weights(tmp_path / "a").items():
