@@ -516,26 +516,48 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 
 
 @bench.command("generator")
-@click.option("--weights", type=click.Path(dir_okay=False), default=None,
-              help="Generator weights (default: models/generator.pt).")
-@click.option("--train-ids", default=8, show_default=True,
-              help="Training identities scored on held-out views.")
-@click.option("--test-ids", default=4, show_default=True,
-              help="Held-out identities (codes fitted with the generator frozen).")
-@click.option("--fit-steps", default=100, show_default=True,
+@click.option("--weights", "weights", multiple=True, type=click.Path(dir_okay=False),
+              help="Generator weights; repeat to compare (labelled by file name). "
+                   "Default: models/generator.pt.")
+@click.option("--train-ids", default=6, show_default=True,
+              help="Training identities scored on held-out views and hair swap.")
+@click.option("--test-ids", default=2, show_default=True,
+              help="Held-out identities (codes fitted with the generator frozen; 0: none).")
+@click.option("--fit-steps", default=40, show_default=True,
               help="Code-fitting steps per held-out identity.")
+@click.option("--cameras", default=8, show_default=True,
+              help="Held-out cameras per head (of 24 around it).")
+@click.option("--no-speed", is_flag=True, help="Skip the timing and the speed sweep.")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+@click.option("--name", default="generator", show_default=True,
+              help="File name of the results (<name>.json, <name>.md).")
 @common_options
-def bench_generator_cmd(weights: str | None, train_ids: int, test_ids: int, fit_steps: int,
-                        out_dir: str) -> None:
-    """Generator: PSNR and SSIM on held-out views and held-out identities, frame time, and
-    speed against quality for samples per ray and plane resolution."""
+def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
+                        fit_steps: int, cameras: int, no_speed: bool, out_dir: str,
+                        name: str) -> None:
+    """Generator: PSNR and SSIM on held-out views, held-out identities and hair swap,
+    frame time, and speed against quality for samples per ray and plane resolution.
+
+    \b
+    Examples:
+      head360 bench generator
+      head360 bench generator --weights a/hex.pt --weights a/tri.pt --no-speed --test-ids 0
+      head360 bench generator --device cuda --train-ids 2 --test-ids 0
+    """
     from head360cli.bench.generator import bench_generator
     from head360cli.bench.report import save
+    from head360cli.devices import resolve_device
 
-    result, md = bench_generator(weights, train_ids, test_ids, fit_steps)
-    result["files"] = save(result, md, out_dir, "generator")
+    if train_ids < 1 or test_ids < 0 or fit_steps < 0 or not 1 <= cameras <= 24:
+        raise BadInputError(f"expected --train-ids >= 1, --test-ids >= 0, --fit-steps >= 0 "
+                            f"and 1 <= --cameras <= 24, found {train_ids}, {test_ids}, "
+                            f"{fit_steps} and {cameras}")
+    device = str(resolve_device(_settings().device))
+    result, md = bench_generator(list(weights) or None, train_ids, test_ids, fit_steps,
+                                 cameras, speed=not no_speed, device=device,
+                                 progress=not _settings().quiet)
+    result["files"] = save(result, md, out_dir, name)
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 
 

@@ -1,25 +1,38 @@
-"""``head360 bench generator``: novel-view quality and speed of the trained generator.
+"""``head360 bench generator``: novel-view quality, hair swap and speed of trained generators.
 
-- Held-out views of training identities: the generator with each identity's training code,
-  from 24 cameras between the training rig's (yaw 7.5 + 15 k, pitch +-10 degrees), neutral
-  and with one random expression; PSNR and SSIM at the training resolution against the
-  corpus renderer's image (bald heads: the head branch).
-- Held-out identities (SynHead-P test split): the texture code fitted with the generator
-  frozen to eight rig views, then the same 24 held-out cameras.
-- Speed of one frame on this machine, and how speed and PSNR trade as the samples per ray
-  and the hex-plane resolution change.
+Every score compares the generator's 256x256 image with the corpus renderer's image of the
+same head, expression and camera, from held-out cameras (:func:`eval_cameras`: between the
+training rig's, yaw 7.5 + 15 k, pitch +-10 degrees; every third of them by default, so the
+views go all around the head). Each head gets one random expression (or neutral).
+
+Rows, per weights file:
+
+- ``bald, held-out views``: training identities, their training codes, no hair (the head
+  branch alone).
+- ``hair, held-out views``: the same heads with their own hair (the composite).
+- ``hair swap``: training identity A with another identity's hairstyle k, in A's hair
+  colour, against the corpus render of A with k (the paper's Table 3). The generator gets the
+  hairstyle's mesh fitted to A and the style and colour codes; A with k never appears in
+  training.
+- ``held-out ids, bald`` / ``held-out ids, hair``: heads of the test split; their texture
+  code fitted with the generator frozen to bald rig views of the neutral face
+  (:func:`fit_code`), then scored like the training identities.
+
+The speed sweep (first weights file only) times one frame on this machine and changes the
+samples per ray and the feature-plane resolution of the same weights.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-__all__ = ["bench_generator", "fit_code", "psnr", "ssim"]
+__all__ = ["bench_generator", "fit_code", "psnr", "score_views", "ssim"]
 
 
 def psnr(pred: torch.Tensor, truth: torch.Tensor, mask: torch.Tensor | None = None) -> float:
@@ -33,35 +46,34 @@ def ssim(pred: torch.Tensor, truth: torch.Tensor) -> float:
     """SSIM of ``(3, H, W)`` images in [0, 1] (scikit-image, Gaussian window)."""
     from skimage.metrics import structural_similarity
 
-    a = pred.clamp(0, 1).permute(1, 2, 0).numpy().astype(np.float64)
-    b = truth.permute(1, 2, 0).numpy().astype(np.float64)
+    a = pred.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy().astype(np.float64)
+    b = truth.permute(1, 2, 0).cpu().numpy().astype(np.float64)
     return float(structural_similarity(a, b, channel_axis=2, data_range=1.0,
                                        gaussian_weights=True, sigma=1.5))
 
 
-def _score(gen, views, index: int, code: torch.Tensor, rng: np.random.Generator
-           ) -> list[dict[str, float]]:
-    from head360cli.model.data import eval_cameras, sample_expression
-
-    c2w, _, _ = eval_cameras()
+def score_views(gen, batch, code: torch.Tensor, hair: bool) -> list[dict[str, float]]:
+    """PSNR over the image and inside the head, and SSIM, of one rendered batch against
+    its targets; ``code (code_dim,)``."""
+    with torch.no_grad():
+        out = gen(batch.verts, batch.c2w, batch.intrinsics,
+                  code=code[None].expand(len(batch.c2w), -1),
+                  hair=batch.hair if hair else None)
     rows = []
-    for weights in (np.zeros(52, np.float32), sample_expression(rng, p_neutral=0.0)):
-        batch = views.render(index, weights, c2w)
-        with torch.no_grad():
-            out = gen(batch.verts, batch.c2w, batch.intrinsics,
-                      code=code[None].expand(len(c2w), -1))
-        for i in range(len(c2w)):
-            mask = ((batch.alpha[i] > 0) | (out["alpha"][i] > 0.5)).float()
-            rows.append({"psnr": psnr(out["rgb"][i], batch.rgb[i]),
-                         "psnr_head": psnr(out["rgb"][i], batch.rgb[i], mask),
-                         "ssim": ssim(out["rgb"][i], batch.rgb[i])})
+    for i in range(len(batch.c2w)):
+        mask = ((batch.alpha[i] > 0) | (out["alpha"][i] > 0.5)).float()
+        rows.append({"psnr": psnr(out["rgb"][i], batch.rgb[i]),
+                     "psnr_head": psnr(out["rgb"][i], batch.rgb[i], mask),
+                     "ssim": ssim(out["rgb"][i], batch.rgb[i])})
     return rows
 
 
-def fit_code(gen, views, index: int, start: torch.Tensor, steps: int = 100,
-             lr: float = 0.02, cameras: int = 8, seed: int = 0) -> torch.Tensor:
+def fit_code(gen, views, index: int, start: torch.Tensor, steps: int = 40,
+             lr: float = 0.03, cameras: int = 8, per_step: int = 2,
+             seed: int = 0) -> torch.Tensor:
     """A held-out head's texture code, fitted with the generator frozen to ``cameras``
-    rig views of its neutral face (L1 on the image and the low-resolution colour)."""
+    bald rig views of its neutral face (L1 on the image and on the low-resolution colour,
+    ``per_step`` views a step)."""
     from head360cli.geometry.cameras import rig72
 
     rig, _, _ = rig72()
@@ -72,7 +84,7 @@ def fit_code(gen, views, index: int, start: torch.Tensor, steps: int = 100,
     gen.requires_grad_(False)
     g = torch.Generator().manual_seed(seed)
     for _ in range(steps):
-        sel = torch.randperm(cameras, generator=g)[:4]
+        sel = torch.randperm(cameras, generator=g)[:per_step]
         out = gen(batch.verts[sel], batch.c2w[sel], batch.intrinsics,
                   code=code[None].expand(len(sel), -1))
         res = out["rgb_low"].shape[-1]
@@ -89,78 +101,162 @@ def _mean(rows: list[dict[str, float]]) -> dict[str, float]:
     return {k: round(float(np.mean([r[k] for r in rows])), 3) for k in rows[0]}
 
 
-def _frame_time(gen, batch, repeats: int = 3) -> float:
-    times = []
+def _frame_time(gen, batch, code: torch.Tensor, hair: bool, repeats: int = 3) -> float:
+    """Best-of-``repeats`` seconds for one frame (after a warm-up call)."""
+    def once() -> float:
+        t0 = time.perf_counter()
+        gen(batch.verts[:1], batch.c2w[:1], batch.intrinsics, code=code[None],
+            hair=_first(batch.hair) if hair else None)
+        if batch.verts.is_cuda:
+            torch.cuda.synchronize()
+        return time.perf_counter() - t0
+
     with torch.no_grad():
-        gen(batch.verts[:1], batch.c2w[:1], batch.intrinsics,
-            code=torch.zeros(1, gen.cfg.code_dim))  # warm-up
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            gen(batch.verts[:1], batch.c2w[:1], batch.intrinsics,
-                code=torch.zeros(1, gen.cfg.code_dim))
-            times.append(time.perf_counter() - t0)
-    return min(times)
+        once()
+        return min(once() for _ in range(repeats))
 
 
-def bench_generator(weights: str | None = None, train_ids: int = 8, test_ids: int = 4,
-                    fit_steps: int = 100, seed: int = 0, device: str = "cpu"
-                    ) -> tuple[dict[str, Any], str]:
-    """Run the benchmark; returns ``(result, markdown)``."""
+def _first(hair):
+    from head360cli.model.generator import Hair
+
+    return Hair(hair.meshes[:1], hair.style[:1], hair.colour[:1])
+
+
+def _swap_style(index: int, own: int, styles: int) -> int:
+    """A hairstyle other than ``own``, spread over the styles by identity."""
+    return (own + 1 + (7 * index) % (styles - 1)) % styles
+
+
+def bench_generator(weights: list[str | None] | None = None, train_ids: int = 6,
+                    test_ids: int = 2, fit_steps: int = 40, cameras: int = 8,
+                    speed: bool = True, seed: int = 0, device: str = "cpu",
+                    progress: bool = False) -> tuple[dict[str, Any], str]:
+    """Score each weights file and time the first; returns ``(result, markdown)``.
+
+    Args:
+        weights: Weights files (``None``: ``models/generator.pt``); labelled by file stem.
+        train_ids: Training identities scored on held-out views and hair swap.
+        test_ids: Held-out identities (0 skips the code fitting).
+        fit_steps: Code-fitting steps per held-out identity.
+        cameras: Held-out cameras per head (spread over the 24 of :func:`eval_cameras`).
+        speed: Time frames and sweep samples and plane resolution (first weights only).
+        seed: Expression seed.
+        device: Where the generators and the corpus renderer run.
+        progress: Print one line per model and row to stderr.
+    """
+    import sys
+
     from head360cli.bench.report import machine, markdown_table
-    from head360cli.model.data import Views, eval_cameras
+    from head360cli.model.data import Views, eval_cameras, sample_expression
     from head360cli.model.generator import Generator
     from head360cli.model.train import load_generator
 
-    gen, codes = load_generator(weights)
-    cfg = gen.cfg
-    rng = np.random.default_rng(seed)
-    train_views = Views(train_ids, "train", 0, cfg.image_res)
-    seen = []
-    for i in range(train_ids):
-        seen += _score(gen, train_views, i, codes[i], rng)
-    test_views = Views(test_ids, "test", 0, cfg.image_res)
-    unseen = []
-    fit_seconds = 0.0
-    for i in range(test_ids):
-        test_views.head(i)  # build the synthetic head outside the timing
-        t0 = time.perf_counter()
-        code = fit_code(gen, test_views, i, codes.mean(0), steps=fit_steps, seed=seed)
-        fit_seconds += (time.perf_counter() - t0) / test_ids
-        unseen += _score(gen, test_views, i, code, rng)
-    quality = [{"views": "held-out views, training identities", "n": len(seen),
-                **_mean(seen)},
-               {"views": "held-out identities (code fitted)", "n": len(unseen),
-                **_mean(unseen)}]
-    # Speed against quality: samples per ray and plane resolution, on identity 0.
-    c2w, _, _ = eval_cameras()
-    batch = train_views.render(0, np.zeros(52, np.float32), c2w[::3])
-    sweep = []
-    settings = dict.fromkeys(((max(cfg.samples // 2, 1), cfg.plane_res),
-                              (cfg.samples, cfg.plane_res), (2 * cfg.samples, cfg.plane_res),
-                              (cfg.samples, cfg.plane_res // 2),
-                              (cfg.samples, cfg.plane_res * 2)))
-    for samples, plane_res in settings:
-        variant = Generator(dataclasses.replace(cfg, samples=samples, plane_res=plane_res),
-                            gen.faces.numpy(), gen.uv.numpy(), gen.faces_uv.numpy())
-        variant.load_state_dict(gen.state_dict())
-        variant.eval()
-        with torch.no_grad():
-            out = variant(batch.verts, batch.c2w, batch.intrinsics,
-                          code=codes[0][None].expand(len(batch.c2w), -1))
-        score = np.mean([psnr(out["rgb"][i], batch.rgb[i]) for i in range(len(batch.c2w))])
-        sweep.append({"samples": samples, "plane_res": plane_res,
-                      "psnr": round(float(score), 2),
-                      "frame_ms": round(1000 * _frame_time(variant, batch), 1)})
-    frame_ms = next(r["frame_ms"] for r in sweep if r["samples"] == cfg.samples
-                    and r["plane_res"] == cfg.plane_res)
-    result = {"machine": machine(), "config": cfg.to_dict(), "quality": quality,
-              "code_fit_seconds": round(fit_seconds, 1), "frame_ms": frame_ms,
-              "sweep": sweep}
-    md = (f"### Generator: novel views at {cfg.image_res}x{cfg.image_res} (bald heads)\n\n"
-          + markdown_table(quality, ["views", "n", "psnr", "psnr_head", "ssim"])
-          + f"\n\nPSNR over the whole image (white background) and inside the head "
-          f"(psnr_head). Held-out identities: code fitted in {fit_seconds:.0f} s each "
-          f"({fit_steps} steps, 8 views).\n\n### Speed against quality\n\n"
-          + markdown_table(sweep, list(sweep[0]))
-          + f"\n\nOne frame: {frame_ms} ms on this machine's CPU.")
+    weights = list(weights or [None])
+    all_cams, _, _ = eval_cameras()
+    cams = all_cams[torch.linspace(0, 23, cameras).round().long()]
+    rows: list[dict[str, Any]] = []
+    views_cache: dict[tuple, Views] = {}
+    fit_seconds = []
+    first = None
+
+    def say(text: str) -> None:
+        if progress:
+            print(text, file=sys.stderr, flush=True)
+
+    for path in weights:
+        label = "generator" if path is None else Path(path).stem
+        gen, codes = load_generator(path, device=device)
+        gen.eval()
+        cfg = gen.cfg
+        key = (cfg.image_res,)
+        if key not in views_cache:
+            views_cache[key] = (Views(train_ids, "train", 0, cfg.image_res, device=device),
+                                Views(test_ids, "test", 0, cfg.image_res, device=device))
+        train_views, test_views = views_cache[key]
+        if first is None:
+            first = (gen, codes, train_views)
+        rng = np.random.default_rng(seed)
+        exprs = [sample_expression(rng, p_neutral=0.3) for _ in range(train_ids + test_ids)]
+        found: dict[str, list] = {"bald, held-out views": [], "hair, held-out views": [],
+                                  "hair swap": []}
+        for i in range(train_ids):
+            code = codes[i]
+            found["bald, held-out views"] += score_views(
+                gen, train_views.render(i, exprs[i], cams), code, hair=False)
+            if cfg.hair:
+                head = train_views.head(i)
+                found["hair, held-out views"] += score_views(
+                    gen, train_views.render(i, exprs[i], cams, with_hair=True), code, True)
+                k = _swap_style(i, head.hair_style, cfg.hair_styles)
+                swapped = train_views.render(i, exprs[i], cams, with_hair=True, style=k,
+                                             colour=head.hair_colour)
+                found["hair swap"] += score_views(gen, swapped, code, True)
+            say(f"{label}: training identity {i + 1}/{train_ids}")
+        if test_ids:
+            found["held-out ids, bald"], found["held-out ids, hair"] = [], []
+        for i in range(test_ids):
+            test_views.head(i)  # build the synthetic head outside the timing
+            t0 = time.perf_counter()
+            code = fit_code(gen, test_views, i, codes.mean(0), steps=fit_steps, seed=seed)
+            fit_seconds.append(time.perf_counter() - t0)
+            e = exprs[train_ids + i]
+            found["held-out ids, bald"] += score_views(
+                gen, test_views.render(i, e, cams), code, hair=False)
+            if cfg.hair:
+                found["held-out ids, hair"] += score_views(
+                    gen, test_views.render(i, e, cams, with_hair=True), code, True)
+            say(f"{label}: held-out identity {i + 1}/{test_ids} (code fitted)")
+        for name, got in found.items():
+            if got:
+                rows.append({"model": label, "views": name, "n": len(got), **_mean(got)})
+    result: dict[str, Any] = {"machine": machine(), "device": device, "cameras": cameras,
+                              "train_ids": train_ids, "test_ids": test_ids,
+                              "fit_steps": fit_steps, "quality": rows}
+    if fit_seconds:
+        result["code_fit_seconds"] = round(float(np.mean(fit_seconds)), 1)
+    md = ("### Generator: novel views at 256x256 against the corpus renderer\n\n"
+          + markdown_table(rows, ["model", "views", "n", "psnr", "psnr_head", "ssim"])
+          + "\n\nPSNR (dB) over the whole image (white background) and inside the head "
+          "(psnr_head, where either image covers it); n views.")
+    if fit_seconds:
+        md += (f" Held-out identities: code fitted in {result['code_fit_seconds']} s each "
+               f"({fit_steps} steps, 2 of 8 bald rig views a step).")
+    if speed:
+        gen, codes, train_views = first
+        cfg = gen.cfg
+        batch = train_views.render(0, np.zeros(52, np.float32), cams, with_hair=cfg.hair)
+        sweep = []
+        settings = dict.fromkeys(((cfg.samples, cfg.plane_res),
+                                  (max(cfg.samples // 2, 1), cfg.plane_res),
+                                  (max(cfg.samples // 4, 1), cfg.plane_res),
+                                  (2 * cfg.samples, cfg.plane_res),
+                                  (cfg.samples, cfg.plane_res // 2),
+                                  (cfg.samples, cfg.plane_res * 2)))
+        for samples, plane_res in settings:
+            variant = Generator(dataclasses.replace(cfg, samples=samples,
+                                                    plane_res=plane_res),
+                                gen.faces.cpu().numpy(), gen.uv.cpu().numpy(),
+                                gen.faces_uv.cpu().numpy()).to(device)
+            variant.load_state_dict(gen.state_dict())
+            variant.eval()
+            row: dict[str, Any] = {"samples": samples, "plane_res": plane_res}
+            for hair in (False, True) if cfg.hair else (False,):
+                got = score_views(variant, batch, codes[0], hair)
+                tag = "hair" if hair else "bald"
+                row[f"psnr_{tag}"] = round(float(np.mean([r["psnr"] for r in got])), 2)
+                row[f"ms_{tag}"] = round(1000 * _frame_time(variant, batch, codes[0], hair),
+                                         1)
+            sweep.append(row)
+            say(f"speed: samples {samples}, plane_res {plane_res}: {row}")
+        result["sweep"] = sweep
+        result["frame_ms"] = {k[3:]: v for k, v in sweep[0].items() if k.startswith("ms_")}
+        where = "GPU" if device.startswith("cuda") else "CPU"
+        md += (f"\n\n### Speed against quality ({Path(weights[0] or 'generator').stem}, "
+               f"{where}, identity 0, one frame)\n\n"
+               + markdown_table(sweep, list(sweep[0]))
+               + f"\n\nShipped setting: {cfg.samples} samples per ray, planes "
+               f"{cfg.plane_res}x{cfg.plane_res}, features rendered at "
+               f"{cfg.render_res}x{cfg.render_res}; one frame "
+               + ", ".join(f"{v} ms {k}" for k, v in result["frame_ms"].items())
+               + f" on this machine's {where} ({machine()['torch_threads']} threads).")
     return result, md
