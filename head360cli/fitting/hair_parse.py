@@ -1,0 +1,216 @@
+"""Hair parsing without a pretrained face parser: landmark-seeded GrabCut plus skin colour.
+
+No face-parsing network can be downloaded here, so the masks come from OpenCV's GrabCut,
+seeded from what the 68 landmarks say about where hair can and cannot be:
+
+- the inner face (eyes, brows, nose, mouth, jaw line) is never hair;
+- the neck column under the chin is never hair;
+- a cap above the brows and a head ellipse around the face probably are;
+- pixels whose colour matches the face's own skin (a Gaussian in Lab, estimated on the
+  cheeks) probably are not.
+
+Without landmarks (a back view, a hair close-up), the centre of the image is probably
+hair, its border probably not, and a generic skin-colour rule removes skin.
+
+Everything runs at a working resolution of at most ``work_size`` pixels and is scaled back
+to the input's size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["HairParse", "mask_iou", "parse_hair"]
+
+
+@dataclasses.dataclass
+class HairParse:
+    """Masks of one photo, each ``(H, W)`` bool at the photo's size.
+
+    Attributes:
+        hair: Hair pixels.
+        face: Face skin (inside the face outline and its forehead, not hair).
+        background: Neither hair nor face.
+        seeded: Whether landmarks seeded the parse (``False``: the no-face fallback).
+    """
+
+    hair: np.ndarray
+    face: np.ndarray
+    background: np.ndarray
+    seeded: bool
+
+
+def mask_iou(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Intersection over union of two boolean masks (1.0 when both are empty)."""
+    pred, truth = np.asarray(pred, bool), np.asarray(truth, bool)
+    union = np.logical_or(pred, truth).sum()
+    return 1.0 if union == 0 else float(np.logical_and(pred, truth).sum() / union)
+
+
+def _face_outline(lm: np.ndarray, forehead: float) -> np.ndarray:
+    """Polygon ``(N, 2)``: the jaw line, closed over the brows raised by ``forehead`` times
+    the brow-to-chin height."""
+    jaw = lm[0:17]
+    brows = lm[17:27]
+    height = np.linalg.norm(lm[8] - brows.mean(0))
+    up = brows.mean(0) - lm[8]
+    up = up / max(np.linalg.norm(up), 1e-6)
+    top = brows[::-1] + up * forehead * height
+    return np.concatenate([jaw, top]).astype(np.float32)
+
+
+def _skin_distance(lab: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Mahalanobis distance ``(H, W)`` of every pixel to a Gaussian fitted to ``samples``
+    ``(N, 3)`` Lab values."""
+    mean = samples.mean(0)
+    cov = np.cov(samples.T) + np.diag([25.0, 4.0, 4.0])  # floor: lighting and noise
+    inv = np.linalg.inv(cov)
+    d = lab.reshape(-1, 3) - mean
+    return np.sqrt(np.einsum("ij,jk,ik->i", d, inv, d)).reshape(lab.shape[:2])
+
+
+def _generic_skin(ycrcb: np.ndarray) -> np.ndarray:
+    """Skin by a fixed YCrCb box (Chai and Ngan's ranges), for photos without a face."""
+    cr, cb = ycrcb[..., 1], ycrcb[..., 2]
+    return (cr >= 138) & (cr <= 173) & (cb >= 77) & (cb <= 127) & (ycrcb[..., 0] > 60)
+
+
+def _poly(shape: tuple[int, int], points: np.ndarray) -> np.ndarray:
+    """Boolean ``shape`` mask of a filled polygon ``(N, 2)`` in pixels."""
+    import cv2
+
+    out = np.zeros(shape, np.uint8)
+    cv2.fillPoly(out, [np.round(np.asarray(points)).astype(np.int32)], 1)
+    return out.astype(bool)
+
+
+def _grabcut(bgr: np.ndarray, mask: np.ndarray, iterations: int) -> np.ndarray:
+    import cv2
+
+    fg, bg = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    m = mask.copy()
+    if not ((m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)).any() or not (
+            (m == cv2.GC_BGD) | (m == cv2.GC_PR_BGD)).any():
+        return (m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)
+    cv2.grabCut(bgr, m, None, bg, fg, iterations, cv2.GC_INIT_WITH_MASK)
+    return (m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)
+
+
+def _clean(mask: np.ndarray, keep_near: np.ndarray | None, size: int) -> np.ndarray:
+    """Open and close with a disc of about 1% of the image, then keep the components that
+    touch ``keep_near`` (or the largest ones)."""
+    import cv2
+
+    k = max(3, round(size * 0.01) | 1)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    m = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, disc)
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, disc)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return m.astype(bool)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    if keep_near is not None:
+        touching = np.unique(labels[keep_near & (labels > 0)])
+        keep = [i for i in touching if areas[i - 1] >= 0.02 * areas.max()]
+    else:
+        keep = [i + 1 for i in np.flatnonzero(areas >= 0.1 * areas.max())]
+    return np.isin(labels, keep) if keep else np.zeros_like(m, bool)
+
+
+def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
+               work_size: int = 384, iterations: int = 5) -> HairParse:
+    """Hair, face and background masks of a photo.
+
+    Args:
+        rgb: ``(H, W, 3)`` uint8 RGB photo.
+        landmarks: ``(68, 2)`` iBUG landmarks in its pixels, or ``None`` (no face found).
+        work_size: Longest side the segmentation runs at.
+        iterations: GrabCut iterations.
+
+    Returns:
+        The masks at the photo's size.
+    """
+    import cv2
+
+    h, w = rgb.shape[:2]
+    scale = min(1.0, work_size / max(h, w))
+    sw, sh = max(1, round(w * scale)), max(1, round(h * scale))
+    small = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA) if scale < 1 else rgb
+    bgr = np.ascontiguousarray(small[..., ::-1])
+    lab = cv2.cvtColor(bgr, cv2.COLOR_BGR2LAB).astype(np.float32)
+    yy, xx = np.mgrid[0:sh, 0:sw].astype(np.float32)
+    face = np.zeros((sh, sw), bool)
+    size = max(sh, sw)
+    band = max(2, round(0.02 * size))
+    border = np.zeros((sh, sw), bool)
+    border[:band] = border[-band:] = True
+    border[:, :band] = border[:, -band:] = True
+    if landmarks is not None:
+        lm = np.asarray(landmarks, np.float32) * scale
+        height = float(np.linalg.norm(lm[8] - lm[17:27].mean(0)))
+        width = float(np.linalg.norm(lm[16] - lm[0]))
+        brow_y = float(lm[17:27, 1].min())
+        cx = float(lm[[0, 16, 8], 0].mean())
+        outline = _poly((sh, sw), _face_outline(lm, 0.45))
+        inner = _poly((sh, sw), cv2.convexHull(lm[17:68])[:, 0])
+        jaw_in = _poly((sh, sw), _face_outline(lm, 0.05))
+        never = inner | jaw_in
+        # Skin model from the cheeks (below the eyes, beside the nose).
+        cheeks = _poly((sh, sw), cv2.convexHull(lm[[1, 2, 3, 31, 39, 40, 41, 36]])[:, 0])
+        cheeks |= _poly((sh, sw), cv2.convexHull(lm[[15, 14, 13, 35, 42, 47, 46, 45]])[:, 0])
+        samples = lab[cheeks] if cheeks.sum() >= 20 else lab[jaw_in]
+        skin = (_skin_distance(lab, samples) < 3.0 if len(samples) >= 20
+                else np.zeros_like(face))
+        neck = ((np.abs(xx - lm[8, 0]) < 0.3 * width) & (yy > lm[8, 1] + 0.05 * height)
+                & (yy < lm[8, 1] + 0.6 * height))
+        cap = ((np.abs(xx - cx) < 0.35 * width) & (yy < brow_y - 0.35 * height)
+               & (yy > brow_y - 0.65 * height))
+        head = (((xx - cx) / (0.9 * width)) ** 2
+                + ((yy - brow_y + 0.1 * height) / (1.2 * height)) ** 2) <= 1.0
+        # Stage 1: the person against the background.
+        m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
+        m[head] = cv2.GC_PR_FGD
+        m[border & ~head] = cv2.GC_BGD
+        m[never | neck] = cv2.GC_FGD
+        person = _grabcut(bgr, m, iterations)
+        # Stage 2: hair against skin and clothes, inside the person.
+        m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
+        m[head] = cv2.GC_PR_FGD
+        m[head & skin] = cv2.GC_PR_BGD
+        m[cap & ~skin & person] = cv2.GC_FGD
+        m[~person] = cv2.GC_BGD
+        m[never | neck] = cv2.GC_BGD
+        m[(yy > lm[8, 1] + 0.8 * height) & (np.abs(xx - cx) < 0.6 * width)] = cv2.GC_BGD
+        hair = _grabcut(bgr, m, iterations) & person & ~never
+        hair = _clean(hair, cap | head, size)
+        face = outline & ~hair & (skin | jaw_in)
+    else:
+        ycrcb = cv2.cvtColor(bgr, cv2.COLOR_BGR2YCrCb)
+        skin = _generic_skin(ycrcb)
+        centre = (np.abs(xx / sw - 0.5) < 0.25) & (np.abs(yy / sh - 0.45) < 0.3)
+        m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
+        m[centre] = cv2.GC_PR_FGD
+        m[border] = cv2.GC_BGD
+        person = _grabcut(bgr, m, iterations)
+        if person.any():
+            ys = np.flatnonzero(person.any(1))
+            top, bottom = ys[0], ys[-1]
+            m = np.full((sh, sw), cv2.GC_PR_FGD, np.uint8)
+            m[~person] = cv2.GC_BGD
+            m[skin] = cv2.GC_PR_BGD
+            m[person & (yy > bottom - 0.12 * (bottom - top))] = cv2.GC_BGD
+            upper = person & (yy < top + 0.35 * (bottom - top)) & ~skin
+            m[upper & (np.abs(xx / sw - 0.5) < 0.2)] = cv2.GC_FGD
+            hair = _grabcut(bgr, m, iterations)
+        else:
+            hair = person
+        hair = _clean(hair, None, size)
+    if scale < 1:
+        def up(m: np.ndarray) -> np.ndarray:
+            return cv2.resize(m.astype(np.uint8) * 255, (w, h),
+                              interpolation=cv2.INTER_LINEAR) > 127
+        hair, face = up(hair), up(face)
+    face &= ~hair
+    return HairParse(hair, face, ~(hair | face), landmarks is not None)

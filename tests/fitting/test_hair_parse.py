@@ -1,0 +1,75 @@
+"""Hair parsing: synthetic photos with known masks, and real masks when present."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from head360cli.fitting.hair_parse import mask_iou, parse_hair
+
+
+def test_mask_iou_golden_values():
+    a = np.zeros((4, 4), bool)
+    b = np.zeros((4, 4), bool)
+    assert mask_iou(a, b) == 1.0
+    a[:2] = True
+    b[1:3] = True
+    assert mask_iou(a, b) == pytest.approx(4 / 12)
+
+
+def _synthetic_portrait():
+    """A 200 x 200 'photo': grey wall, skin-coloured face ellipse, dark hair cap, with
+    landmarks placed on the face ellipse (jaw on the lower outline, inner points inside)."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:200, 0:200]
+    img = np.full((200, 200, 3), (170, 175, 180), np.float64)
+    face = ((xx - 100) / 42) ** 2 + ((yy - 110) / 55) ** 2 <= 1
+    hair = (((xx - 100) / 56) ** 2 + ((yy - 85) / 62) ** 2 <= 1) & ~face & (yy < 120)
+    hair |= face & (yy < 70)
+    img[face] = (215, 160, 130)
+    img[hair] = (60, 40, 25)
+    img += rng.normal(0, 4, img.shape)
+    t = np.linspace(np.pi * 0.05, np.pi * 0.95, 17)
+    jaw = np.stack([100 - 40 * np.cos(t), 110 + 52 * np.sin(t)], 1)
+    inner = np.stack([rng.uniform(72, 128, 51), rng.uniform(80, 145, 51)], 1)
+    brows = np.stack([np.linspace(70, 130, 10), np.full(10, 82.0)], 1)
+    inner[:10] = brows
+    return np.clip(img, 0, 255).astype(np.uint8), np.concatenate([jaw, inner]), hair, face
+
+
+def test_seeded_parse_finds_the_synthetic_hair():
+    img, lm, hair, face = _synthetic_portrait()
+    r = parse_hair(img, lm)
+    assert r.seeded
+    assert r.hair.shape == face.shape and r.hair.dtype == bool
+    assert mask_iou(r.hair, hair) > 0.7
+    assert not (r.hair & r.face).any()
+    assert (r.background == ~(r.hair | r.face)).all()
+    assert r.face[face & (np.mgrid[0:200, 0:200][0] > 100)].mean() > 0.8  # lower face
+
+
+def test_unseeded_parse_runs_and_scales_back():
+    img = _synthetic_portrait()[0]
+    big = np.kron(img, np.ones((3, 3, 1), np.uint8))  # 600 x 600: parsed at work_size
+    r = parse_hair(big, None, work_size=200)
+    assert not r.seeded and r.hair.shape == (600, 600)
+    assert not r.face.any()
+
+
+@pytest.mark.shared_data
+def test_real_masks_mean_iou_floor(shared_data):
+    """A regression floor on the real masks (measured 0.64 on CelebAMask); the goal of
+    0.80 is reported by ``head360 bench fit``, not asserted."""
+    import cv2
+
+    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.io.images import load_image
+
+    det = LandmarkDetector("hog")
+    ious = []
+    for photo in sorted((shared_data / "hair" / "celebamask").glob("*.jpg"))[:4]:
+        img = load_image(photo).pixels
+        gt = cv2.imread(str(photo.with_name(photo.stem + "_hair.png")), 0)
+        gt = cv2.resize(gt, img.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 127
+        ious.append(mask_iou(parse_hair(img, det.detect_one(img).landmarks).hair, gt))
+    assert np.mean(ious) > 0.5
