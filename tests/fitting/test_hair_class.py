@@ -1,0 +1,59 @@
+"""Hairstyle classification by silhouettes, and the hair colour estimate."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from head360cli.fitting.hair_class import (
+    classify_hair,
+    hair_colour,
+    nearest_colour_name,
+    style_silhouettes,
+)
+
+
+def _front_view(index: int):
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
+    from head360cli.model.data import Views
+
+    views = Views(index + 1, split="test", size=96)
+    c2w = camera_on_sphere(torch.tensor([10.0]), torch.tensor([5.0]), RIG_DISTANCE)
+    batch = views.render(index, np.zeros(52, np.float32), c2w, with_hair=True)
+    return views, batch, c2w[0].numpy()
+
+
+def test_silhouette_of_the_true_style_ranks_first():
+    from head360cli.mesh.bilinear import load_bilinear
+
+    faces = load_bilinear().faces
+    views, batch, c2w = _front_view(11)  # style 11 (bob)
+    head = views.head(11)
+    sil = style_silhouettes(head.verts, batch.verts[0].numpy(), faces, c2w,
+                            views.intrinsics.numpy(), 96)
+    assert sil.shape == (30, 96, 96) and not sil[0].any()  # style 0 is bald
+    guess = classify_hair(batch.hair_alpha[0, 0].numpy() > 0.5, sil)
+    assert guess.ranking[0] == head.hair_style == 11
+    assert guess.iou[11] > 0.85
+    assert np.isclose(guess.probability.sum(), 1.0)
+    top = guess.top(3)
+    assert [t["id"] for t in top] == guess.ranking[:3] and top[0]["name"] == "bob"
+
+
+def test_no_hair_pixels_rank_bald_first():
+    sil = np.zeros((30, 8, 8), bool)
+    sil[1:, 2:5, 2:5] = True
+    guess = classify_hair(np.zeros((8, 8), bool), sil)
+    assert guess.ranking[0] == 0 and guess.iou[0] == 1.0
+
+
+def test_hair_colour_linearises_the_median_and_names_it():
+    rgb = np.zeros((4, 4, 3), np.uint8)
+    rgb[:2] = (188, 188, 188)  # sRGB 188 -> linear 0.5
+    mask = np.zeros((4, 4), bool)
+    mask[:2] = True
+    np.testing.assert_allclose(hair_colour(rgb, mask, gain=1.0), 0.5029, atol=2e-3)
+    np.testing.assert_allclose(hair_colour(rgb, mask, gain=4.0), 1.0)  # clipped
+    assert nearest_colour_name(np.array([0.5, 0.49, 0.47])) == "grey"
+    assert nearest_colour_name(np.array([0.03, 0.03, 0.03])) == "black"
+    assert hair_colour(rgb, np.zeros((4, 4), bool)).shape == (3,)  # fallback
