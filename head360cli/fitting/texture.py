@@ -1,0 +1,268 @@
+"""Bald-head neural-texture inversion: the photo's camera, its aligned crop, the bald
+target and the optimisation of the neural texture with the generator frozen.
+
+The shape fit gives the photo's camera (model-to-camera rotation, translation, focal and
+principal point). :func:`photo_camera` turns it into the generator's camera for a square
+crop in which the head has the size it has in the training rig's views, so the generator
+sees the scale it was trained at. :func:`invert_texture` first fits the texture code
+``t`` (a few steps: a plausible head everywhere), then the neural texture itself, with L1
+on the face region and two regularisers that keep what the photo does not show plausible:
+staying near the generated texture, and left-right symmetry in texture space.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+import types
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+__all__ = [
+    "PRESETS",
+    "Inversion",
+    "InvertConfig",
+    "bald_target",
+    "crop_image",
+    "invert_texture",
+    "photo_camera",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class InvertConfig:
+    """Settings of one inversion."""
+
+    code_steps: int = 5
+    """Steps fitting the texture code ``t`` before the texture itself."""
+    steps: int = 20
+    """Most steps optimising the neural texture."""
+    samples: int = 6
+    """Samples per ray while fitting (the generator's own count is used for output)."""
+    lr_code: float = 0.05
+    """Adam learning rate of the code."""
+    lr_texture: float = 0.3
+    """Adam learning rate of the texture."""
+    near: float = 0.02
+    """Weight of the mean squared distance to the generated texture."""
+    symmetry: float = 0.1
+    """Weight of the L1 difference between the texture and its mirror image."""
+    patience: int = 5
+    """Stop when the loss has not improved by ``min_gain`` for this many steps."""
+    min_gain: float = 0.002
+    """Relative improvement that counts."""
+
+
+PRESETS: dict[str, InvertConfig] = {
+    "fast": InvertConfig(),
+    "quality": InvertConfig(code_steps=10, steps=70, samples=12, lr_texture=0.2,
+                            patience=10, min_gain=0.001),
+}
+"""The ``--preset`` choices of ``head360 fit``."""
+
+
+@dataclasses.dataclass
+class Inversion:
+    """Result of :func:`invert_texture`.
+
+    Attributes:
+        texture: ``(C, R, R)`` the fitted neural texture.
+        code: ``(code_dim,)`` the fitted texture code it started from.
+        losses: Loss after each step (code steps first).
+        steps: Steps run (code and texture).
+        seconds: Wall time.
+    """
+
+    texture: torch.Tensor
+    code: torch.Tensor
+    losses: list[float]
+    steps: int
+    seconds: float
+
+
+def photo_camera(rotation: np.ndarray, translation: np.ndarray, focal: float,
+                 centre: np.ndarray, res: int = 256
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The generator's camera for a ``res`` x ``res`` crop of a photo.
+
+    Args:
+        rotation: ``(3, 3)`` model-to-camera rotation (OpenCV axes) from the shape fit.
+        translation: ``(3,)`` metres.
+        focal: Focal length in the photo's pixels.
+        centre: ``(2,)`` principal point in the photo's pixels.
+        res: Crop resolution.
+
+    Returns:
+        ``c2w (4, 4)``, crop ``intrinsics (3, 3)`` and the ``(2, 3)`` affine map from photo
+        pixels to crop pixels. The head fills the crop as it fills the rig's views.
+    """
+    from head360cli.geometry.cameras import RIG_DISTANCE, RIG_FOV_DEG, RIG_TARGET
+
+    r = np.asarray(rotation, np.float64)
+    t = np.asarray(translation, np.float64)
+    c2w = np.eye(4)
+    c2w[:3, :3] = r.T
+    c2w[:3, 3] = -r.T @ t
+    target = r @ np.asarray(RIG_TARGET) + t
+    px = focal * target[:2] / target[2] + np.asarray(centre, np.float64)
+    rig_focal = 0.5 * res / np.tan(np.radians(RIG_FOV_DEG) / 2)
+    # Same pixels per metre at the head as the rig: side of the crop in photo pixels.
+    side = res * (focal / target[2]) / (rig_focal / RIG_DISTANCE)
+    s = res / side
+    x0, y0 = px - side / 2
+    affine = np.array([[s, 0.0, -x0 * s], [0.0, s, -y0 * s]])
+    k = np.array([[focal * s, 0.0, (centre[0] - x0) * s],
+                  [0.0, focal * s, (centre[1] - y0) * s], [0.0, 0.0, 1.0]])
+    return c2w.astype(np.float32), k.astype(np.float32), affine
+
+
+def crop_image(image: np.ndarray, affine: np.ndarray, res: int, *,
+               nearest: bool = False) -> np.ndarray:
+    """Warp ``image (H, W[, 3])`` with ``affine (2, 3)`` into ``res`` x ``res`` (edges
+    replicated)."""
+    import cv2
+
+    flags = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA if affine[0, 0] < 1 \
+        else cv2.INTER_LINEAR
+    return cv2.warpAffine(image, affine, (res, res), flags=flags,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+def bald_target(crop: np.ndarray, hair: np.ndarray, bald_render: np.ndarray) -> np.ndarray:
+    """The photo crop with its hair replaced by the model's bald render, Poisson-blended.
+
+    Args:
+        crop: ``(R, R, 3)`` uint8 aligned photo.
+        hair: ``(R, R)`` bool hair mask in the crop.
+        bald_render: ``(R, R, 3)`` uint8 bald render from the same camera.
+
+    Returns:
+        ``(R, R, 3)`` uint8, the crop where there is no hair.
+    """
+    import cv2
+
+    m = cv2.dilate(hair.astype(np.uint8) * 255, np.ones((5, 5), np.uint8))
+    m[:2] = 0  # seamlessClone needs a margin inside the image
+    m[-2:] = 0
+    m[:, :2] = 0
+    m[:, -2:] = 0
+    if not m.any():
+        return crop.copy()
+    x, y, w, h = cv2.boundingRect(m)
+    # seamlessClone centres the mask's bounding box (its last pixel exclusive) here.
+    centre = (x + (w - 1) // 2, y + (h - 1) // 2)
+    blended = cv2.seamlessClone(np.ascontiguousarray(bald_render),
+                                np.ascontiguousarray(crop), m.copy(), centre,
+                                cv2.NORMAL_CLONE)  # it may overwrite the mask
+    # OpenCV solves over the mask's whole bounding box; keep the photo outside the mask.
+    return np.where(m[..., None] > 0, blended, crop)
+
+
+@functools.lru_cache(maxsize=4)
+def mirror_grid(res: int) -> torch.Tensor:
+    """``(1, res, res, 2)`` sampling grid that mirrors a ``res`` x ``res`` texture left to
+    right on the head: each texel reads the texel whose surface point is its mirror image
+    (x -> -x) on the mean head. Texels off the UV islands read themselves."""
+    from scipy.spatial import cKDTree
+
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.synth.appearance import texel_positions
+
+    model = load_bilinear()
+    verts = model.vertices(np.zeros(model.rank), np.zeros(52))
+    topo = types.SimpleNamespace(uv=model.uv, faces_uv=model.faces_uv, faces=model.faces,
+                                 face_parts=np.zeros(len(model.faces), np.int64))
+    pos, part = texel_positions(verts, topo, res)
+    rows, cols = np.mgrid[0:res, 0:res]
+    grid = np.stack([(cols + 0.5) / res, (rows + 0.5) / res], -1)
+    valid = part >= 0
+    mirrored = pos[valid] * np.array([-1.0, 1.0, 1.0])
+    _, nearest = cKDTree(pos[valid]).query(mirrored)
+    grid[valid] = grid[valid][nearest]
+    return torch.tensor(grid * 2.0 - 1.0, dtype=torch.float32)[None]
+
+
+def _mirror(texture: torch.Tensor) -> torch.Tensor:
+    """``(B, C, R, R)`` texture mirrored left-right on the head."""
+    grid = mirror_grid(texture.shape[-1]).to(texture)
+    return torch.nn.functional.grid_sample(texture, grid.expand(len(texture), -1, -1, -1),
+                                           mode="nearest", align_corners=False)
+
+
+def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
+                   target: torch.Tensor, mask: torch.Tensor, start_code: torch.Tensor,
+                   cfg: InvertConfig = PRESETS["fast"],
+                   progress: Callable[[int, int, float], None] | None = None) -> Inversion:
+    """Fit the neural texture of a bald head to a photo, the generator frozen.
+
+    Args:
+        gen: The :class:`~head360cli.model.generator.Generator`.
+        verts: ``(V, 3)`` the fitted mesh.
+        c2w: ``(4, 4)`` and ``intrinsics (3, 3)``: the crop's camera.
+        target: ``(3, H, W)`` bald target in [0, 1] at ``gen.cfg.image_res``.
+        mask: ``(1, H, W)`` weights of the photometric loss (the face region).
+        start_code: ``(code_dim,)`` where the code starts (the mean training code).
+        cfg: Steps and weights.
+        progress: Called with ``(step, total, loss)`` after each step.
+
+    Returns:
+        The fitted texture and code.
+    """
+    t0 = time.perf_counter()
+    full_cfg = gen.cfg
+    gen.requires_grad_(False)
+    gen.cfg = dataclasses.replace(full_cfg, samples=cfg.samples)
+    v, cam, k = verts[None], c2w[None], intrinsics[None]
+    tgt, m = target[None], mask[None]
+    area = m.sum().clamp_min(1.0)
+    res = full_cfg.render_res
+    low_t = torch.nn.functional.interpolate(tgt, size=(res, res), mode="area")
+    low_m = torch.nn.functional.interpolate(m, size=(res, res), mode="area")
+    low_area = low_m.sum().clamp_min(1.0)
+
+    def photometric(out) -> torch.Tensor:
+        return ((out["rgb"] - tgt).abs() * m).sum() / (3 * area) + 0.5 * (
+            (out["rgb_low"] - low_t).abs() * low_m).sum() / (3 * low_area)
+
+    losses: list[float] = []
+    total = cfg.code_steps + cfg.steps
+    try:
+        code = start_code.detach().clone()[None].requires_grad_(True)
+        opt = torch.optim.Adam([code], lr=cfg.lr_code)
+        for step in range(cfg.code_steps):
+            loss = photometric(gen(v, cam, k, code=code)) + 1e-3 * code.square().mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+            if progress:
+                progress(step + 1, total, losses[-1])
+        with torch.no_grad():
+            start = gen.texture(code.detach())
+        texture = start.clone().requires_grad_(True)
+        opt = torch.optim.Adam([texture], lr=cfg.lr_texture)
+        best, since = float("inf"), 0
+        for step in range(cfg.steps):
+            loss = photometric(gen(v, cam, k, texture=texture))
+            loss = loss + cfg.near * (texture - start).square().mean() \
+                + cfg.symmetry * (texture - _mirror(texture)).abs().mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            value = float(loss.detach())
+            losses.append(value)
+            if progress:
+                progress(cfg.code_steps + step + 1, total, value)
+            if value < best * (1.0 - cfg.min_gain):
+                best, since = value, 0
+            else:
+                since += 1
+                if since >= cfg.patience:
+                    break
+    finally:
+        gen.cfg = full_cfg
+    return Inversion(texture.detach()[0], code.detach()[0], losses, len(losses),
+                     time.perf_counter() - t0)

@@ -1,0 +1,99 @@
+"""Photo camera, crop, bald target, texture mirror and inversion."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from head360cli.fitting.texture import (
+    PRESETS,
+    _mirror,
+    bald_target,
+    crop_image,
+    invert_texture,
+    photo_camera,
+)
+
+
+def test_photo_camera_projects_like_the_photo():
+    from head360cli.geometry.cameras import project
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=3) * 0.2
+    r, _ = np.linalg.qr(np.eye(3) + np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]],
+                                              [-a[1], a[0], 0]]))
+    r = r @ np.diag([1.0, -1.0, -1.0])  # model +y up, +z to the camera -> OpenCV axes
+    t = np.array([0.05, -0.02, 1.4])
+    focal, centre = 900.0, np.array([320.0, 240.0])
+    pts = rng.normal(size=(20, 3)) * 0.08
+    cam = pts @ r.T + t
+    photo_px = focal * cam[:, :2] / cam[:, 2:] + centre
+    c2w, k, affine = photo_camera(r, t, focal, centre, 256)
+    crop_px = photo_px @ affine[:, :2].T + affine[:, 2]
+    px, _ = project(torch.tensor(pts, dtype=torch.float32)[None], torch.tensor(c2w)[None],
+                    torch.tensor(k)[None])
+    np.testing.assert_allclose(px[0].numpy(), crop_px, atol=1e-2)
+    # The head fills the crop as in the rig: 0.2 m at the rig target spans
+    # 0.2 * rig focal / rig distance pixels.
+    from head360cli.geometry.cameras import RIG_DISTANCE, RIG_FOV_DEG
+
+    rig_focal = 128 / np.tan(np.radians(RIG_FOV_DEG / 2))
+    depth = (r @ np.array([0.0, -0.03, 0.0]) + t)[2]
+    assert k[0, 0] / depth == pytest.approx(rig_focal / RIG_DISTANCE, rel=1e-5)
+
+
+def test_crop_image_shape_and_nearest():
+    img = np.arange(100 * 80, dtype=np.uint8).reshape(100, 80) % 2
+    out = crop_image(img, np.array([[0.5, 0, 0], [0, 0.5, 0]]), 32, nearest=True)
+    assert out.shape == (32, 32) and set(np.unique(out)) <= {0, 1}
+
+
+def test_bald_target_changes_the_hair_only():
+    """seamlessClone solves over the mask's bounding box and overwrites its mask
+    argument; the target must still equal the photo outside the (dilated) hair."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    crop = (rng.random((128, 128, 3)) * 255).astype(np.uint8)
+    yy, xx = np.mgrid[:128, :128]
+    hair = (((yy - 30) / 20) ** 2 + ((xx - 64) / 35) ** 2 < 1) & ~(
+        (yy > 30) & (np.abs(xx - 64) < 20))
+    out = bald_target(crop, hair, np.full((128, 128, 3), 100, np.uint8))
+    grown = cv2.dilate(hair.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    assert (out[~grown] == crop[~grown]).all()
+    assert (out != crop).any(-1)[hair].mean() > 0.9
+    assert (bald_target(crop, np.zeros((128, 128), bool), crop) == crop).all()
+
+
+def test_mirror_is_an_involution_on_the_head():
+    x = torch.rand(1, 2, 64, 64)
+    once, twice = _mirror(x), _mirror(_mirror(x))
+    assert (once - x).abs().mean() > 0.2
+    assert (twice - x).abs().mean() < 0.06  # nearest-texel round trips at seams
+
+
+def test_inversion_lowers_the_photometric_loss():
+    from head360cli.geometry.cameras import rig72
+    from head360cli.model.data import Views
+    from head360cli.model.train import load_generator
+
+    torch.manual_seed(0)
+    gen, codes = load_generator()
+    views = Views(1, split="test")
+    rig, _, _ = rig72()
+    batch = views.render(0, np.zeros(52, np.float32), rig[37:38])
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=2, steps=4, samples=4,
+                              patience=10)
+    calls = []
+    inv = invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics,
+                         batch.rgb[0], batch.alpha[0], codes.mean(0), cfg,
+                         progress=lambda s, n, loss: calls.append((s, n)))
+    assert inv.steps == 6 and calls[-1] == (6, 6)
+    assert inv.texture.shape == (gen.cfg.texture_channels, gen.cfg.texture_res,
+                                 gen.cfg.texture_res)
+    assert torch.isfinite(inv.texture).all()
+    assert inv.losses[-1] < 0.8 * inv.losses[0]
+    assert gen.cfg.samples == 12  # the generator's own setting is restored
