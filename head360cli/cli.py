@@ -297,54 +297,200 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
                    f"views in the index, {summary['seconds']:.1f} s -> {summary['index']}")
 
 
+def _progress_printer():
+    """A one-line progress display on stderr for ``fit`` stages (silent under --quiet)."""
+    if _settings().quiet:
+        return None
+    state = {"stage": None}
+
+    def show(stage: str, step: int, total: int) -> None:
+        if stage != state["stage"] and state["stage"] is not None:
+            click.echo("", err=True)
+        state["stage"] = stage
+        bar = "#" * int(20 * step / max(total, 1))
+        click.echo(f"\r  {stage:8s} [{bar:20s}] {step}/{total}", err=True, nl=False)
+
+    return show
+
+
 @cli.command()
 @click.argument("photo", type=click.Path(dir_okay=False))
-@click.option("--stage", type=click.Choice(["shape"]), default="shape", show_default=True,
-              help="How far to go. shape: landmarks, pose, identity and expression of the "
-              "parametric head (the texture and hair stages arrive with the generator).")
-@click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
-              type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--stage", type=click.Choice(["all", "shape"]), default="all", show_default=True,
+              help="How far to go. all: every stage, writing a head file; shape: landmarks, "
+              "pose, identity and expression of the parametric head only.")
+@click.option("-o", "--out", default=None, type=click.Path(),
+              help="The head file (default <photo stem>.h360); with --stage shape, the "
+              "output folder (default head360-out).")
+@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
+              show_default=True, help="Texture inversion effort.")
+@click.option("--hair", "hair_style", default=None,
+              help="Use this hairstyle (name or id, see 'head360 classify-hair') instead of "
+              "the classifier's choice.")
 @click.option("--face", default="0", show_default=True,
-              help="Which face: 0 = the largest, 1 = the next..., or 'all'.")
+              help="Which face: 0 = the largest, 1 = the next... ('all' with --stage shape).")
 @click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
               show_default=True, help="dlib face detector; cnn finds harder faces, slower.")
 @click.option("--focal", type=float, default=None,
               help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
               "lens).")
 @common_options
-def fit(photo: str, stage: str, out_dir: str, face: str, detector: str,
-        focal: float | None) -> None:
-    """Fit the head model to a photo.
+def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
+        face: str, detector: str, focal: float | None) -> None:
+    """Fit a head to a photo.
 
-    With --stage shape: detects the face and its 68 landmarks, fits pose, identity code and
-    ARKit expression weights, and writes the mesh (OBJ with UVs), an overlay PNG (detected
-    landmarks green, fitted red, mesh wireframe) and the parameters as JSON.
+    Every stage: face and landmarks, shape fit, hair parsing, hairstyle and hair colour,
+    bald target, neural-texture inversion. Writes the head file, a preview PNG (photo |
+    fitted front | three other views | back) and a JSON summary with timings per stage.
+
+    With --stage shape: writes the mesh (OBJ with UVs), an overlay PNG (detected landmarks
+    green, fitted red, mesh wireframe) and the parameters as JSON.
 
     \b
     Examples:
+      head360 fit photo.jpg                      -> photo.h360, photo_preview.png, photo.json
+      head360 fit photo.jpg -o me.h360 --preset quality
+      head360 fit photo.jpg --hair bob --json
       head360 fit photo.jpg --stage shape -o out/
       head360 fit group.jpg --stage shape --face all --json > faces.json
-      head360 fit profile.jpg --stage shape --detector cnn
     """
     from head360cli.errors import BadInputError
-    from head360cli.fitting.pipeline import fit_shape_photo
 
     if face != "all" and not face.isdigit():
         raise BadInputError(f"expected --face N or all, found {face!r}")
-    result = fit_shape_photo(photo, out_dir, face=face if face == "all" else int(face),
-                             detector=detector, focal=focal)
-    faces = result.get("faces", [result])
-    lines = []
-    for r in faces:
-        pose = r["pose"]
-        top = sorted(r["expression"].items(), key=lambda kv: -kv[1])[:3]
-        lines.append(
-            f"face {r['face']}: yaw {pose['yaw']:.1f}, pitch {pose['pitch']:.1f}, roll "
-            f"{pose['roll']:.1f} deg; strongest expressions "
-            + ", ".join(f"{n} {w:.2f}" for n, w in top)
-            + f"; fit {1000 * r['timings']['fit']:.1f} ms")
-        lines += [f"  wrote {p}" for p in r["files"].values()]
-    _emit(result, "\n".join(lines))
+    if stage == "shape":
+        from head360cli.fitting.pipeline import fit_shape_photo
+
+        result = fit_shape_photo(photo, out or "head360-out",
+                                 face=face if face == "all" else int(face),
+                                 detector=detector, focal=focal)
+        faces = result.get("faces", [result])
+        lines = []
+        for r in faces:
+            pose = r["pose"]
+            top = sorted(r["expression"].items(), key=lambda kv: -kv[1])[:3]
+            lines.append(
+                f"face {r['face']}: yaw {pose['yaw']:.1f}, pitch {pose['pitch']:.1f}, roll "
+                f"{pose['roll']:.1f} deg; strongest expressions "
+                + ", ".join(f"{n} {w:.2f}" for n, w in top)
+                + f"; fit {1000 * r['timings']['fit']:.1f} ms")
+            lines += [f"  wrote {p}" for p in r["files"].values()]
+        _emit(result, "\n".join(lines))
+        return
+    if face == "all":
+        raise BadInputError("expected one face number for a full fit, found 'all' (use "
+                            "--stage shape for every face)")
+    from head360cli.devices import resolve_device
+    from head360cli.fitting.pipeline import fit_photo
+    from head360cli.synth.hair import style_index
+
+    style = None if hair_style is None else style_index(hair_style)
+    target = out or f"{Path(photo).stem}.h360"
+    result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
+                       focal=focal, device=str(resolve_device(_settings().device)),
+                       hair_style=style, progress=_progress_printer())
+    if not _settings().quiet:
+        click.echo("", err=True)
+    t = result["timings"]
+    text = (f"fitted {photo}: yaw {result['pose']['yaw']:.1f} deg, hair "
+            f"{result['hair_style']['name']} ({result['hair_color_name']}), face PSNR "
+            f"{result['psnr_face_input_view']:.2f} dB at the input view, "
+            f"{t['total']:.1f} s (" + ", ".join(f"{k} {v:.1f}" for k, v in t.items()
+                                                 if k != "total") + ")\n"
+            + "\n".join(f"  wrote {p}" for p in result["files"].values()))
+    _emit(result, text)
+
+
+@cli.command("parse-hair")
+@click.argument("photo", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
+              type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
+@click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
+              show_default=True, help="dlib face detector.")
+@common_options
+def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str) -> None:
+    """Hair and face-skin masks of a photo.
+
+    Writes <stem>_hair.png and <stem>_face.png (single channel, the photo's size, 255
+    inside) and <stem>_parse.png (hair red, face blue). Without a detectable face the hair
+    is parsed from colour alone ("seeded": false).
+
+    \b
+    Examples:
+      head360 parse-hair photo.jpg -o masks/
+      head360 parse-hair photo.jpg --json     {"hair_mask": ..., "face_mask": ..., "overlay": ...}
+    """
+    from head360cli.fitting.pipeline import parse_photo
+
+    r = parse_photo(photo, out_dir, face=face, detector=detector)
+    _emit(r, f"hair {100 * r['hair_fraction']:.1f}% and face {100 * r['face_fraction']:.1f}% "
+          f"of the image{'' if r['seeded'] else ' (no face found: colour only)'}; wrote "
+          f"{r['hair_mask']}, {r['face_mask']}, {r['overlay']}")
+
+
+@cli.command("classify-hair")
+@click.argument("photo", type=click.Path(dir_okay=False))
+@click.option("--top", default=3, show_default=True, help="How many styles to list.")
+@click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
+@click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
+              show_default=True, help="dlib face detector.")
+@common_options
+def classify_hair_cmd(photo: str, top: int, face: int, detector: str) -> None:
+    """The SynHead-P hairstyles that best match a photo's hair, and its colour.
+
+    Each of the 30 styles is fitted to the photo's fitted head and rasterized from its
+    camera; the score is the overlap of that silhouette with the parsed hair.
+
+    \b
+    Examples:
+      head360 classify-hair photo.jpg
+      head360 classify-hair photo.jpg --top 5 --json
+    """
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.pipeline import classify_photo
+
+    if not 1 <= top <= 30:
+        raise BadInputError(f"expected --top between 1 and 30, found {top}")
+    r = classify_photo(photo, face=face, detector=detector, top=top)
+    lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "
+             f"overlap {c['iou']:.3f}" for i, c in enumerate(r["top"])]
+    lines.append(f"hair colour: {r['hair_color_name']} (linear RGB "
+                 + ", ".join(f"{c:.3f}" for c in r["hair_color"]) + ")")
+    _emit(r, "\n".join(lines))
+
+
+@cli.command()
+@click.option("-o", "--out", "out_dir", default="head360-demo", show_default=True,
+              type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
+              show_default=True, help="Texture inversion effort.")
+@click.option("--frames", default=48, show_default=True, help="Turntable frames.")
+@common_options
+def demo(out_dir: str, preset: str, frames: int) -> None:
+    """Fit the astronaut photo that ships with scikit-image and render a turntable.
+
+    Writes astronaut.png, astronaut.h360, its preview and JSON summary, and turntable.mp4
+    (an animated GIF when no ffmpeg is installed) into the output folder.
+
+    \b
+    Examples:
+      head360 demo
+      head360 demo -o demo/ --preset quality --frames 96
+    """
+    from head360cli.devices import resolve_device
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.pipeline import run_demo
+
+    if not 4 <= frames <= 720:
+        raise BadInputError(f"expected --frames between 4 and 720, found {frames}")
+    r = run_demo(out_dir, preset=preset, frames=frames,
+                 device=str(resolve_device(_settings().device)),
+                 progress=_progress_printer())
+    if not _settings().quiet:
+        click.echo("", err=True)
+    _emit(r, f"fitted the astronaut in {r['fit']['timings']['total']:.1f} s; hair "
+          f"{r['fit']['hair_style']['name']}; wrote "
+          + ", ".join([*r["fit"]["files"].values(), r["turntable"]]))
 
 
 @cli.command("build-model")

@@ -150,3 +150,369 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
             tmp.write_text(json.dumps(result, indent=1))
         results.append(result)
     return results[0] if face != "all" else {"faces": results}
+
+
+PREVIEW_YAWS = (-45.0, 45.0, 90.0, 180.0)
+"""Yaw of the preview's other views (degrees, + = the subject's left), the back last."""
+
+
+def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | None,
+                 timings: dict[str, float]):
+    """Load, detect and fit the shape; returns ``(image, found face, fit, model)``."""
+    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.fitting.shape import ShapeFitter, default_focal
+    from head360cli.io.images import load_image
+    from head360cli.mesh.bilinear import load_bilinear
+
+    t0 = time.perf_counter()
+    img = load_image(photo)
+    model = load_bilinear()
+    timings["load"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    found = LandmarkDetector(detector).detect_one(img.pixels, face)
+    timings["detect"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    full_w, full_h = img.source_size
+    f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
+    fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale)
+    timings["shape"] = time.perf_counter() - t0
+    return img, found, fit, model
+
+
+def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
+                detector: str = "hog") -> dict[str, Any]:
+    """``head360 parse-hair``: hair and face masks of a photo (PNG, 255 inside, at the
+    photo's size on disk) and an overlay (hair red, face blue).
+
+    A photo without a detectable face is parsed without landmarks (``"seeded": false``).
+    """
+    import cv2
+    from PIL import Image
+
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.io.atomic import atomic_path
+    from head360cli.io.images import load_image
+
+    t0 = time.perf_counter()
+    img = load_image(photo)
+    try:
+        landmarks = LandmarkDetector(detector).detect_one(img.pixels, face).landmarks
+    except NoFaceError:
+        if face:
+            raise
+        landmarks = None
+    parse = parse_hair(img.pixels, landmarks)
+    w, h = img.source_size
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = Path(photo).stem
+    paths = {"hair_mask": out / f"{stem}_hair.png", "face_mask": out / f"{stem}_face.png",
+             "overlay": out / f"{stem}_parse.png"}
+    overlay = img.pixels.astype(np.float32)
+    overlay[parse.hair] = 0.45 * overlay[parse.hair] + 0.55 * np.array([235, 40, 40])
+    overlay[parse.face] = 0.6 * overlay[parse.face] + 0.4 * np.array([40, 90, 235])
+    for key, mask in (("hair_mask", parse.hair), ("face_mask", parse.face)):
+        full = cv2.resize(mask.astype(np.uint8) * 255, (w, h),
+                          interpolation=cv2.INTER_NEAREST) if (w, h) != img.size else \
+            mask.astype(np.uint8) * 255
+        with atomic_path(paths[key]) as tmp:
+            Image.fromarray(full).save(tmp)
+    with atomic_path(paths["overlay"]) as tmp:
+        Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
+    return {"photo": str(photo), "seeded": parse.seeded,
+            "hair_fraction": round(float(parse.hair.mean()), 4),
+            "face_fraction": round(float(parse.face.mean()), 4),
+            "seconds": round(time.perf_counter() - t0, 3),
+            **{k: str(v) for k, v in paths.items()}}
+
+
+def _aligned(img, fit, model, res: int):
+    """Camera, crop and meshes of a shape fit: ``(c2w, K, affine, crop, posed, neutral)``."""
+    from head360cli.fitting.texture import crop_image, photo_camera
+
+    c2w, k, affine = photo_camera(fit.rotation, fit.translation, fit.focal, fit.centre, res)
+    crop = crop_image(img.pixels, affine, res)
+    posed = model.vertices(fit.shape, fit.expression)
+    neutral = model.vertices(fit.shape, np.zeros(52))
+    return c2w, k, affine, crop, posed, neutral
+
+
+def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
+                   focal: float | None = None, top: int = 3) -> dict[str, Any]:
+    """``head360 classify-hair``: the ``top`` SynHead-P hairstyles for a photo's hair, and
+    its hair colour."""
+    from head360cli.fitting.hair_class import (
+        classify_hair,
+        hair_colour,
+        nearest_colour_name,
+        style_silhouettes,
+    )
+    from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.texture import crop_image
+
+    timings: dict[str, float] = {}
+    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings)
+    t0 = time.perf_counter()
+    parse = parse_hair(img.pixels, found.landmarks)
+    timings["parse"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = 128
+    c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
+    hair = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
+    guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res))
+    colour = hair_colour(img.pixels, parse.hair)
+    timings["classify"] = time.perf_counter() - t0
+    return {"photo": str(photo), "top": guess.top(top),
+            "hair_color": [round(float(c), 4) for c in colour],
+            "hair_color_name": nearest_colour_name(colour),
+            "timings": {k: round(v, 4) for k, v in timings.items()}}
+
+
+def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,
+              detector: str = "hog", focal: float | None = None, device: str = "cpu",
+              hair_style: int | None = None,
+              progress: Any = None) -> dict[str, Any]:
+    """``head360 fit``: every stage, from a photo to a head file.
+
+    Stages: detection and shape fit; hair parsing; hairstyle classification and hair
+    colour; the bald target (hair replaced by the model's bald render, Poisson-blended);
+    neural-texture inversion; preview. Writes ``out`` (``.h360``), ``<out stem>_preview.png``
+    (photo crop | fitted front | three other views | back) and ``<out stem>.json``.
+
+    Args:
+        photo: The image.
+        out: Head file path.
+        preset: ``fast`` or ``quality`` (:data:`head360cli.fitting.texture.PRESETS`).
+        face: Face number (0 = largest).
+        detector: ``hog`` or ``cnn``.
+        focal: Focal length in pixels of the photo on disk (default: EXIF or 50 mm).
+        device: Torch device for the generator.
+        hair_style: Force a hairstyle id instead of the classifier's choice.
+        progress: Callable ``(stage, step, total)`` for progress display.
+
+    Returns:
+        The JSON summary (also written to ``<out stem>.json``).
+    """
+    import torch
+    from PIL import Image
+
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.hair_class import (
+        classify_hair,
+        hair_colour,
+        nearest_colour_name,
+        style_silhouettes,
+    )
+    from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.texture import PRESETS, bald_target, crop_image, invert_texture
+    from head360cli.io.atomic import atomic_path
+    from head360cli.io.headfile import HeadFile, write_head
+    from head360cli.model.head_render import HeadRenderer, to_uint8
+    from head360cli.model.train import load_generator
+    from head360cli.synth.hair import HAIRSTYLES
+
+    if preset not in PRESETS:
+        raise BadInputError(f"expected preset {' or '.join(PRESETS)}, found {preset!r}")
+    out = Path(out)
+    if out.suffix.lower() != ".h360":
+        raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
+    if not out.parent.is_dir():
+        raise BadInputError(f"output folder {str(out.parent)!r} does not exist")
+    if hair_style is not None and not 0 <= hair_style < len(HAIRSTYLES):
+        raise BadInputError(f"expected a hairstyle id 0..{len(HAIRSTYLES) - 1}, found "
+                            f"{hair_style}")
+    say = progress or (lambda *a: None)
+    timings: dict[str, float] = {}
+    t_all = time.perf_counter()
+    say("shape", 0, 1)
+    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings)
+    t0 = time.perf_counter()
+    gen, codes = load_generator(device=device)
+    res = gen.cfg.image_res
+    timings["load"] += time.perf_counter() - t0
+    say("parse", 0, 1)
+    t0 = time.perf_counter()
+    parse = parse_hair(img.pixels, found.landmarks)
+    timings["parse"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
+    small = 128
+    k_small = k.copy()
+    k_small[:2] *= small / res
+    hair_small = crop_image(parse.hair.astype(np.uint8), affine * (small / res), small,
+                            nearest=True) > 0
+    guess = classify_hair(hair_small, style_silhouettes(neutral, posed, model.faces, c2w,
+                                                        k_small, small))
+    style = guess.ranking[0] if hair_style is None else int(hair_style)
+    colour = hair_colour(img.pixels, parse.hair)
+    timings["classify"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    dev = torch.device(device)
+    verts = torch.tensor(posed, dtype=torch.float32, device=dev)
+    cam = torch.tensor(c2w, device=dev)
+    kk = torch.tensor(k, device=dev)
+    start = codes.mean(0)
+    with torch.no_grad():
+        first = gen(verts[None], cam[None], kk[None], code=start[None])
+    hair_crop = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
+    face_crop = crop_image(parse.face.astype(np.uint8), affine, res, nearest=True) > 0
+    target = bald_target(crop, hair_crop, to_uint8(first["rgb"])[0])
+    alpha = first["alpha"][0, 0].cpu().numpy() > 0.5
+    weight = face_crop & alpha
+    if weight.sum() < 50:
+        raise BadInputError("expected a visible face region to fit the texture to, found "
+                            f"{int(weight.sum())} pixels (is the face covered?)")
+    mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop)
+    timings["bald_target"] = time.perf_counter() - t0
+    cfg = PRESETS[preset]
+    inv = invert_texture(
+        gen, verts, cam, kk,
+        torch.tensor(target, dtype=torch.float32, device=dev).permute(2, 0, 1) / 255.0,
+        torch.tensor(mask, device=dev)[None], start, cfg,
+        progress=lambda s, n, loss: say("texture", s, n))
+    timings["invert"] = inv.seconds
+
+    say("preview", 0, 1)
+    t0 = time.perf_counter()
+    head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression)
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
+
+    others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
+                              RIG_DISTANCE)
+    rig_k = _rig_intrinsics(res)
+    front = to_uint8(head.render(cam[None], kk))[0]
+    views = to_uint8(head.render(others, rig_k, expression=np.zeros(52)))
+    with torch.no_grad():
+        check = gen(verts[None], cam[None], kk[None], texture=inv.texture[None])
+    psnr_face = _masked_psnr(to_uint8(check["rgb"])[0], crop, weight)
+    timings["preview"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    stem = out.with_suffix("")
+    paths = {"head": out, "preview": Path(f"{stem}_preview.png"),
+             "summary": Path(f"{stem}.json")}
+    model_hash = _generator_hash()
+    head_file = HeadFile(
+        arrays={"shape": fit.shape.astype(np.float32),
+                "expression": fit.expression.astype(np.float32),
+                "pose": c2w, "intrinsics": k,
+                "texture": inv.texture.cpu().numpy().astype(np.float32),
+                "texture_code": inv.code.cpu().numpy().astype(np.float32),
+                "hair_style": np.array(style, np.int64),
+                "hair_color": colour.astype(np.float32),
+                "vertices": neutral.astype(np.float32)},
+        model_hash=model_hash,
+        info={"photo": Path(photo).name, "preset": preset, "face": face,
+              "hair_style_name": HAIRSTYLES[style].name,
+              "bilinear_model": model.meta["sha256"]})
+    write_head(head_file, out)
+    sheet = np.concatenate([crop, front, *views], 1)
+    with atomic_path(paths["preview"]) as tmp:
+        Image.fromarray(sheet).save(tmp)
+    timings["write"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_all
+    euler = fit.euler_degrees()
+    summary = {
+        "photo": str(photo), "preset": preset, "face": face,
+        "pose": {k_: round(v, 2) for k_, v in euler.items()},
+        "hair_style": {"id": style, "name": HAIRSTYLES[style].name,
+                       "chosen_by": "classifier" if hair_style is None else "user"},
+        "hair_candidates": guess.top(3),
+        "hair_color": [round(float(c), 4) for c in colour],
+        "hair_color_name": nearest_colour_name(colour),
+        "hair_parse": {"seeded": parse.seeded,
+                       "hair_fraction": round(float(parse.hair.mean()), 4)},
+        "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
+                      "loss_last": round(inv.losses[-1], 5)},
+        "psnr_face_input_view": round(psnr_face, 2),
+        "timings": {k_: round(v, 3) for k_, v in timings.items()},
+        "files": {k_: str(v) for k_, v in paths.items()},
+    }
+    with atomic_path(paths["summary"]) as tmp:
+        tmp.write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def _rig_intrinsics(res: int):
+    from head360cli.geometry.cameras import RIG_FOV_DEG, intrinsics_from_fov
+
+    return intrinsics_from_fov(RIG_FOV_DEG, res, res)
+
+
+def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR in dB of uint8 images inside a boolean mask."""
+    d = (a.astype(np.float64) - b.astype(np.float64))[mask] / 255.0
+    mse = float(np.mean(d ** 2)) if d.size else 0.0
+    return 10 * np.log10(1.0 / max(mse, 1e-10))
+
+
+def _generator_hash() -> str:
+    import hashlib
+
+    from head360cli.paths import models_dir
+
+    return hashlib.sha256((models_dir() / "generator.pt").read_bytes()).hexdigest()
+
+
+def load_head_renderer(path: str | Path, device: str = "cpu"):
+    """A :class:`~head360cli.model.head_render.HeadRenderer` for a head file made with the
+    installed generator.
+
+    Raises:
+        ModelMismatchError: The file was made with another generator.
+    """
+    import torch
+
+    from head360cli.io.headfile import read_head
+    from head360cli.model.head_render import HeadRenderer
+    from head360cli.model.train import load_generator
+
+    head = read_head(path, expected_model_hash=_generator_hash())
+    gen, _ = load_generator(device=device)
+    a = head.arrays
+    return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),
+                        a["hair_color"], a["expression"])
+
+
+def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 0.0,
+                    fps: float = 24.0, progress: Any = None) -> Path:
+    """Render ``frames`` views turning once around a head (neutral expression) into a
+    video (mp4 or GIF by name), streaming frames to the encoder."""
+    import numpy as np
+
+    from head360cli.geometry.cameras import orbit
+    from head360cli.io.video import VideoWriter
+    from head360cli.model.head_render import to_uint8
+
+    cams = orbit(frames, pitch)
+    k = _rig_intrinsics(renderer.gen.cfg.image_res)
+    with VideoWriter(out, fps=fps) as video:
+        for i in range(0, frames, 4):
+            for frame in to_uint8(renderer.render(cams[i:i + 4], k, expression=np.zeros(52))):
+                video.write(frame)
+            if progress:
+                progress("turntable", min(i + 4, frames), frames)
+    return Path(out)
+
+
+def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,
+             device: str = "cpu", progress: Any = None) -> dict[str, Any]:
+    """``head360 demo``: fit scikit-image's astronaut photo and render a turntable."""
+    from PIL import Image
+    from skimage import data
+
+    from head360cli.io.atomic import atomic_path
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    photo = out / "astronaut.png"
+    with atomic_path(photo) as tmp:
+        Image.fromarray(data.astronaut()).save(tmp)
+    fit = fit_photo(photo, out / "astronaut.h360", preset=preset, device=device,
+                    progress=progress)
+    renderer = load_head_renderer(out / "astronaut.h360", device)
+    turn = write_turntable(renderer, out / "turntable.mp4", frames, progress=progress)
+    return {"fit": fit, "turntable": str(turn)}

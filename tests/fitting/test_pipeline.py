@@ -50,8 +50,10 @@ def test_landmarks_are_in_pixels_of_the_image_on_disk(run_cli, shared_data, tmp_
     big = tmp_path / "big.jpg"
     img = Image.open(photo)
     img.resize((img.width * 6, img.height * 6), Image.Resampling.BICUBIC).save(big, quality=95)
-    small = json.loads(run_cli("fit", photo, "-o", tmp_path / "a", "--json").out)
-    large = json.loads(run_cli("fit", big, "-o", tmp_path / "b", "--json").out)
+    def fit(path, out):
+        return json.loads(run_cli("fit", "--stage", "shape", path, "-o", out, "--json").out)
+
+    small, large = fit(photo, tmp_path / "a"), fit(big, tmp_path / "b")
     a = np.array(small["landmarks_detected"]) * 6
     b = np.array(large["landmarks_detected"])
     assert np.abs(a - b).mean() < 12.0  # pixels of the 3390 x 4800 image
@@ -59,17 +61,17 @@ def test_landmarks_are_in_pixels_of_the_image_on_disk(run_cli, shared_data, tmp_
 
 
 def test_no_face_and_bad_face_numbers(run_cli, shared_data, tmp_path):
-    r = run_cli("fit", shared_data / "faces" / "camera.png", "-o", tmp_path)
+    r = run_cli("fit", "--stage", "shape", shared_data / "faces" / "camera.png", "-o", tmp_path)
     assert r.code == 4 and "no face" in r.err
     photo = shared_data / "faces" / "Tom_Cruise_avp_2014_4.jpg"
-    assert run_cli("fit", photo, "--face", "7", "-o", tmp_path).code == 4
-    assert run_cli("fit", photo, "--face", "x", "-o", tmp_path).code == 3
+    assert run_cli("fit", "--stage", "shape", photo, "--face", "7", "-o", tmp_path).code == 4
+    assert run_cli("fit", "--stage", "shape", photo, "--face", "x", "-o", tmp_path).code == 3
     assert list(tmp_path.iterdir()) == []  # nothing half-written
 
 
 def test_several_faces(run_cli, shared_data, tmp_path):
-    r = run_cli("fit", shared_data / "faces" / "bald_guys.jpg", "--face", "all", "-o",
-                tmp_path, "--json")
+    r = run_cli("fit", "--stage", "shape", shared_data / "faces" / "bald_guys.jpg", "--face",
+                "all", "-o", tmp_path, "--json")
     faces = json.loads(r.out)["faces"]
     assert len(faces) >= 5
     areas = [(f["face_box"][2] - f["face_box"][0]) * (f["face_box"][3] - f["face_box"][1])
