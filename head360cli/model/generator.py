@@ -29,7 +29,7 @@ from head360cli.model.networks import Decoder, HairTextureGenerator, RefineNet, 
 from head360cli.model.planes import PLANE_SETS, rasterize_planes, sample_planes
 from head360cli.model.render import composite, samples_around, screen_depth
 
-__all__ = ["Generator", "Hair", "hair_for"]
+__all__ = ["Generator", "Hair", "hair_for", "near_rays"]
 
 
 @dataclasses.dataclass
@@ -68,6 +68,22 @@ def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray) -> Hai
                 torch.as_tensor(np.asarray(colours, dtype=np.float32)).reshape(-1, 3))
 
 
+def near_rays(near: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The rays worth decoding.
+
+    Args:
+        near: ``(B, R)`` 1 where a ray passes near a surface (from ``samples_around``).
+
+    Returns:
+        ``order (B, n)``: ray indices, the near ones first and in order, ``n`` the largest
+        count of near rays in the batch; ``kept (B, n)`` bool, which of them are near.
+    """
+    keep = near > 0
+    n = max(int(keep.sum(1).max()), 1)
+    order = torch.argsort((~keep).to(torch.uint8), dim=1, stable=True)[:, :n]
+    return order, torch.gather(keep, 1, order)
+
+
 class Generator(nn.Module):
     """The head generator: head branch, hair branch, volume renderer and RefineNet.
 
@@ -89,6 +105,9 @@ class Generator(nn.Module):
         self.register_buffer("uv", torch.as_tensor(np.asarray(uv), dtype=torch.float32))
         self.register_buffer("faces_uv",
                              torch.as_tensor(np.asarray(faces_uv), dtype=torch.long))
+        self.cull_rays = True
+        """Decode only rays near a surface (same image, less work); export turns it off
+        for static shapes."""
         self.texture_generator = TextureGenerator.from_config(cfg)
         self.decoder = Decoder(cfg, len(self.plane_names))
         self.refine = RefineNet(cfg) if cfg.refine else None
@@ -159,6 +178,11 @@ class Generator(nn.Module):
         noise = (torch.rand(b, rays, c.samples, dtype=verts.dtype, device=verts.device)
                  if jitter else None)
         points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise)
+        if self.cull_rays:  # decode only the rays that pass near a surface
+            order, kept = near_rays(near)
+            points = torch.gather(points, 1, order[..., None, None].expand(
+                -1, -1, c.samples, 3))
+        kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
         feats = sample_planes(points, self.planes(verts, texture), self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
@@ -184,8 +208,16 @@ class Generator(nn.Module):
             colour = colour * (1.0 - share[..., None]) + ch_full * share[..., None]
             density, hair_part = total, share
         colour = torch.cat([colour, hair_part[..., None]], -1)
-        density = density.view(b, rays, c.samples)
-        colour = colour.view(b, rays, c.samples, -1)
+        density = density.view(b, kept_rays, c.samples)
+        colour = colour.view(b, kept_rays, c.samples, -1)
+        if self.cull_rays:  # back to every ray; the others carry no weight
+            density = torch.zeros(b, rays, c.samples, dtype=density.dtype,
+                                  device=density.device).scatter(
+                1, order[..., None].expand(-1, -1, c.samples), density * kept[..., None])
+            colour = torch.zeros(b, rays, *colour.shape[2:], dtype=colour.dtype,
+                                 device=colour.device).scatter(
+                1, order[..., None, None].expand(-1, -1, *colour.shape[2:]),
+                colour * kept[..., None, None])
         image, alpha, depth_low = composite(density, colour, depths, near, c.shell)
         shape = (b, c.render_res, c.render_res)
         image = image.transpose(1, 2).reshape(b, -1, *shape[1:])

@@ -127,3 +127,27 @@ def test_a_generator_without_hair_refuses_hair(parts, hair):
     assert not hasattr(gen, "hair_decoder")
     with pytest.raises(ValueError, match="without a hair branch"):
         gen(verts, c2w, k, code=torch.zeros(2, TINY.code_dim), hair=hair)
+
+
+def test_culling_far_rays_changes_nothing(parts, hair):
+    """Decoding only the rays near a surface gives the same image as decoding all, and
+    the same gradients."""
+    from head360cli.model.generator import near_rays
+
+    near = torch.tensor([[0.0, 1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0]])
+    order, kept = near_rays(near)
+    assert order.tolist() == [[1, 3], [0, 1]]
+    assert kept.tolist() == [[True, True], [True, False]]
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv)
+    outs, grads = {}, {}
+    for cull in (False, True):
+        gen.cull_rays = cull
+        code = torch.linspace(-1, 1, 2 * TINY.code_dim).view(2, -1).requires_grad_(True)
+        outs[cull] = gen(verts, c2w, k, code=code, hair=hair)
+        outs[cull]["rgb"].mean().backward()
+        grads[cull] = code.grad
+    for key in ("rgb", "alpha", "hair_alpha", "depth_low"):
+        torch.testing.assert_close(outs[True][key], outs[False][key], atol=1e-6, rtol=0)
+    torch.testing.assert_close(grads[True], grads[False], atol=1e-7, rtol=1e-4)
