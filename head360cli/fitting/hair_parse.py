@@ -9,8 +9,9 @@ seeded from what the 68 landmarks say about where hair can and cannot be:
 - pixels whose colour matches the face's own skin (a Gaussian in Lab, estimated on the
   cheeks) probably are not.
 
-Without landmarks (a back view, a hair close-up), the centre of the image is probably
-hair, its border probably not, and a generic skin-colour rule removes skin.
+Without landmarks (a back view, a hair close-up), the photo is taken to be about the hair:
+GrabCut separates the foreground (the centre of the image is probably in it, the border
+is not) and that foreground is the hair.
 
 Everything runs at a working resolution of at most ``work_size`` pixels and is scaled back
 to the input's size.
@@ -69,12 +70,6 @@ def _skin_distance(lab: np.ndarray, samples: np.ndarray) -> np.ndarray:
     inv = np.linalg.inv(cov)
     d = lab.reshape(-1, 3) - mean
     return np.sqrt(np.einsum("ij,jk,ik->i", d, inv, d)).reshape(lab.shape[:2])
-
-
-def _generic_skin(ycrcb: np.ndarray) -> np.ndarray:
-    """Skin by a fixed YCrCb box (Chai and Ngan's ranges), for photos without a face."""
-    cr, cb = ycrcb[..., 1], ycrcb[..., 2]
-    return (cr >= 138) & (cr <= 173) & (cb >= 77) & (cb <= 127) & (ycrcb[..., 0] > 60)
 
 
 def _poly(shape: tuple[int, int], points: np.ndarray) -> np.ndarray:
@@ -161,7 +156,10 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         cheeks = _poly((sh, sw), cv2.convexHull(lm[[1, 2, 3, 31, 39, 40, 41, 36]])[:, 0])
         cheeks |= _poly((sh, sw), cv2.convexHull(lm[[15, 14, 13, 35, 42, 47, 46, 45]])[:, 0])
         samples = lab[cheeks] if cheeks.sum() >= 20 else lab[jaw_in]
-        skin = (_skin_distance(lab, samples) < 3.0 if len(samples) >= 20
+        # A greyscale photo has no skin colour: brightness alone would call blond or
+        # grey hair skin, so no pixel is skin by colour there.
+        grey = np.ptp(small.astype(np.int16), axis=2).max() <= 2
+        skin = (_skin_distance(lab, samples) < 3.0 if len(samples) >= 20 and not grey
                 else np.zeros_like(face))
         neck = ((np.abs(xx - lm[8, 0]) < 0.3 * width) & (yy > lm[8, 1] + 0.05 * height)
                 & (yy < lm[8, 1] + 0.6 * height))
@@ -187,26 +185,12 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         hair = _clean(hair, cap | head, size)
         face = outline & ~hair & (skin | jaw_in)
     else:
-        ycrcb = cv2.cvtColor(bgr, cv2.COLOR_BGR2YCrCb)
-        skin = _generic_skin(ycrcb)
+        # No face: a hair close-up or a back view. The foreground is the hair.
         centre = (np.abs(xx / sw - 0.5) < 0.25) & (np.abs(yy / sh - 0.45) < 0.3)
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[centre] = cv2.GC_PR_FGD
         m[border] = cv2.GC_BGD
-        person = _grabcut(bgr, m, iterations)
-        if person.any():
-            ys = np.flatnonzero(person.any(1))
-            top, bottom = ys[0], ys[-1]
-            m = np.full((sh, sw), cv2.GC_PR_FGD, np.uint8)
-            m[~person] = cv2.GC_BGD
-            m[skin] = cv2.GC_PR_BGD
-            m[person & (yy > bottom - 0.12 * (bottom - top))] = cv2.GC_BGD
-            upper = person & (yy < top + 0.35 * (bottom - top)) & ~skin
-            m[upper & (np.abs(xx / sw - 0.5) < 0.2)] = cv2.GC_FGD
-            hair = _grabcut(bgr, m, iterations)
-        else:
-            hair = person
-        hair = _clean(hair, None, size)
+        hair = _clean(_grabcut(bgr, m, iterations), None, size)
     if scale < 1:
         def up(m: np.ndarray) -> np.ndarray:
             return cv2.resize(m.astype(np.uint8) * 255, (w, h),
