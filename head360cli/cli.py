@@ -390,6 +390,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
                        hair_style=style, progress=_progress_printer())
     if not _settings().quiet:
         click.echo("", err=True)
+    for warning in result["warnings"]:
+        _warn(warning)
     t = result["timings"]
     text = (f"fitted {photo}: yaw {result['pose']['yaw']:.1f} deg, hair "
             f"{result['hair_style']['name']} ({result['hair_color_name']}), face PSNR "
@@ -658,6 +660,38 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 
     result, md = bench_fit_shape(trials=trials)
     result["files"] = save(result, md, out_dir, "fit_shape")
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
+@bench.command("fit")
+@click.option("--identities", default=2, show_default=True,
+              help="Held-out synthetic heads fitted from one frontal render.")
+@click.option("--preset", "presets", multiple=True, type=click.Choice(["fast", "quality"]),
+              help="Presets to measure (repeat; default both).")
+@click.option("--no-sweep", is_flag=True, help="Skip the inversion-steps sweep.")
+@click.option("--out", "out_dir", default="bench-results", show_default=True,
+              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+@common_options
+def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
+                  out_dir: str) -> None:
+    """Single-image fitting: hair parsing IoU, hairstyle accuracy, 72-view PSNR/SSIM of
+    synthetic fits, face PSNR and dlib descriptor distance on real photos, time.
+
+    \b
+    Examples:
+      head360 bench fit
+      head360 bench fit --preset fast --identities 1 --no-sweep
+    """
+    from head360cli.bench.fit import bench_fit
+    from head360cli.bench.report import save
+
+    if identities < 1:
+        raise BadInputError(f"expected --identities >= 1, found {identities}")
+    result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),
+                           sweep=() if no_sweep else (5, 10, 20, 40),
+                           progress=None if _settings().quiet else
+                           (lambda t: click.echo(f"bench fit: {t}", err=True)))
+    result["files"] = save(result, md, out_dir, "fit")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 
 

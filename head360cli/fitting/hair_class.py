@@ -87,11 +87,14 @@ def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
     return out
 
 
-def classify_hair(hair: np.ndarray, silhouettes: np.ndarray) -> HairGuess:
+def classify_hair(hair: np.ndarray, silhouettes: np.ndarray,
+                  valid: np.ndarray | None = None) -> HairGuess:
     """Rank hairstyles by how well their silhouettes match a hair mask.
 
     Args:
         hair: ``(R, R)`` bool hair mask in the silhouettes' camera.
+        valid: ``(R, R)`` bool, where the photo has pixels (a crop can reach beyond the
+            photo's edge; there the hair is unknown and not scored). Default: all.
         silhouettes: ``(30, R, R)`` bool, from :func:`style_silhouettes`.
 
     Returns:
@@ -100,6 +103,8 @@ def classify_hair(hair: np.ndarray, silhouettes: np.ndarray) -> HairGuess:
     """
     from head360cli.fitting.hair_parse import mask_iou
 
+    if valid is not None:
+        hair, silhouettes = hair[valid], silhouettes[:, valid]
     iou = np.array([mask_iou(s, hair) for s in silhouettes])
     z = (iou - iou.max()) / TEMPERATURE
     p = np.exp(z) / np.exp(z).sum()
@@ -137,3 +142,26 @@ def nearest_colour_name(colour: np.ndarray) -> str:
 
     target = srgb(colour)
     return min(HAIR_COLOURS, key=lambda n: float(np.sum((srgb(HAIR_COLOURS[n]) - target) ** 2)))
+
+
+FIGARO_CLASSES: dict[str, tuple[str, ...]] = {
+    "straight": ("bob", "lob", "bangs", "shoulder straight", "long straight",
+                 "ponytail high", "ponytail low", "bun", "top knot", "middle part long"),
+    "wavy": ("shoulder wavy", "long wavy"),
+    "curly": ("curly short", "long curly"),
+    "kinky": ("afro",),
+    "braids": ("braid", "twin tails"),
+    "dreadlocks": ("dreadlocks",),
+    "short-men": ("bald", "buzz", "crew", "side part", "slicked back", "pompadour",
+                  "undercut", "mohawk", "pixie", "mullet", "receding", "side swept"),
+}
+"""Figaro-1k's 7 coarse classes, each as the SynHead-P styles that belong to it (every
+style in exactly one class; tied-back long hair counts as straight)."""
+
+
+def figaro_class(style: int) -> str:
+    """The Figaro-1k class of a SynHead-P style id."""
+    from head360cli.synth.hair import HAIRSTYLES
+
+    name = HAIRSTYLES[style].name
+    return next(k for k, names in FIGARO_CLASSES.items() if name in names)

@@ -156,26 +156,72 @@ PREVIEW_YAWS = (-45.0, 45.0, 90.0, 180.0)
 """Yaw of the preview's other views (degrees, + = the subject's left), the back last."""
 
 
+MIN_FACE_PX = 40
+"""Faces narrower than this (pixels of the image as loaded) are refused: too few pixels
+to fit a texture to."""
+
+SMALL_FACE_PX = 100
+"""Faces narrower than this are fitted with a warning (blurry texture)."""
+
+PROFILE_YAW = 60.0
+"""Beyond this yaw (degrees) a warning says the far side comes from the model."""
+
+
 def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | None,
-                 timings: dict[str, float]):
-    """Load, detect and fit the shape; returns ``(image, found face, fit, model)``."""
+                 timings: dict[str, float], warnings: list[str] | None = None):
+    """Load, detect and fit the shape; returns ``(image, found face, fit, model)``.
+
+    Warnings for the user (several faces, a small face, a greyscale photo, a profile view)
+    are appended to ``warnings``.
+
+    Raises:
+        NoFaceError: No face (after a second try with the image upsampled, for small
+            images), or fewer faces than ``face + 1``.
+        BadInputError: A face narrower than :data:`MIN_FACE_PX`.
+    """
+    from head360cli.errors import BadInputError, NoFaceError
     from head360cli.fitting.landmarks import LandmarkDetector
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.images import load_image
     from head360cli.mesh.bilinear import load_bilinear
 
+    warnings = [] if warnings is None else warnings
     t0 = time.perf_counter()
     img = load_image(photo)
     model = load_bilinear()
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    found = LandmarkDetector(detector).detect_one(img.pixels, face)
+    faces = LandmarkDetector(detector).detect(img.pixels)
+    if not faces and max(img.size) <= 2000:  # small faces: look again at twice the size
+        faces = LandmarkDetector(detector, upsample=2).detect(img.pixels)
     timings["detect"] = time.perf_counter() - t0
+    if not faces:
+        hint = "" if detector == "cnn" else " (try --detector cnn for hard faces)"
+        raise NoFaceError(f"no face found in the image{hint}")
+    if face >= len(faces):
+        raise NoFaceError(f"expected a face number {face}, found only {len(faces)} face(s)")
+    found = faces[face]
+    if len(faces) > 1:
+        warnings.append(f"{len(faces)} faces found; fitting face {face} "
+                        f"({'the largest' if face == 0 else 'by size'}), choose with --face N")
+    width = found.box[2] - found.box[0]
+    if width < MIN_FACE_PX:
+        raise BadInputError(f"expected a face at least {MIN_FACE_PX} pixels wide, found "
+                            f"{width:.0f}: use a larger photo")
+    if width < SMALL_FACE_PX:
+        warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
+                        "blurry")
+    if np.ptp(img.pixels.astype(np.int16), axis=2).max() <= 2:
+        warnings.append("greyscale photo: the texture and hair colour will be grey")
     t0 = time.perf_counter()
     full_w, full_h = img.source_size
     f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
     fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale)
     timings["shape"] = time.perf_counter() - t0
+    yaw = fit.euler_degrees()["yaw"]
+    if abs(yaw) > PROFILE_YAW:
+        warnings.append(f"profile view (yaw {yaw:.0f} degrees): the far side of the face "
+                        "comes from the model")
     return img, found, fit, model
 
 
@@ -261,7 +307,9 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
     res = 128
     c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
     hair = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
-    guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res))
+    valid = crop_image(np.ones(img.pixels.shape[:2], np.uint8), affine, res, nearest=True) > 0
+    guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
+                          valid)
     colour = hair_colour(img.pixels, parse.hair)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
@@ -311,7 +359,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     from head360cli.io.headfile import HeadFile, write_head
     from head360cli.model.head_render import HeadRenderer, to_uint8
     from head360cli.model.train import load_generator
-    from head360cli.synth.hair import HAIRSTYLES
+    from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES
 
     if preset not in PRESETS:
         raise BadInputError(f"expected preset {' or '.join(PRESETS)}, found {preset!r}")
@@ -325,9 +373,10 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                             f"{hair_style}")
     say = progress or (lambda *a: None)
     timings: dict[str, float] = {}
+    warnings: list[str] = []
     t_all = time.perf_counter()
     say("shape", 0, 1)
-    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings)
+    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings, warnings)
     t0 = time.perf_counter()
     gen, codes = load_generator(device=device)
     res = gen.cfg.image_res
@@ -341,12 +390,17 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     small = 128
     k_small = k.copy()
     k_small[:2] *= small / res
+    inside = np.ones(img.pixels.shape[:2], np.uint8)
     hair_small = crop_image(parse.hair.astype(np.uint8), affine * (small / res), small,
                             nearest=True) > 0
+    valid_small = crop_image(inside, affine * (small / res), small, nearest=True) > 0
     guess = classify_hair(hair_small, style_silhouettes(neutral, posed, model.faces, c2w,
-                                                        k_small, small))
+                                                        k_small, small), valid_small)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
-    colour = hair_colour(img.pixels, parse.hair)
+    estimate = hair_colour(img.pixels, parse.hair)
+    # The hair branch learnt the corpus' named colours: wear the nearest one.
+    colour_name = nearest_colour_name(estimate)
+    colour = np.asarray(HAIR_COLOURS[colour_name], np.float32)
     timings["classify"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -365,7 +419,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     if weight.sum() < 50:
         raise BadInputError("expected a visible face region to fit the texture to, found "
                             f"{int(weight.sum())} pixels (is the face covered?)")
-    mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop)
+    valid = crop_image(inside, affine, res, nearest=True) > 0
+    mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
     timings["bald_target"] = time.perf_counter() - t0
     cfg = PRESETS[preset]
     inv = invert_texture(
@@ -377,7 +432,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
     say("preview", 0, 1)
     t0 = time.perf_counter()
-    head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression)
+    head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
+                        samples=cfg.preview_samples)
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
@@ -385,9 +441,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     rig_k = _rig_intrinsics(res)
     front = to_uint8(head.render(cam[None], kk))[0]
     views = to_uint8(head.render(others, rig_k, expression=np.zeros(52)))
-    with torch.no_grad():
-        check = gen(verts[None], cam[None], kk[None], texture=inv.texture[None])
-    psnr_face = _masked_psnr(to_uint8(check["rgb"])[0], crop, weight)
+    # With its hair, as the user will see it: hair over the forehead counts as error.
+    psnr_face = _masked_psnr(front, crop, weight)
     timings["preview"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -422,12 +477,16 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                        "chosen_by": "classifier" if hair_style is None else "user"},
         "hair_candidates": guess.top(3),
         "hair_color": [round(float(c), 4) for c in colour],
-        "hair_color_name": nearest_colour_name(colour),
+        "hair_color_name": colour_name,
+        "hair_color_estimate": [round(float(c), 4) for c in estimate],
         "hair_parse": {"seeded": parse.seeded,
                        "hair_fraction": round(float(parse.hair.mean()), 4)},
         "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                       "loss_last": round(inv.losses[-1], 5)},
         "psnr_face_input_view": round(psnr_face, 2),
+        "image_size": list(img.source_size),
+        "face_width": round(float(found.box[2] - found.box[0]) / img.scale, 1),
+        "warnings": warnings,
         "timings": {k_: round(v, 3) for k_, v in timings.items()},
         "files": {k_: str(v) for k_, v in paths.items()},
     }

@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
-import types
 from collections.abc import Callable
 
 import numpy as np
@@ -38,7 +37,7 @@ class InvertConfig:
 
     code_steps: int = 5
     """Steps fitting the texture code ``t`` before the texture itself."""
-    steps: int = 20
+    steps: int = 16
     """Most steps optimising the neural texture."""
     samples: int = 6
     """Samples per ray while fitting (the generator's own count is used for output)."""
@@ -54,12 +53,14 @@ class InvertConfig:
     """Stop when the loss has not improved by ``min_gain`` for this many steps."""
     min_gain: float = 0.002
     """Relative improvement that counts."""
+    preview_samples: int | None = 6
+    """Samples per ray of the fit's preview (``None``: the generator's own)."""
 
 
 PRESETS: dict[str, InvertConfig] = {
     "fast": InvertConfig(),
-    "quality": InvertConfig(code_steps=10, steps=70, samples=12, lr_texture=0.2,
-                            patience=10, min_gain=0.001),
+    "quality": InvertConfig(code_steps=10, steps=60, patience=10, min_gain=0.001,
+                            preview_samples=None),
 }
 """The ``--preset`` choices of ``head360 fit``."""
 
@@ -121,13 +122,17 @@ def photo_camera(rotation: np.ndarray, translation: np.ndarray, focal: float,
 
 def crop_image(image: np.ndarray, affine: np.ndarray, res: int, *,
                nearest: bool = False) -> np.ndarray:
-    """Warp ``image (H, W[, 3])`` with ``affine (2, 3)`` into ``res`` x ``res`` (edges
-    replicated)."""
+    """Warp ``image (H, W[, 3])`` with ``affine (2, 3)`` into ``res`` x ``res``.
+
+    Photos (``nearest=False``) are interpolated bilinearly and their edges replicated
+    beyond the photo; masks (``nearest=True``) are sampled nearest and are 0 beyond it.
+    """
     import cv2
 
-    flags = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA if affine[0, 0] < 1 \
-        else cv2.INTER_LINEAR
-    return cv2.warpAffine(image, affine, (res, res), flags=flags,
+    if nearest:
+        return cv2.warpAffine(image, affine, (res, res), flags=cv2.INTER_NEAREST,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.warpAffine(image, affine, (res, res), flags=cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_REPLICATE)
 
 
@@ -168,14 +173,17 @@ def mirror_grid(res: int) -> torch.Tensor:
     (x -> -x) on the mean head. Texels off the UV islands read themselves."""
     from scipy.spatial import cKDTree
 
+    from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
     from head360cli.mesh.bilinear import load_bilinear
-    from head360cli.synth.appearance import texel_positions
 
     model = load_bilinear()
     verts = model.vertices(np.zeros(model.rank), np.zeros(52))
-    topo = types.SimpleNamespace(uv=model.uv, faces_uv=model.faces_uv, faces=model.faces,
-                                 face_parts=np.zeros(len(model.faces), np.int64))
-    pos, part = texel_positions(verts, topo, res)
+    uv = torch.tensor(model.uv, dtype=torch.float32) * res
+    frags = rasterize(uv[None], torch.ones(1, len(uv)), torch.as_tensor(model.faces_uv),
+                      res, res, perspective_correct=False)
+    corners = torch.tensor(verts, dtype=torch.float32)[torch.as_tensor(model.faces)]
+    pos = interpolate_face_corners(corners, frags)[0].numpy()
+    part = frags.face_id[0].numpy()
     rows, cols = np.mgrid[0:res, 0:res]
     grid = np.stack([(cols + 0.5) / res, (rows + 0.5) / res], -1)
     valid = part >= 0

