@@ -439,7 +439,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
                               RIG_DISTANCE)
     rig_k = _rig_intrinsics(res)
-    front = to_uint8(head.render(cam[None], kk))[0]
+    front = to_uint8(head.render(inv.c2w[None], kk))[0]
     views = to_uint8(head.render(others, rig_k, expression=np.zeros(52)))
     # With its hair, as the user will see it: hair over the forehead counts as error.
     psnr_face = _masked_psnr(front, crop, weight)
@@ -453,7 +453,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     head_file = HeadFile(
         arrays={"shape": fit.shape.astype(np.float32),
                 "expression": fit.expression.astype(np.float32),
-                "pose": c2w, "intrinsics": k,
+                "pose": inv.c2w.cpu().numpy().astype(np.float32), "intrinsics": k,
                 "texture": inv.texture.cpu().numpy().astype(np.float32),
                 "texture_code": inv.code.cpu().numpy().astype(np.float32),
                 "hair_style": np.array(style, np.int64),
