@@ -224,6 +224,7 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
             dist[f"yaw_{yaw:+.0f}"] = (None if d is None or ref is None
                                        else round(float(np.linalg.norm(d - ref)), 4))
         rows.append({"photo": photo.name, "psnr_face": s["psnr_face_input_view"],
+                     "psnr_face_bald": s["psnr_face_input_view_bald"],
                      "descriptor_distance": dist, "hair": s["hair_style"]["name"],
                      "seconds": s["timings"]["total"]})
     ok = [r for r in rows if "error" not in r]
@@ -234,6 +235,7 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
 
     return {"preset": preset, "rows": rows, "mean": {
         "psnr_face": mean([r["psnr_face"] for r in ok]),
+        "psnr_face_bald": mean([r["psnr_face_bald"] for r in ok]),
         "distance_0": mean([r["descriptor_distance"]["yaw_+0"] for r in ok]),
         "distance_30": mean([r["descriptor_distance"][k] for r in ok
                              for k in ("yaw_+30", "yaw_-30")]),
@@ -327,14 +329,15 @@ def _markdown(r: dict[str, Any]) -> str:
                      f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} |")
     if "real" in r:
         lines += ["", "## Real photos", "",
-                  "| preset | face PSNR | descriptor distance 0 deg | at +-30 deg | s per fit |",
-                  "|---|---|---|---|---|"]
+                  "| preset | face PSNR | same, bald | descriptor distance 0 deg | at +-30 deg "
+                  "| s per fit |", "|---|---|---|---|---|---|"]
         for p, v in r["real"].items():
             m = v["mean"]
 
             def f(x, fmt=".3f"):
                 return "-" if x is None else format(x, fmt)
-            lines.append(f"| {p} | {f(m['psnr_face'], '.2f')} | {f(m['distance_0'])} | "
+            lines.append(f"| {p} | {f(m['psnr_face'], '.2f')} | "
+                         f"{f(m['psnr_face_bald'], '.2f')} | {f(m['distance_0'])} | "
                          f"{f(m['distance_30'])} | {f(m['seconds'], '.1f')} |")
     if r.get("sweep"):
         lines += ["", "## Inversion steps against quality (first photo, fast preset)", "",

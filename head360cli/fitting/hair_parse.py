@@ -86,6 +86,7 @@ def _grabcut(bgr: np.ndarray, mask: np.ndarray, iterations: int) -> np.ndarray:
 
     fg, bg = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     m = mask.copy()
+    cv2.setRNGSeed(0)  # GrabCut seeds its colour models with k-means: same input, same mask
     if not ((m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)).any() or not (
             (m == cv2.GC_BGD) | (m == cv2.GC_PR_BGD)).any():
         return (m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)

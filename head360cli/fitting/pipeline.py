@@ -443,6 +443,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     views = to_uint8(head.render(others, rig_k, expression=np.zeros(52)))
     # With its hair, as the user will see it: hair over the forehead counts as error.
     psnr_face = _masked_psnr(front, crop, weight)
+    # Bald, as the inversion saw it: the texture alone.
+    bald = to_uint8(head.render(inv.c2w[None], kk, hair=False))[0]
+    psnr_bald = _masked_psnr(bald, crop, weight)
     timings["preview"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -484,6 +487,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                       "loss_last": round(inv.losses[-1], 5)},
         "psnr_face_input_view": round(psnr_face, 2),
+        "psnr_face_input_view_bald": round(psnr_bald, 2),
         "image_size": list(img.source_size),
         "face_width": round(float(found.box[2] - found.box[0]) / img.scale, 1),
         "warnings": warnings,
