@@ -69,8 +69,8 @@ class InvertConfig:
 
 PRESETS: dict[str, InvertConfig] = {
     "fast": InvertConfig(),
-    "quality": InvertConfig(code_steps=10, steps=60, patience=10, min_gain=0.001,
-                            preview_samples=None),
+    "quality": InvertConfig(code_steps=10, steps=80, samples=12, lr_texture=0.2,
+                            patience=10, min_gain=0.001, preview_samples=None),
 }
 """The ``--preset`` choices of ``head360 fit``."""
 
