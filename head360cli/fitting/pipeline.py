@@ -285,18 +285,35 @@ def _aligned(img, fit, model, res: int):
     return c2w, k, affine, crop, posed, neutral
 
 
-def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
-                   focal: float | None = None, top: int = 3) -> dict[str, Any]:
-    """``head360 classify-hair``: the ``top`` SynHead-P hairstyles for a photo's hair, and
-    its hair colour."""
+def _hair_guess(img, parse, fit, model, res: int = 128):
+    """Hairstyle ranking and hair colour of a parsed photo:
+    ``(guess, colour estimate, nearest corpus colour name, its RGB)``."""
     from head360cli.fitting.hair_class import (
         classify_hair,
         hair_colour,
         nearest_colour_name,
         style_silhouettes,
     )
-    from head360cli.fitting.hair_parse import parse_hair
     from head360cli.fitting.texture import crop_image
+    from head360cli.synth.hair import HAIR_COLOURS
+
+    c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
+    hair = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
+    valid = crop_image(np.ones(img.pixels.shape[:2], np.uint8), affine, res,
+                       nearest=True) > 0
+    guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
+                          valid)
+    estimate = hair_colour(img.pixels, parse.hair)
+    # The hair branch learnt the corpus' named colours: the head wears the nearest one.
+    name = nearest_colour_name(estimate)
+    return guess, estimate, name, np.asarray(HAIR_COLOURS[name], np.float32)
+
+
+def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
+                   focal: float | None = None, top: int = 3) -> dict[str, Any]:
+    """``head360 classify-hair``: the ``top`` SynHead-P hairstyles for a photo's hair, and
+    its hair colour."""
+    from head360cli.fitting.hair_parse import parse_hair
 
     timings: dict[str, float] = {}
     img, found, fit, model = _photo_stage(photo, face, detector, focal, timings)
@@ -304,17 +321,12 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
     parse = parse_hair(img.pixels, found.landmarks)
     timings["parse"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = 128
-    c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
-    hair = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
-    valid = crop_image(np.ones(img.pixels.shape[:2], np.uint8), affine, res, nearest=True) > 0
-    guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
-                          valid)
-    colour = hair_colour(img.pixels, parse.hair)
+    guess, estimate, name, colour = _hair_guess(img, parse, fit, model)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
             "hair_color": [round(float(c), 4) for c in colour],
-            "hair_color_name": nearest_colour_name(colour),
+            "hair_color_name": name,
+            "hair_color_estimate": [round(float(c), 4) for c in estimate],
             "timings": {k: round(v, 4) for k, v in timings.items()}}
 
 
@@ -347,19 +359,13 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     from PIL import Image
 
     from head360cli.errors import BadInputError
-    from head360cli.fitting.hair_class import (
-        classify_hair,
-        hair_colour,
-        nearest_colour_name,
-        style_silhouettes,
-    )
     from head360cli.fitting.hair_parse import parse_hair
     from head360cli.fitting.texture import PRESETS, bald_target, crop_image, invert_texture
     from head360cli.io.atomic import atomic_path
     from head360cli.io.headfile import HeadFile, write_head
     from head360cli.model.head_render import HeadRenderer, to_uint8
     from head360cli.model.train import load_generator
-    from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES
+    from head360cli.synth.hair import HAIRSTYLES
 
     if preset not in PRESETS:
         raise BadInputError(f"expected preset {' or '.join(PRESETS)}, found {preset!r}")
@@ -387,20 +393,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     timings["parse"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
-    small = 128
-    k_small = k.copy()
-    k_small[:2] *= small / res
-    inside = np.ones(img.pixels.shape[:2], np.uint8)
-    hair_small = crop_image(parse.hair.astype(np.uint8), affine * (small / res), small,
-                            nearest=True) > 0
-    valid_small = crop_image(inside, affine * (small / res), small, nearest=True) > 0
-    guess = classify_hair(hair_small, style_silhouettes(neutral, posed, model.faces, c2w,
-                                                        k_small, small), valid_small)
+    guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
-    estimate = hair_colour(img.pixels, parse.hair)
-    # The hair branch learnt the corpus' named colours: wear the nearest one.
-    colour_name = nearest_colour_name(estimate)
-    colour = np.asarray(HAIR_COLOURS[colour_name], np.float32)
     timings["classify"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -419,7 +413,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     if weight.sum() < 50:
         raise BadInputError("expected a visible face region to fit the texture to, found "
                             f"{int(weight.sum())} pixels (is the face covered?)")
-    valid = crop_image(inside, affine, res, nearest=True) > 0
+    valid = crop_image(np.ones(img.pixels.shape[:2], np.uint8), affine, res,
+                       nearest=True) > 0
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
     timings["bald_target"] = time.perf_counter() - t0
     cfg = PRESETS[preset]
