@@ -1,4 +1,8 @@
-"""``head360 fit``: from a photo to fitted heads (so far: the shape stage)."""
+"""The photo pipelines behind ``head360 fit``, ``parse-hair``, ``classify-hair`` and
+``demo``: they load, call the fitting modules in order, time each stage and write the
+outputs atomically. The work itself lives in :mod:`head360cli.fitting.shape`,
+:mod:`~head360cli.fitting.hair_parse`, :mod:`~head360cli.fitting.hair_class` and
+:mod:`~head360cli.fitting.texture`."""
 
 from __future__ import annotations
 
@@ -11,7 +15,8 @@ import numpy as np
 
 from head360cli.errors import BadInputError
 
-__all__ = ["fit_shape_photo"]
+__all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer",
+           "parse_photo", "run_demo", "write_turntable"]
 
 _EXIF_FOCAL_35MM = 0xA405
 _EXIF_IFD = 0x8769
@@ -539,8 +544,6 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
                     fps: float = 24.0, progress: Any = None) -> Path:
     """Render ``frames`` views turning once around a head (neutral expression) into a
     video (mp4 or GIF by name), streaming frames to the encoder."""
-    import numpy as np
-
     from head360cli.geometry.cameras import orbit
     from head360cli.io.video import VideoWriter
     from head360cli.model.head_render import to_uint8
