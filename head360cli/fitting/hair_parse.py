@@ -72,6 +72,14 @@ def _skin_distance(lab: np.ndarray, samples: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ij,jk,ik->i", d, inv, d)).reshape(lab.shape[:2])
 
 
+def _texture_energy(lightness: np.ndarray, window: int) -> np.ndarray:
+    """Local mean of the absolute Laplacian of ``lightness (H, W)`` over a ``window``."""
+    import cv2
+
+    lap = np.abs(cv2.Laplacian(lightness.astype(np.float32), cv2.CV_32F, ksize=3))
+    return cv2.blur(lap, (window, window))
+
+
 def _poly(shape: tuple[int, int], points: np.ndarray) -> np.ndarray:
     """Boolean ``shape`` mask of a filled polygon ``(N, 2)`` in pixels."""
     import cv2
@@ -178,6 +186,11 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[head] = cv2.GC_PR_FGD
         m[head & skin] = cv2.GC_PR_BGD
+        # Hair is textured; a smooth (defocused or plain) backdrop is not.
+        energy = _texture_energy(lab[..., 0], max(3, round(0.02 * size)) | 1)
+        seeds = cap & ~skin & person
+        if seeds.sum() >= 20:
+            m[head & (energy < 0.25 * np.median(energy[seeds]))] = cv2.GC_PR_BGD
         m[cap & ~skin & person] = cv2.GC_FGD
         m[~person] = cv2.GC_BGD
         m[never | neck] = cv2.GC_BGD
