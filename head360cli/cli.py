@@ -298,17 +298,24 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
 
 
 def _progress_printer():
-    """A one-line progress display on stderr for ``fit`` stages (silent under --quiet)."""
-    if _settings().quiet:
+    """Progress of a fit's stages: one tqdm bar per stage on stderr, shown only on a
+    terminal and without --quiet (the convention of :mod:`head360cli.progress`)."""
+    if _settings().quiet or not sys.stderr.isatty():
         return None
-    state = {"stage": None}
+    from tqdm import tqdm
+
+    state: dict[str, Any] = {"stage": None, "bar": None}
 
     def show(stage: str, step: int, total: int) -> None:
-        if stage != state["stage"] and state["stage"] is not None:
-            click.echo("", err=True)
-        state["stage"] = stage
-        bar = "#" * int(20 * step / max(total, 1))
-        click.echo(f"\r  {stage:8s} [{bar:20s}] {step}/{total}", err=True, nl=False)
+        if stage != state["stage"]:
+            if state["bar"] is not None:
+                state["bar"].close()
+            state["stage"] = stage
+            state["bar"] = tqdm(total=total, desc=f"{stage:9s}", file=sys.stderr,
+                                dynamic_ncols=True, leave=False)
+        bar = state["bar"]
+        bar.total = total
+        bar.update(step - bar.n)
 
     return show
 
@@ -388,8 +395,6 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
                        focal=focal, device=str(resolve_device(_settings().device)),
                        hair_style=style, progress=_progress_printer())
-    if not _settings().quiet:
-        click.echo("", err=True)
     for warning in result["warnings"]:
         _warn(warning)
     t = result["timings"]
@@ -488,8 +493,6 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
     r = run_demo(out_dir, preset=preset, frames=frames,
                  device=str(resolve_device(_settings().device)),
                  progress=_progress_printer())
-    if not _settings().quiet:
-        click.echo("", err=True)
     _emit(r, f"fitted the astronaut in {r['fit']['timings']['total']:.1f} s; hair "
           f"{r['fit']['hair_style']['name']}; wrote "
           + ", ".join([*r["fit"]["files"].values(), r["turntable"]]))

@@ -31,6 +31,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert s["files"] == {"head": str(out), "preview": str(tmp_path / "me_preview.png"),
                           "summary": str(tmp_path / "me.json")}
     assert json.loads((tmp_path / "me.json").read_text()) == s
+    assert s["warnings"] == []  # one face, 90 px wide, in colour, frontal
     # Short hair, light colour, a face fitted well at the input view.
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
                                        "side part", "bangs"}
@@ -136,7 +137,7 @@ def test_small_faces_are_refused_or_warned(tmp_path):
     with pytest.raises((BadInputError, NoFaceError), match=r"pixels wide|no face"):
         _stage(tiny)
     small = tmp_path / "small.png"
-    photo.resize((300, 300), Image.Resampling.LANCZOS).save(small)  # face ~65 px
+    photo.resize((300, 300), Image.Resampling.LANCZOS).save(small)  # face ~53 px
     _, warnings = _stage(small)
     assert any("pixels wide" in w for w in warnings)
 
