@@ -331,8 +331,8 @@ def _progress_printer():
 @click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
               show_default=True, help="Texture inversion effort.")
 @click.option("--hair", "hair_style", default=None,
-              help="Use this hairstyle (name or id, see 'head360 classify-hair') instead of "
-              "the classifier's choice.")
+              help="Use this hairstyle (name such as bob or 'long wavy', or id 0-29; an "
+              "unknown name lists them all) instead of the classifier's choice.")
 @click.option("--face", default="0", show_default=True,
               help="Which face: 0 = the largest, 1 = the next... ('all' with --stage shape).")
 @click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",

@@ -155,7 +155,9 @@ def style_index(name_or_id: str | int) -> int:
     for k, style in enumerate(HAIRSTYLES):
         if style.name == key:
             return k
-    raise BadInputError(f"unknown hairstyle {name_or_id!r}; see 'head360 swap-hair --list'")
+    names = ", ".join(s.name for s in HAIRSTYLES)
+    raise BadInputError(f"unknown hairstyle {name_or_id!r}; expected an id "
+                        f"0..{len(HAIRSTYLES) - 1} or one of: {names}")
 
 
 @dataclasses.dataclass
