@@ -232,13 +232,11 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
         The fitted texture and code.
     """
     t0 = time.perf_counter()
-    full_cfg = gen.cfg
     gen.requires_grad_(False)
-    gen.cfg = dataclasses.replace(full_cfg, samples=cfg.samples)
     v, cam, k = verts[None], c2w[None], intrinsics[None]
     tgt, m = target[None], mask[None]
     area = m.sum().clamp_min(1.0)
-    res = full_cfg.render_res
+    res = gen.cfg.render_res
     low_t = torch.nn.functional.interpolate(tgt, size=(res, res), mode="area")
     low_m = torch.nn.functional.interpolate(m, size=(res, res), mode="area")
     low_area = low_m.sum().clamp_min(1.0)
@@ -259,7 +257,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
 
     losses: list[float] = []
     total = cfg.code_steps + cfg.steps
-    try:
+    with gen.samples_per_ray(cfg.samples):
         code = start_code.detach().clone()[None].requires_grad_(True)
         rot = torch.zeros(3, dtype=c2w.dtype, device=c2w.device, requires_grad=True)
         shift = torch.zeros(3, dtype=c2w.dtype, device=c2w.device, requires_grad=True)
@@ -302,7 +300,5 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
                 since += 1
                 if since >= cfg.patience:
                     break
-    finally:
-        gen.cfg = full_cfg
     return Inversion(texture.detach()[0], code.detach()[0], cam[0], losses, len(losses),
                      time.perf_counter() - t0)

@@ -16,7 +16,9 @@ density around that mesh. Items without hair skip the hair branch.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -114,6 +116,18 @@ class Generator(nn.Module):
         if cfg.hair:
             self.hair_texture_generator = HairTextureGenerator(cfg)
             self.hair_decoder = Decoder(cfg, len(self.plane_names))
+
+    @contextlib.contextmanager
+    def samples_per_ray(self, samples: int | None) -> Iterator[None]:
+        """Render with ``samples`` per ray inside the ``with`` block (``None``: keep the
+        configured count); the config is restored afterwards, errors included."""
+        own = self.cfg
+        if samples is not None:
+            self.cfg = dataclasses.replace(own, samples=int(samples))
+        try:
+            yield
+        finally:
+            self.cfg = own
 
     def texture(self, code: torch.Tensor) -> torch.Tensor:
         """``(B, code_dim)`` -> neural texture ``(B, C, R, R)``."""

@@ -64,15 +64,11 @@ class HeadRenderer:
                batch: int = 4) -> torch.Tensor:
         """Views ``(B, 3, H, W)`` in [0, 1] on white from cameras ``c2w (B, 4, 4)`` with
         ``intrinsics (3, 3)`` for the generator's image size, ``batch`` at a time."""
-        import dataclasses
-
         from head360cli.model.generator import Hair
 
         verts = self.vertices(expression)
         out = []
-        own = self.gen.cfg
-        self.gen.cfg = dataclasses.replace(own, samples=self.samples)
-        try:
+        with self.gen.samples_per_ray(self.samples):
             for i in range(0, len(c2w), batch):
                 cams = c2w[i:i + batch].to(self.device)
                 n = len(cams)
@@ -83,6 +79,4 @@ class HeadRenderer:
                 o = self.gen(verts[None].expand(n, -1, -1), cams, intrinsics.to(self.device),
                              texture=self.texture.expand(n, -1, -1, -1), hair=h)
                 out.append(o["rgb"].cpu())
-        finally:
-            self.gen.cfg = own
         return torch.cat(out)

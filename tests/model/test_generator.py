@@ -151,3 +151,16 @@ def test_culling_far_rays_changes_nothing(parts, hair):
     for key in ("rgb", "alpha", "hair_alpha", "depth_low"):
         torch.testing.assert_close(outs[True][key], outs[False][key], atol=1e-6, rtol=0)
     torch.testing.assert_close(grads[True], grads[False], atol=1e-7, rtol=1e-4)
+
+
+def test_samples_per_ray_is_scoped(parts):
+    model = parts[0]
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv)
+    with gen.samples_per_ray(2):
+        assert gen.cfg.samples == 2
+    assert gen.cfg == TINY
+    with pytest.raises(RuntimeError), gen.samples_per_ray(3):
+        raise RuntimeError("boom")
+    assert gen.cfg == TINY
+    with gen.samples_per_ray(None):
+        assert gen.cfg == TINY
