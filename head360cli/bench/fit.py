@@ -127,10 +127,15 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
         intrinsics_from_fov,
         rig72,
     )
+    from head360cli.io.headfile import read_head
     from head360cli.model.data import Views
+    from head360cli.model.train import load_generator
 
     size = 512
-    data = Views(identities, split="test", size=size)
+    data = Views(identities, split="test", size=size)  # the photos
+    res = load_generator()[0].cfg.image_res
+    truth = Views(identities, split="test", size=res)  # ground truth at the output size
+    k = intrinsics_from_fov(RIG_FOV_DEG, res, res)
     rig, _, _ = rig72()
     k_in = intrinsics_from_fov(RIG_FOV_DEG, size, size)
     focal = float(k_in[0, 0])
@@ -143,14 +148,9 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
                         .astype(np.uint8)).save(photo)
         summary = fit_photo(photo, work / f"synthetic_{i}.h360", preset=preset, focal=focal)
         head = load_head_renderer(work / f"synthetic_{i}.h360")
-        from head360cli.io.headfile import read_head
-
         pose = torch.tensor(read_head(work / f"synthetic_{i}.h360").arrays["pose"])
         # Ground-truth world -> fitted head's world: c2w_fit @ inv(c2w_in).
         to_fit = pose @ torch.linalg.inv(cam_in[0])
-        res = head.gen.cfg.image_res
-        k = intrinsics_from_fov(RIG_FOV_DEG, res, res)
-        truth = Views(identities, split="test", size=res)
         scores = []
         for j in range(0, 72, 8):
             cams = rig[j:j + 8]

@@ -305,13 +305,12 @@ def _hair_guess(img, parse, fit, model, res: int = 128):
         nearest_colour_name,
         style_silhouettes,
     )
-    from head360cli.fitting.texture import crop_image
+    from head360cli.fitting.texture import crop_mask
     from head360cli.synth.hair import HAIR_COLOURS
 
     c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
-    hair = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
-    valid = crop_image(np.ones(img.pixels.shape[:2], np.uint8), affine, res,
-                       nearest=True) > 0
+    hair = crop_mask(parse.hair, affine, res)
+    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
                           valid)
     estimate = hair_colour(img.pixels, parse.hair)
@@ -371,7 +370,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
     from head360cli.errors import BadInputError
     from head360cli.fitting.hair_parse import parse_hair
-    from head360cli.fitting.texture import PRESETS, bald_target, crop_image, invert_texture
+    from head360cli.fitting.texture import PRESETS, bald_target, crop_mask, invert_texture
     from head360cli.io.atomic import atomic_path
     from head360cli.io.headfile import HeadFile, write_head
     from head360cli.model.head_render import HeadRenderer, to_uint8
@@ -416,16 +415,15 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     start = codes.mean(0)
     with torch.no_grad():
         first = gen(verts[None], cam[None], kk[None], code=start[None])
-    hair_crop = crop_image(parse.hair.astype(np.uint8), affine, res, nearest=True) > 0
-    face_crop = crop_image(parse.face.astype(np.uint8), affine, res, nearest=True) > 0
+    hair_crop = crop_mask(parse.hair, affine, res)
+    face_crop = crop_mask(parse.face, affine, res)
     target = bald_target(crop, hair_crop, to_uint8(first["rgb"])[0])
     alpha = first["alpha"][0, 0].cpu().numpy() > 0.5
     weight = face_crop & alpha
     if weight.sum() < 50:
         raise BadInputError("expected a visible face region to fit the texture to, found "
                             f"{int(weight.sum())} pixels (is the face covered?)")
-    valid = crop_image(np.ones(img.pixels.shape[:2], np.uint8), affine, res,
-                       nearest=True) > 0
+    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
     timings["bald_target"] = time.perf_counter() - t0
     cfg = PRESETS[preset]

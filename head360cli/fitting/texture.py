@@ -148,6 +148,12 @@ def crop_image(image: np.ndarray, affine: np.ndarray, res: int, *,
                           borderMode=cv2.BORDER_REPLICATE)
 
 
+def crop_mask(mask: np.ndarray, affine: np.ndarray, res: int) -> np.ndarray:
+    """A boolean ``(H, W)`` mask warped like :func:`crop_image` (nearest; ``False`` beyond
+    the photo). ``crop_mask(np.ones(shape, bool), ...)`` is where the crop has photo."""
+    return crop_image(mask.astype(np.uint8), affine, res, nearest=True) > 0
+
+
 def bald_target(crop: np.ndarray, hair: np.ndarray, bald_render: np.ndarray) -> np.ndarray:
     """The photo crop with its hair replaced by the model's bald render, Poisson-blended.
 
