@@ -6,7 +6,7 @@ import re
 
 from head360cli.errors import BadInputError
 
-__all__ = ["resolve_device"]
+__all__ = ["fast_bfloat16", "resolve_device"]
 
 _PATTERN = re.compile(r"^(cpu|cuda|auto)(:\d+)?$")
 
@@ -37,3 +37,20 @@ def resolve_device(name: str):  # -> torch.device
                 f"found {index}"
             )
     return torch.device(text)
+
+
+def fast_bfloat16(device) -> bool:
+    """Whether ``device`` computes bfloat16 matrix products natively (CUDA GPUs that
+    support it; CPUs with the AVX-512 BF16 or AMX instructions), where it is faster than
+    float32. Elsewhere bfloat16 is emulated and slower."""
+    import torch
+
+    device = torch.device(device)
+    if device.type == "cuda":
+        return bool(torch.cuda.is_bf16_supported())
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = f.read()
+    except OSError:  # not Linux: be safe
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags

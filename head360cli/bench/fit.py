@@ -147,7 +147,7 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
         Image.fromarray((shot.rgb[0].permute(1, 2, 0).numpy() * 255).round()
                         .astype(np.uint8)).save(photo)
         summary = fit_photo(photo, work / f"synthetic_{i}.h360", preset=preset, focal=focal)
-        head = load_head_renderer(work / f"synthetic_{i}.h360")
+        head = load_head_renderer(work / f"synthetic_{i}.h360", precision="fp32")
         pose = torch.tensor(read_head(work / f"synthetic_{i}.h360").arrays["pose"])
         # Ground-truth world -> fitted head's world: c2w_fit @ inv(c2w_in).
         to_fit = pose @ torch.linalg.inv(cam_in[0])
@@ -212,7 +212,7 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
         except Exception as exc:  # reported, not fatal: one photo must not stop the rest
             rows.append({"photo": photo.name, "error": str(exc)})
             continue
-        head = load_head_renderer(out)
+        head = load_head_renderer(out, precision="fp32")
         res = head.gen.cfg.image_res
         ref = _descriptor(load_image(photo).pixels)
         yaws = (0.0, 30.0, -30.0)

@@ -1,11 +1,17 @@
 """Render a fitted head (its mesh, neural texture and hair) from any camera.
 
-:class:`HeadRenderer` holds what does not change between frames (the generator, the neutral
-mesh, the texture, the hair meshes) and renders batches of views. The turntable, the fit
-preview and animation build on it.
+:class:`HeadRenderer` holds what does not change between frames: the generator, the head's
+blendshapes (its neutral mesh and one delta per ARKit weight, since the bilinear model is
+linear in the weights), the neural texture and the hair planes. A frame only recomputes
+what an expression or a camera changes: the mesh (one small matrix product), its hex-planes
+and the volume render. The turntable, the fit preview, views, animation and mesh export
+build on it.
 """
 
 from __future__ import annotations
+
+import copy
+from collections.abc import Iterator
 
 import numpy as np
 import torch
@@ -29,54 +35,119 @@ class HeadRenderer:
         hair_colour: ``(3,)`` linear RGB.
         expression: ``(52,)`` ARKit weights used when a render call gives none.
         samples: Samples per ray (default: the generator's own).
+        size: Output image size (default: the generator's own, 256).
+        precision: ``"fp32"``, ``"bf16"`` (decoders and RefineNet in bfloat16), or
+            ``"auto"``: bf16 where the hardware has it (:func:`~head360cli.devices.
+            fast_bfloat16`), else fp32.
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,
                  hair_colour: np.ndarray, expression: np.ndarray | None = None,
-                 samples: int | None = None) -> None:
+                 samples: int | None = None, size: int | None = None,
+                 precision: str = "auto") -> None:
+        from head360cli.devices import fast_bfloat16
         from head360cli.mesh.bilinear import load_bilinear
-        from head360cli.model.generator import hair_for
 
+        if precision not in ("auto", "fp32", "bf16"):
+            raise ValueError(f"expected precision auto, fp32 or bf16, found {precision!r}")
         self.gen = gen
         self.samples = samples or gen.cfg.samples
-        device = next(gen.parameters()).device
-        self.device = device
+        self.size = size or gen.cfg.image_res
+        gen.image_size(self.size)  # raises ValueError now for a size it cannot make
+        self.device = next(gen.parameters()).device
+        if precision == "auto":
+            precision = "bf16" if fast_bfloat16(self.device) else "fp32"
+        self.precision = precision
         self.model = load_bilinear()
         self.shape = np.asarray(shape, np.float64)
         self.expression = (np.zeros(52) if expression is None
                            else np.asarray(expression, np.float64))
         self.neutral = self.model.vertices(self.shape, np.zeros(52))
-        self.texture = texture.to(device)[None]
-        self.hair = hair_for(self.neutral, [int(hair_style)], np.asarray(hair_colour)[None]
-                             ).to(device) if gen.cfg.hair else None
-        if self.hair is not None and self.hair.meshes[0] is None:
-            self.hair = None  # bald
+        eye = np.eye(52)
+        deltas = np.stack([self.model.vertices(self.shape, eye[k]) - self.neutral
+                           for k in range(52)])
+        self.deltas = deltas
+        """``(52, V, 3)`` float64: the mesh moves by ``w @ deltas`` for ARKit weights w."""
+        self._base = torch.tensor(self.neutral, dtype=torch.float32, device=self.device)
+        self._deltas = torch.tensor(deltas.reshape(52, -1), dtype=torch.float32,
+                                    device=self.device)
+        self.texture = texture.to(self.device)[None]
+        self.set_hair(hair_style, hair_colour)
 
-    def vertices(self, expression: np.ndarray | None = None) -> torch.Tensor:
-        """``(V, 3)`` the mesh with ARKit ``expression (52,)`` (default: the head's own)."""
-        w = self.expression if expression is None else np.asarray(expression, np.float64)
-        return torch.tensor(self.model.vertices(self.shape, w), dtype=torch.float32,
-                            device=self.device)
+    def set_hair(self, hair_style: int, hair_colour: np.ndarray) -> None:
+        """Put on another hairstyle and colour (its planes are made once, here)."""
+        from head360cli.model.generator import hair_for
+
+        self.hair_style = int(hair_style)
+        self.hair_colour = np.asarray(hair_colour, np.float64).reshape(3)
+        self.hair = None
+        if self.gen.cfg.hair:
+            hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None])
+            if hair.meshes[0] is not None:
+                with torch.no_grad():
+                    self.hair = self.gen.prepare_hair(hair.to(self.device))
+
+    def with_hair(self, hair_style: int, hair_colour: np.ndarray) -> HeadRenderer:
+        """A copy wearing another hairstyle (mesh, texture and generator are shared)."""
+        other = copy.copy(self)
+        other.set_hair(hair_style, hair_colour)
+        return other
+
+    def vertices(self, expression: np.ndarray | torch.Tensor | None = None) -> torch.Tensor:
+        """Meshes ``(B, V, 3)`` for ARKit weights ``(B, 52)`` (or ``(V, 3)`` for one
+        ``(52,)``; default: the head's own expression)."""
+        w = self.expression if expression is None else expression
+        w = torch.as_tensor(np.asarray(w, np.float32), device=self.device)
+        one = w.dim() == 1
+        v = self._base.reshape(1, -1) + w.reshape(-1, 52) @ self._deltas
+        v = v.reshape(-1, *self._base.shape)
+        return v[0] if one else v
 
     @torch.no_grad()
     def render(self, c2w: torch.Tensor, intrinsics: torch.Tensor,
                expression: np.ndarray | None = None, hair: bool = True,
-               batch: int = 4) -> torch.Tensor:
+               batch: int | None = None) -> torch.Tensor:
         """Views ``(B, 3, H, W)`` in [0, 1] on white from cameras ``c2w (B, 4, 4)`` with
-        ``intrinsics (3, 3)`` for the generator's image size, ``batch`` at a time."""
-        from head360cli.model.generator import Hair
+        ``intrinsics (3, 3)`` for ``self.size`` images, ``batch`` at a time.
+        ``expression``: ``(52,)`` for every view or ``(B, 52)``, one per view."""
+        if expression is not None and np.ndim(expression) == 2:
+            weights = np.asarray(expression)
+        else:
+            w = self.expression if expression is None else np.asarray(expression)
+            weights = np.broadcast_to(w, (len(c2w), 52))
+        return torch.cat([torch.as_tensor(f) for f in
+                          self.frames(c2w, weights, intrinsics, hair, batch, uint8=False)])
 
-        verts = self.vertices(expression)
-        out = []
-        with self.gen.samples_per_ray(self.samples):
-            for i in range(0, len(c2w), batch):
-                cams = c2w[i:i + batch].to(self.device)
-                n = len(cams)
-                h = None
-                if hair and self.hair is not None:
-                    h = Hair(self.hair.meshes * n, self.hair.style.expand(n),
-                             self.hair.colour.expand(n, 3))
-                o = self.gen(verts[None].expand(n, -1, -1), cams, intrinsics.to(self.device),
-                             texture=self.texture.expand(n, -1, -1, -1), hair=h)
-                out.append(o["rgb"].cpu())
-        return torch.cat(out)
+    @torch.no_grad()
+    def frames(self, c2w: torch.Tensor, weights: np.ndarray, intrinsics: torch.Tensor,
+               hair: bool = True, batch: int | None = None, uint8: bool = True
+               ) -> Iterator[np.ndarray | torch.Tensor]:
+        """Render frame after frame (an animation): camera ``c2w[i] (4, 4)`` and ARKit
+        weights ``weights[i] (52,)``, ``batch`` frames per generator call (default: 1 on
+        CPU, where larger batches measured slower, 8 on a GPU).
+
+        Yields:
+            Per batch, ``(b, H, W, 3)`` uint8 frames (or ``(b, 3, H, W)`` float tensors in
+            [0, 1] with ``uint8=False``). Nothing is kept between batches, so memory does
+            not grow with the number of frames.
+        """
+        k = intrinsics.to(self.device)
+        batch = batch or (1 if self.device.type == "cpu" else 8)
+        own_dtype = self.gen.network_dtype
+        self.gen.network_dtype = torch.bfloat16 if self.precision == "bf16" else None
+        with self.gen.samples_per_ray(self.samples), self.gen.image_size(
+                None if self.size == self.gen.cfg.image_res else self.size):
+            try:
+                yield from self._frames(c2w, weights, k, hair, batch, uint8)
+            finally:
+                self.gen.network_dtype = own_dtype
+
+    def _frames(self, c2w, weights, k, hair, batch, uint8):
+        for i in range(0, len(c2w), batch):
+            cams = c2w[i:i + batch].to(self.device)
+            n = len(cams)
+            verts = self.vertices(np.asarray(weights[i:i + n], np.float32))
+            h = self.hair.repeat(n) if hair and self.hair is not None else None
+            out = self.gen(verts, cams, k, texture=self.texture.expand(n, -1, -1, -1),
+                           hair=h)["rgb"]
+            yield to_uint8(out) if uint8 else out.cpu()
