@@ -16,7 +16,7 @@ import numpy as np
 from head360cli.errors import BadInputError
 
 __all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer",
-           "parse_photo", "run_demo", "write_turntable"]
+           "parse_photo", "run_demo"]
 
 _EXIF_FOCAL_35MM = 0xA405
 _EXIF_IFD = 0x8769
@@ -80,7 +80,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
-    from head360cli.io.mesh import write_obj
+    from head360cli.io.mesh import MeshPart, write_obj
     from head360cli.mesh.arkit52 import ARKIT52
     from head360cli.mesh.bilinear import load_bilinear
 
@@ -125,7 +125,8 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
         name = f"{stem}_face{index}" if face == "all" else stem
         paths = {"mesh": out / f"{name}_shape.obj", "overlay": out / f"{name}_overlay.png",
                  "params": out / f"{name}_shape.json"}
-        write_obj(paths["mesh"], verts, model.faces, model.uv, model.faces_uv,
+        write_obj(paths["mesh"], [MeshPart("head", verts, model.faces, model.uv,
+                                           model.faces_uv)],
                   comment=f"head360 shape fit of {Path(photo).name}\nmetres, +y up, face +z")
         overlay = _overlay(img.pixels, found.landmarks, fit.landmarks_fitted, v2d,
                            model.faces, visible)
@@ -437,7 +438,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     say("preview", 0, 1)
     t0 = time.perf_counter()
     head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
-                        samples=cfg.preview_samples)
+                        samples=cfg.preview_samples, precision="fp32")
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
@@ -524,9 +525,11 @@ def _generator_hash() -> str:
     return hashlib.sha256((models_dir() / "generator.pt").read_bytes()).hexdigest()
 
 
-def load_head_renderer(path: str | Path, device: str = "cpu"):
+def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | None = None,
+                       size: int | None = None, precision: str = "auto"):
     """A :class:`~head360cli.model.head_render.HeadRenderer` for a head file made with the
-    installed generator.
+    installed generator (``samples`` per ray and image ``size``: default the generator's;
+    ``precision`` as the renderer's).
 
     Raises:
         ModelMismatchError: The file was made with another generator.
@@ -541,26 +544,8 @@ def load_head_renderer(path: str | Path, device: str = "cpu"):
     gen, _ = load_generator(device=device)
     a = head.arrays
     return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),
-                        a["hair_color"], a["expression"])
-
-
-def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 0.0,
-                    fps: float = 24.0, progress: Any = None) -> Path:
-    """Render ``frames`` views turning once around a head (neutral expression) into a
-    video (mp4 or GIF by name), streaming frames to the encoder."""
-    from head360cli.geometry.cameras import orbit
-    from head360cli.io.video import VideoWriter
-    from head360cli.model.head_render import to_uint8
-
-    cams = orbit(frames, pitch)
-    k = _rig_intrinsics(renderer.gen.cfg.image_res)
-    with VideoWriter(out, fps=fps) as video:
-        for i in range(0, frames, 4):
-            for frame in to_uint8(renderer.render(cams[i:i + 4], k, expression=np.zeros(52))):
-                video.write(frame)
-            if progress:
-                progress("turntable", min(i + 4, frames), frames)
-    return Path(out)
+                        a["hair_color"], a["expression"], samples=samples, size=size,
+                        precision=precision)
 
 
 def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,
@@ -578,6 +563,8 @@ def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,
         Image.fromarray(data.astronaut()).save(tmp)
     fit = fit_photo(photo, out / "astronaut.h360", preset=preset, device=device,
                     progress=progress)
+    from head360cli.drive.views import write_turntable
+
     renderer = load_head_renderer(out / "astronaut.h360", device)
     turn = write_turntable(renderer, out / "turntable.mp4", frames, progress=progress)
     return {"fit": fit, "turntable": str(turn)}
