@@ -744,6 +744,9 @@ def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 
 
+# The subcommands that use a head (render, animate, swap-hair, sample, export-mesh).
+from head360cli import cli_drive  # noqa: E402,F401  (registers them on `cli`)
+
 # --------------------------------------------------------------------------- entry point
 
 

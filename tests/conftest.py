@@ -40,3 +40,14 @@ def shared_data() -> Path:
     if path is None:
         pytest.skip("../shared/data is not present on this machine")
     return path
+
+
+@pytest.fixture(scope="session")
+def head_file(tmp_path_factory) -> Path:
+    """A head file drawn from the shipped model (seed 0, with hair): as good as a fitted
+    head for rendering, animation, swaps and export, without a fit's seconds."""
+    from head360cli.drive.sample import sample_heads, write_samples
+
+    head = sample_heads(1, seed=0)[0]
+    assert int(head.arrays["hair_style"]) != 0
+    return write_samples([head], tmp_path_factory.mktemp("head"))[0]

@@ -1,0 +1,381 @@
+"""Subcommands that use a head: render, animate, swap-hair, sample, export-mesh.
+
+Registered on :data:`head360cli.cli.cli` (imported at the end of that module); like the
+rest of the command line they only parse options, call the library and print.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from head360cli.cli import (
+    _emit,
+    _progress_printer,
+    _settings,
+    _warn,
+    bench,
+    cli,
+    common_options,
+)
+from head360cli.errors import BadInputError
+
+__all__: list[str] = []
+
+_HEAD = click.Path(dir_okay=False)
+
+
+ANIMATE_SAMPLES = 8
+"""Default samples per ray for animation: 38.2 dB against a 32-sample render (12 samples:
+43.0 dB) at 1.5x the frame rate (``head360 bench animate`` measures both)."""
+
+
+def _renderer(head: str, samples: int | None, size: int | None):
+    from head360cli.devices import resolve_device
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    if samples is not None and not 1 <= samples <= 64:
+        raise BadInputError(f"expected --samples between 1 and 64, found {samples}")
+    if size is not None and not 32 <= size <= 2048:
+        raise BadInputError(f"expected --size between 32 and 2048, found {size}")
+    if not Path(head).is_file():
+        raise BadInputError(f"head file {head!r} does not exist")
+    try:
+        return load_head_renderer(head, str(resolve_device(_settings().device)),
+                                  samples=samples, size=size)
+    except ValueError as exc:  # an image size the generator cannot make
+        raise BadInputError(str(exc)) from None
+
+
+def _quality_options(f):
+    f = click.option("--samples", type=int, default=None,
+                     help="Samples per ray (default: 12 for stills, 8 for animation); "
+                     "fewer is faster.")(f)
+    f = click.option("--size", type=int, default=None,
+                     help="Image width and height in pixels, even (default 256).")(f)
+    return click.option("--no-hair", is_flag=True, help="Render the head bald.")(f)
+
+
+@cli.command()
+@click.argument("head", type=_HEAD)
+@click.option("-o", "--out", required=True, type=click.Path(),
+              help="Output: .png for a view or a grid; .mp4, .gif or a folder for "
+              "--turntable.")
+@click.option("--turntable", is_flag=True, help="A video turning once around the head.")
+@click.option("--frames", default=48, show_default=True, help="Turntable frames.")
+@click.option("--fps", default=24.0, show_default=True, help="Turntable frame rate.")
+@click.option("--yaw", default=0.0, show_default=True,
+              help="Degrees; 0 = the canonical frontal view, + shows the head's left side.")
+@click.option("--pitch", default=0.0, show_default=True, help="Degrees; + looks from above.")
+@click.option("--views", default=None,
+              help="A PNG grid of views: yaws '0,45,90' or yaw:pitch pairs '0:0,90:20'.")
+@click.option("--expr", default=None,
+              help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1' (default neutral).")
+@_quality_options
+@common_options
+def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: float,
+           pitch: float, views: str | None, expr: str | None, samples: int | None,
+           size: int | None, no_hair: bool) -> None:
+    """Render a head: one view, a grid of views, or a turntable.
+
+    \b
+    Examples:
+      head360 render me.h360 -o front.png
+      head360 render me.h360 --yaw 45 --pitch 10 --size 512 -o view.png
+      head360 render me.h360 --expr JawOpen=0.8,EyeBlinkLeft=1 -o smile.png
+      head360 render me.h360 --views 0,45,90,180,270 -o views.png
+      head360 render me.h360 --turntable --frames 96 -o turn.mp4
+    """
+    import numpy as np
+
+    from head360cli.drive.views import (
+        grid_image,
+        parse_expression,
+        parse_views,
+        view_cameras,
+        view_intrinsics,
+        write_turntable,
+    )
+
+    w = parse_expression(expr)
+    if not (np.isfinite(yaw) and np.isfinite(pitch) and abs(pitch) <= 90):
+        raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
+                            f"{yaw}, {pitch}")
+    if turntable and views:
+        raise BadInputError("expected --turntable or --views, found both")
+    if turntable and not 1 <= frames <= 3600:
+        raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
+    if not turntable and Path(out).suffix.lower() != ".png":
+        raise BadInputError(f"expected a .png output for a view, found {out!r} (use "
+                            "--turntable for a video)")
+    r = _renderer(head, samples, size)
+    if turntable:
+        write_turntable(r, out, frames, pitch, fps, expression=w,
+                        progress=_progress_printer())
+        _emit({"out": out, "frames": frames}, f"wrote {out} ({frames} frames)")
+        return
+    from PIL import Image
+
+    from head360cli.io.atomic import atomic_path
+
+    pairs = parse_views(views) if views else [(yaw, pitch)]
+    cams = view_cameras([p[0] for p in pairs], [p[1] for p in pairs])
+    frames_ = np.concatenate(list(r.frames(cams, np.broadcast_to(w, (len(pairs), 52)),
+                                           view_intrinsics(r.size), hair=not no_hair)))
+    image = frames_[0] if len(pairs) == 1 else grid_image(
+        frames_, [f"{y:g}/{p:g}" for y, p in pairs], cols=min(len(pairs), 6))
+    with atomic_path(out) as tmp:
+        Image.fromarray(image).save(tmp, format="PNG")
+    _emit({"out": out, "views": [list(p) for p in pairs]},
+          f"wrote {out} ({len(pairs)} view{'s' if len(pairs) > 1 else ''})")
+
+
+@cli.command()
+@click.argument("head", type=_HEAD)
+@click.option("--arkit", required=True,
+              help="ARKit-52 CSV stream (Live Link Face, MediaPipe names, generic), or - "
+              "for standard input.")
+@click.option("-o", "--out", default=None, type=click.Path(),
+              help="Video: .mp4, .gif, or a folder for PNG frames.")
+@click.option("--mesh-sequence", "mesh_dir", default=None, type=click.Path(),
+              help="Also write one OBJ per frame into this new folder.")
+@click.option("--head-pose", is_flag=True, help="Apply the stream's head rotation.")
+@click.option("--fps", type=float, default=None,
+              help="Resample to this frame rate (default: the stream's own).")
+@click.option("--start", type=float, default=None, help="Start at this second.")
+@click.option("--end", type=float, default=None, help="Stop before this second.")
+@click.option("--smooth", type=float, default=0.0, show_default=True,
+              help="Gaussian smoothing of the weights, sigma in seconds (e.g. 0.03).")
+@click.option("--yaw", default=0.0, show_default=True, help="Camera yaw, degrees.")
+@click.option("--pitch", default=0.0, show_default=True, help="Camera pitch, degrees.")
+@click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="hold",
+              show_default=True, help="Bad cells in the stream: stop, drop the row, or "
+              "hold the last good value.")
+@_quality_options
+@common_options
+def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_pose: bool,
+            fps: float | None, start: float | None, end: float | None, smooth: float,
+            yaw: float, pitch: float, on_bad: str, samples: int | None, size: int | None,
+            no_hair: bool) -> None:
+    """Drive a head with an ARKit-52 blendshape stream.
+
+    Only the mesh is recomputed per frame; frames stream to the encoder, so memory does
+    not grow with the length of the take.
+
+    \b
+    Examples:
+      head360 animate me.h360 --arkit take.csv -o talk.mp4
+      head360 animate me.h360 --arkit take.csv --head-pose --start 2 --end 8 -o clip.gif
+      head360 animate me.h360 --arkit take.csv --fps 30 --smooth 0.03 -o talk.mp4
+      cat take.csv | head360 animate me.h360 --arkit - -o talk.mp4
+      head360 animate me.h360 --arkit take.csv --mesh-sequence frames/
+    """
+    from head360cli.drive.animate import AnimateConfig
+    from head360cli.drive.animate import animate as run
+    from head360cli.io.arkit import read_arkit_csv
+
+    if out is None and mesh_dir is None:
+        raise BadInputError("expected -o OUT and/or --mesh-sequence DIR, found neither")
+    if fps is not None and not 1 <= fps <= 240:
+        raise BadInputError(f"expected --fps between 1 and 240, found {fps}")
+    if not 0 <= smooth <= 5:
+        raise BadInputError(f"expected --smooth between 0 and 5 seconds, found {smooth}")
+    if arkit != "-" and not Path(arkit).is_file():
+        raise BadInputError(f"ARKit stream {arkit!r} does not exist")
+    stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
+    for warning in stream.warnings:
+        _warn(warning)
+    r = _renderer(head, samples or ANIMATE_SAMPLES, size)
+    cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
+                        yaw=yaw, pitch=pitch, hair=not no_hair)
+    res = run(r, stream, out, cfg, mesh_dir=mesh_dir, progress=_progress_printer())
+    text = (f"animated {res['frames']} frames ({res['duration_s']:.2f} s at "
+            f"{res['fps']:.2f} fps)")
+    if "render_fps" in res:
+        text += f", rendered at {res['render_fps']:.1f} frames/s"
+    _emit(res, text + "".join(f"\n  wrote {p}" for p in res["files"].values()))
+
+
+@cli.command("swap-hair")
+@click.argument("head", type=_HEAD, required=False)
+@click.option("--hair", "hair_style", default=None,
+              help="Hairstyle name (bob, 'long wavy'...) or id 0-29.")
+@click.option("--color", "--colour", "colour", default=None,
+              help="Hair colour: a name (black, 'dark brown', blonde...), #rrggbb, or "
+              "linear R,G,B in [0, 1].")
+@click.option("-o", "--out", default=None, type=click.Path(),
+              help="The new head file (with HEAD), or the contact sheet PNG (with --list).")
+@click.option("--list", "list_", is_flag=True,
+              help="List the 30 hairstyles; with -o, also render a contact sheet of them "
+              "(on HEAD, or on the mean sampled head).")
+@common_options
+def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
+              out: str | None, list_: bool) -> None:
+    """Give a head another hairstyle and/or hair colour; the face stays as it was.
+
+    \b
+    Examples:
+      head360 swap-hair --list
+      head360 swap-hair me.h360 --list -o styles.png
+      head360 swap-hair me.h360 --hair bob -o me_bob.h360
+      head360 swap-hair me.h360 --hair 17 --color blonde -o me_17.h360
+    """
+    from head360cli.drive.hair_swap import list_styles, style_sheet
+    from head360cli.drive.hair_swap import swap_hair as run
+
+    if list_:
+        styles = list_styles()
+        result = {"styles": styles}
+        text = "\n".join(f"{s['id']:2d}  {s['name']:18s} ({s['figaro']})" for s in styles)
+        if out is not None:
+            if Path(out).suffix.lower() != ".png":
+                raise BadInputError(f"expected a .png contact sheet, found {out!r}")
+            r = _mean_head_renderer() if head is None else _renderer(head, None, None)
+            style_sheet(r, out, progress=_progress_printer())
+            result["sheet"] = out
+            text += f"\nwrote {out}"
+        _emit(result, text)
+        return
+    if head is None:
+        raise BadInputError("expected a head file (or --list), found none")
+    if out is None:
+        raise BadInputError("expected -o NEW.h360 for the swapped head")
+    from head360cli.synth.hair import style_index
+
+    style = None if hair_style is None else style_index(hair_style)
+    res = run(head, out, style, colour)
+    _emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was style "
+          f"{res['from']['hair_style']})")
+
+
+def _mean_head_renderer():
+    from head360cli.devices import resolve_device
+    from head360cli.drive.sample import sample_heads
+    from head360cli.model.head_render import HeadRenderer
+    from head360cli.model.train import load_generator
+
+    device = str(resolve_device(_settings().device))
+    head = sample_heads(1, scale=0.0, device=device)[0]
+    gen, _ = load_generator(device=device)
+    import torch
+
+    a = head.arrays
+    return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), 0,
+                        a["hair_color"])
+
+
+@cli.command()
+@click.option("-n", "--count", default=8, show_default=True, help="How many heads.")
+@click.option("--seed", default=0, show_default=True, help="Random seed.")
+@click.option("--spread", default=1.0, show_default=True,
+              help="Spread around the mean head (0 = the mean head, 1 = the prior's).")
+@click.option("--bald", is_flag=True, help="No hair.")
+@click.option("-o", "--out", "out_dir", default="samples", show_default=True,
+              type=click.Path(file_okay=False),
+              help="Folder for the heads (sample_000.h360...) and samples.png.")
+@common_options
+def sample(count: int, seed: int, spread: float, bald: bool, out_dir: str) -> None:
+    """Draw random heads from the model and render them side by side.
+
+    \b
+    Examples:
+      head360 sample
+      head360 sample -n 16 --seed 3 -o crowd/
+    """
+    import numpy as np
+    import torch
+    from PIL import Image
+
+    from head360cli.devices import resolve_device
+    from head360cli.drive.sample import sample_heads, write_samples
+    from head360cli.drive.views import grid_image, view_cameras, view_intrinsics
+    from head360cli.io.atomic import atomic_path
+    from head360cli.model.head_render import HeadRenderer
+    from head360cli.model.train import load_generator
+
+    if not 1 <= count <= 1000:
+        raise BadInputError(f"expected --count between 1 and 1000, found {count}")
+    device = str(resolve_device(_settings().device))
+    heads = sample_heads(count, seed, spread, bald, device)
+    paths = write_samples(heads, out_dir)
+    gen, _ = load_generator(device=device)
+    cam = view_cameras(20.0, 0.0)
+    tiles = []
+    for h in heads:
+        a = h.arrays
+        r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
+                         int(a["hair_style"]), a["hair_color"])
+        tiles.append(next(r.frames(cam, np.zeros((1, 52)), view_intrinsics(r.size)))[0])
+    sheet = Path(out_dir) / "samples.png"
+    with atomic_path(sheet) as tmp:
+        Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
+            tmp, format="PNG")
+    _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
+          f"wrote {count} heads into {out_dir}/ and {sheet}")
+
+
+@cli.command("export-mesh")
+@click.argument("head", type=_HEAD)
+@click.option("-o", "--out", required=True, type=click.Path(dir_okay=False),
+              help=".glb (52 ARKit morph targets, baked texture) or .obj (+ .mtl, .png).")
+@click.option("--texture-size", default=512, show_default=True,
+              help="Baked texture width and height.")
+@click.option("--no-hair", is_flag=True, help="Leave the hair mesh out.")
+@common_options
+def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
+    """Export a head as a mesh for Blender, three.js or a game engine.
+
+    The appearance is baked from renders into a colour texture (head) and vertex colours
+    (hair). In the GLB the 52 ARKit blendshapes are named morph targets.
+
+    \b
+    Examples:
+      head360 export-mesh me.h360 -o me.glb
+      head360 export-mesh me.h360 -o me.obj --texture-size 1024
+    """
+    from head360cli.drive.bake import export_head
+
+    if not 64 <= texture_size <= 4096:
+        raise BadInputError(f"expected --texture-size between 64 and 4096, found "
+                            f"{texture_size}")
+    if Path(out).suffix.lower() not in (".glb", ".obj"):
+        raise BadInputError(f"expected a .glb or .obj output, found {out!r}")
+    r = _renderer(head, None, None)
+    res = export_head(r, out, texture_size, hair=not no_hair, progress=_progress_printer())
+    _emit(res, f"wrote {', '.join(res['files'])} ({res['vertices']} vertices, "
+          f"{res['morph_targets']} morph targets, parts {', '.join(res['parts'])})")
+
+
+@bench.command("animate")
+@click.option("--frames", default=120, show_default=True,
+              help="Frames per throughput measurement.")
+@click.option("--stride", default=3, show_default=True,
+              help="Every Nth frame of the capture for expression fidelity.")
+@click.option("--no-memory", is_flag=True,
+              help="Skip the whole-capture peak-memory run (minutes).")
+@click.option("--out", "out_dir", default="bench-results", show_default=True,
+              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+@common_options
+def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -> None:
+    """Animation: frames per second against samples and precision (with PSNR), peak memory
+    over a whole capture, expression fidelity by dlib landmarks, face PSNR across hair
+    swaps.
+
+    \b
+    Examples:
+      head360 bench animate
+      head360 bench animate --frames 60 --stride 6 --no-memory
+    """
+    from head360cli.bench.animate import bench_animate
+    from head360cli.bench.report import save
+
+    if frames < 8 or stride < 1:
+        raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
+                            f"{stride}")
+    result, md = bench_animate(frames, stride, memory=not no_memory,
+                               progress=None if _settings().quiet else
+                               (lambda t: click.echo(f"bench animate: {t}", err=True)))
+    result["files"] = save(result, md, out_dir, "animate")
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")

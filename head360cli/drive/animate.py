@@ -1,0 +1,155 @@
+"""Drive a head with an ARKit-52 stream: a video, a mesh sequence, or both.
+
+Per frame only the mesh changes (``HeadRenderer.frames`` recomputes the mesh, its
+hex-planes and the volume render; the neural texture and the hair planes are made once).
+The stream's head rotation, when asked for, moves the camera instead of the head: the same
+image on a white background, and the hair planes stay valid. Frames go to the encoder as
+they are made, so memory does not grow with the length of the take.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from head360cli.errors import BadInputError
+
+__all__ = ["HEAD_PIVOT", "AnimateConfig", "animate", "head_pose_cameras"]
+
+HEAD_PIVOT = (0.0, -0.10, -0.02)
+"""Head coordinates (metres) of the point the head turns about with ``--head-pose``: the
+top of the neck."""
+
+
+@dataclasses.dataclass
+class AnimateConfig:
+    """How to turn a stream into frames."""
+
+    fps: float | None = None
+    """Output frame rate; ``None`` keeps the stream's own (its frames are still put on a
+    uniform time grid, so dropped frames do not shorten the video)."""
+    start: float | None = None
+    """Seconds into the stream to start at (``None``: its beginning)."""
+    end: float | None = None
+    """Seconds into the stream to stop before (``None``: its end)."""
+    smooth: float = 0.0
+    """Gaussian smoothing of the weights (and head rotation), sigma in seconds; 0: none."""
+    head_pose: bool = False
+    """Apply the stream's head yaw, pitch and roll."""
+    yaw: float = 0.0
+    """Camera yaw in degrees (0: the canonical frontal view)."""
+    pitch: float = 0.0
+    """Camera pitch in degrees."""
+    batch: int = 4
+    """Frames rendered per generator call."""
+    hair: bool = True
+    """Render the hair (False: the bald head)."""
+
+
+def head_pose_cameras(rotation: np.ndarray, c2w, pivot=HEAD_PIVOT):
+    """Cameras that see a fixed head as a still camera sees the head turned.
+
+    Args:
+        rotation: ``(F, 3)`` head yaw, pitch, roll in radians (ARKit order; yaw turns the
+            face towards the head's left, pitch tips it down, roll tilts it towards its
+            left shoulder).
+        c2w: ``(4, 4)`` the still camera.
+        pivot: The point the head turns about (head coordinates).
+
+    Returns:
+        ``(F, 4, 4)`` camera-to-world matrices: ``inverse(head motion) @ c2w``.
+    """
+    import torch
+
+    r = np.asarray(rotation, np.float64)
+    cy, sy = np.cos(r[:, 0]), np.sin(r[:, 0])
+    cp, sp = np.cos(r[:, 1]), np.sin(r[:, 1])
+    cr, sr = np.cos(r[:, 2]), np.sin(r[:, 2])
+    one, zero = np.ones_like(cy), np.zeros_like(cy)
+    ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], -1).reshape(-1, 3, 3)
+    # Pitching down turns the face (+z) towards -y: a rotation about +x by +pitch.
+    rx = np.stack([one, zero, zero, zero, cp, -sp, zero, sp, cp], -1).reshape(-1, 3, 3)
+    # Rolling towards the left shoulder turns the head's up (+y) towards +x.
+    rz = np.stack([cr, sr, zero, -sr, cr, zero, zero, zero, one], -1).reshape(-1, 3, 3)
+    rot = ry @ rx @ rz
+    motion = np.tile(np.eye(4), (len(r), 1, 1))
+    p = np.asarray(pivot, np.float64)
+    motion[:, :3, :3] = rot
+    motion[:, :3, 3] = p - rot @ p
+    inverse = np.linalg.inv(motion)
+    base = np.asarray(c2w.detach().cpu() if hasattr(c2w, "detach") else c2w, np.float64)
+    return torch.tensor(inverse @ base, dtype=torch.float32)
+
+
+def prepare_stream(stream, cfg: AnimateConfig):
+    """The stream cut to ``start``/``end``, smoothed and put on a uniform time grid."""
+    from head360cli.io.arkit import resample, smooth
+
+    if cfg.start is not None or cfg.end is not None:
+        if cfg.start is not None and cfg.end is not None and cfg.end <= cfg.start:
+            raise BadInputError(f"expected --end after --start, found start {cfg.start} s "
+                                f"and end {cfg.end} s")
+        stream = stream.between(cfg.start, cfg.end)
+    if cfg.smooth > 0:
+        stream = smooth(stream, cfg.smooth)
+    fps = cfg.fps if cfg.fps is not None else stream.fps
+    if cfg.head_pose and stream.head_rotation is None:
+        raise BadInputError("expected head rotation columns (HeadYaw, HeadPitch, HeadRoll) "
+                            "for --head-pose, found none in the stream")
+    return stream if stream.num_frames < 2 else resample(stream, fps)
+
+
+def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None = None,
+            mesh_dir: str | Path | None = None, progress: Any = None) -> dict[str, Any]:
+    """Render a head driven by an ARKit stream.
+
+    Args:
+        renderer: The head.
+        stream: An :class:`~head360cli.io.arkit.ArkitStream`.
+        out: Video path (mp4, gif, or a folder for PNG frames), or ``None`` for no video.
+        cfg: Options.
+        mesh_dir: Also write one OBJ per frame (plus the texture) into this new folder.
+        progress: ``progress(stage, done, total)`` callback.
+
+    Returns:
+        A summary: frames, duration, fps, render seconds and frames per second, paths.
+    """
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.io.video import VideoWriter
+
+    cfg = cfg or AnimateConfig()
+    if out is None and mesh_dir is None:
+        raise BadInputError("expected a video output or a mesh folder, found neither")
+    stream = prepare_stream(stream, cfg)
+    n = stream.num_frames
+    base = view_cameras(cfg.yaw, cfg.pitch)[0]
+    cams = (head_pose_cameras(stream.head_rotation, base) if cfg.head_pose
+            else base[None].expand(n, 4, 4))
+    result: dict[str, Any] = {"frames": n, "fps": float(stream.fps),
+                              "duration_s": n / float(stream.fps), "files": {}}
+    if mesh_dir is not None:
+        from head360cli.drive.bake import write_mesh_sequence
+
+        t0 = time.perf_counter()
+        result["files"]["mesh_sequence"] = str(write_mesh_sequence(
+            renderer, stream.weights, mesh_dir, progress=progress))
+        result["mesh_seconds"] = time.perf_counter() - t0
+    if out is not None:
+        t0 = time.perf_counter()
+        done = 0
+        with VideoWriter(out, fps=stream.fps) as video:
+            for frames in renderer.frames(cams, stream.weights, view_intrinsics(renderer.size),
+                                          hair=cfg.hair, batch=cfg.batch):
+                for frame in frames:
+                    video.write(frame)
+                done += len(frames)
+                if progress:
+                    progress("animate", done, n)
+        seconds = time.perf_counter() - t0
+        result.update(render_seconds=seconds, render_fps=n / seconds)
+        result["files"]["video"] = str(out)
+    return result

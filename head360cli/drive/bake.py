@@ -1,0 +1,246 @@
+"""Bake a head's rendered appearance onto its mesh, for export to other tools.
+
+The head's colour lives in a neural field, not in a texture; to hand the head to Blender or
+a game engine it is baked: the bald head is rendered from :data:`BAKE_VIEWS`, every texel
+of the UV layout is located on the mesh (by rasterizing the mesh in UV space), and takes
+the colour of the views that see it, weighted towards views that face it. Texels no view
+sees, and the gutter between UV islands, are filled from their nearest neighbours.
+The hair is exported as its style mesh with per-vertex colours baked the same way from
+renders with hair.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from head360cli.errors import BadInputError
+
+__all__ = ["BAKE_VIEWS", "bake_head", "export_head", "grow_fill",
+           "write_mesh_sequence"]
+
+BAKE_VIEWS: tuple[tuple[float, float], ...] = (
+    *((float(y), 0.0) for y in range(0, 360, 30)),
+    *((float(y), 35.0) for y in range(0, 360, 45)),
+    *((float(y), -30.0) for y in range(0, 360, 90)),
+    (0.0, 75.0), (180.0, 75.0),
+)
+"""(yaw, pitch) in degrees of the renders a bake takes its colours from."""
+
+VISIBLE_TOLERANCE = 0.004
+"""Metres a texel may lie behind the rendered surface and still count as seen."""
+
+
+def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Fill pixels of zero weight from their nearest known neighbours: ring after ring,
+    each new pixel takes the mean of the known pixels around it (3 x 3).
+
+    Args:
+        colour: ``(H, W, C)`` float, meaningful where ``weight > 0``.
+        weight: ``(H, W)`` non-negative.
+
+    Returns:
+        ``(H, W, C)`` with the weighted pixels unchanged and the others filled (all of
+        them with the mean colour when nothing is known).
+    """
+    import torch
+    import torch.nn.functional as F
+
+    c = torch.as_tensor(colour, dtype=torch.float64).permute(2, 0, 1)[None].clone()
+    known = torch.as_tensor(weight > 0)[None, None].to(c.dtype)
+    if not bool(known.any()):
+        return np.broadcast_to(np.asarray(colour, np.float64).reshape(-1, colour.shape[-1]
+                                                                      ).mean(0),
+                               colour.shape).copy()
+    kernel = torch.ones(1, 1, 3, 3, dtype=c.dtype)
+    channels = c.shape[1]
+    while not bool(known.all()):
+        num = F.conv2d((c * known).reshape(channels, 1, *c.shape[-2:]), kernel, padding=1)
+        den = F.conv2d(known, kernel, padding=1)
+        new = (den > 0) & (known == 0)
+        c = torch.where(new, num.reshape(1, channels, *c.shape[-2:]) / den.clamp_min(1e-12),
+                        c)
+        known = known + new.to(c.dtype)
+    return c[0].permute(1, 2, 0).numpy()
+
+
+def _texels(renderer, size: int):
+    """Per texel of a ``size`` x ``size`` UV layout: the point on the neutral mesh, its
+    normal, and whether a triangle covers it."""
+    import torch
+
+    from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+    from head360cli.io.mesh import vertex_normals
+
+    gen = renderer.gen
+    faces, uv, faces_uv = gen.faces.cpu(), gen.uv.cpu(), gen.faces_uv.cpu()
+    verts = renderer.vertices(np.zeros(52)).cpu()
+    screen = (uv * size)[None]
+    frags = rasterize(screen, torch.ones(1, len(uv)), faces_uv, size, size,
+                      perspective_correct=False, near=float("-inf"))
+    points = interpolate_face_corners(verts[faces], frags)[0]
+    normals = torch.tensor(vertex_normals(verts.numpy(), faces.numpy()), dtype=torch.float32)
+    normals = interpolate_face_corners(normals[faces], frags)[0]
+    normals = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    return points, normals, frags.mask[0], verts
+
+
+def _gather(points, normals, images, cams, k, depth_maps):
+    """Weighted colour sums ``(N, 3)`` and weights ``(N,)`` of points seen in images."""
+    import torch
+    import torch.nn.functional as F
+
+    from head360cli.geometry.cameras import project
+
+    total = torch.zeros(len(points), 3, dtype=torch.float64)
+    weight = torch.zeros(len(points), dtype=torch.float64)
+    size = images.shape[-1]
+    for img, cam, dmap in zip(images, cams, depth_maps, strict=True):
+        pix, depth = project(points[None], cam[None], k)
+        pix, depth = pix[0], depth[0]
+        grid = (pix / size * 2 - 1)[None, None]
+        colour = F.grid_sample(img[None], grid, align_corners=False)[0, :, 0].T
+        surface = F.grid_sample(dmap[None, None], grid, mode="nearest",
+                                align_corners=False)[0, 0, 0]
+        inside = (pix >= 0).all(1) & (pix < size).all(1) & (depth > 0)
+        visible = inside & (depth <= surface + VISIBLE_TOLERANCE)
+        towards = cam[:3, 3][None] - points
+        towards = towards / towards.norm(dim=1, keepdim=True).clamp_min(1e-9)
+        facing = (normals * towards).sum(1).clamp_min(0)
+        w = (facing ** 4) * visible
+        total += (colour * w[:, None]).double()
+        weight += w.double()
+    return total, weight
+
+
+def bake_head(renderer, size: int = 512, views=BAKE_VIEWS, progress: Any = None
+              ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Bake the head's colours.
+
+    Args:
+        renderer: The head (:class:`~head360cli.model.head_render.HeadRenderer`).
+        size: Texture width and height.
+        views: (yaw, pitch) pairs to take colours from.
+        progress: ``progress(stage, done, total)`` callback.
+
+    Returns:
+        ``(texture (size, size, 3) uint8, hair vertex colours (H, 3) uint8 or None)``.
+    """
+    import torch
+
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.model.render import screen_depth
+
+    if size < 16:
+        raise BadInputError(f"expected a texture size of at least 16, found {size}")
+    points, normals, covered, verts = _texels(renderer, size)
+    cams = view_cameras([v[0] for v in views], [v[1] for v in views])
+    k = view_intrinsics(renderer.size)
+    faces = renderer.gen.faces.cpu()
+    res = renderer.size
+    flat_p, flat_n = points[covered], normals[covered]
+    bald = renderer.render(cams, k, np.zeros(52), hair=False)
+    if progress:
+        progress("bake", 1, 2)
+    head_depth = screen_depth(verts[None].expand(len(cams), -1, -1), faces, cams, k, res)
+    total, weight = _gather(flat_p, flat_n, bald, cams, k, head_depth)
+    colour = np.zeros((size, size, 3))
+    w = np.zeros((size, size))
+    m = covered.numpy()
+    colour[m] = (total / weight.clamp_min(1e-12)[:, None]).numpy()
+    w[m] = weight.numpy()
+    texture = np.clip(grow_fill(colour, w) * 255 + 0.5, 0, 255).astype(np.uint8)
+    hair_colours = None
+    if renderer.hair is not None:
+        hv, hf, _ = (t.cpu() for t in renderer.hair.meshes[0])
+        with_hair = renderer.render(cams, k, np.zeros(52), hair=True)
+        hair_depth = torch.minimum(head_depth, screen_depth(
+            hv[None].expand(len(cams), -1, -1), hf, cams, k, res))
+        hn = torch.tensor(_normals(hv.numpy(), hf.numpy()), dtype=torch.float32)
+        total, weight = _gather(hv, hn, with_hair, cams, k, hair_depth)
+        seen = weight > 0
+        mean = (total[seen].sum(0) / weight[seen].sum().clamp_min(1e-12)
+                if bool(seen.any()) else torch.full((3,), 0.5, dtype=torch.float64))
+        c = torch.where(seen[:, None], total / weight.clamp_min(1e-12)[:, None], mean)
+        hair_colours = np.clip(c.numpy() * 255 + 0.5, 0, 255).astype(np.uint8)
+    if progress:
+        progress("bake", 2, 2)
+    return texture, hair_colours
+
+
+def _normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    from head360cli.io.mesh import vertex_normals
+
+    return vertex_normals(verts, faces)
+
+
+def _parts(renderer, texture: np.ndarray | None, hair_colours: np.ndarray | None,
+           expression: np.ndarray, targets: bool):
+    from head360cli.io.mesh import MeshPart
+    from head360cli.mesh.arkit52 import ARKIT52
+
+    gen = renderer.gen
+    verts = renderer.vertices(expression).cpu().numpy().astype(np.float64)
+    parts = [MeshPart("head", verts, gen.faces.cpu().numpy(), gen.uv.cpu().numpy(),
+                      gen.faces_uv.cpu().numpy(), texture,
+                      targets=renderer.deltas if targets else None,
+                      target_names=list(ARKIT52) if targets else None)]
+    if renderer.hair is not None and hair_colours is not None:
+        hv, hf, _ = (t.cpu().numpy() for t in renderer.hair.meshes[0])
+        parts.append(MeshPart("hair", hv.astype(np.float64), hf, colours=hair_colours))
+    return parts
+
+
+def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool = True,
+                progress: Any = None) -> dict[str, Any]:
+    """Write the head as ``.glb`` (52 ARKit morph targets, baked texture) or ``.obj``
+    (+ ``.mtl`` and PNG texture; the neutral mesh).
+
+    Returns:
+        ``{"files": [...], "vertices": V, "faces": F, "morph_targets": 52 or 0}``.
+    """
+    from head360cli.io.mesh import write_glb, write_obj
+
+    out = Path(out)
+    kind = out.suffix.lower()
+    if kind not in (".glb", ".obj"):
+        raise BadInputError(f"expected a .glb or .obj output, found {out.name!r}")
+    if not out.parent.is_dir():
+        raise BadInputError(f"output folder {str(out.parent)!r} does not exist")
+    texture, hair_colours = bake_head(renderer, texture_size, progress=progress)
+    if not hair:
+        hair_colours = None
+    parts = _parts(renderer, texture, hair_colours, np.zeros(52), targets=kind == ".glb")
+    if kind == ".glb":
+        from head360cli import __version__
+
+        files = [write_glb(out, parts, generator=f"head360 {__version__}")]
+    else:
+        files = write_obj(out, parts)
+    return {"files": [str(f) for f in files], "vertices": len(parts[0].verts),
+            "faces": len(parts[0].faces),
+            "morph_targets": 52 if kind == ".glb" else 0,
+            "parts": [p.name for p in parts]}
+
+
+def write_mesh_sequence(renderer, weights: np.ndarray, folder: str | Path,
+                        texture_size: int = 512, progress: Any = None) -> Path:
+    """One OBJ per frame (``frame_00000.obj`` ...) of the head with ARKit ``weights
+    (F, 52)``, sharing one material and baked texture, into a new folder (made under a
+    temporary name and renamed when complete)."""
+    from head360cli.io.atomic import atomic_dir
+    from head360cli.io.mesh import write_obj
+
+    folder = Path(folder)
+    texture, hair_colours = bake_head(renderer, texture_size)
+    n = len(weights)
+    with atomic_dir(folder) as tmp:
+        for i, w in enumerate(weights):
+            parts = _parts(renderer, texture, hair_colours, w, targets=False)
+            write_obj(tmp / f"frame_{i:05d}.obj", parts, material="head",
+                      write_material=i == 0)
+            if progress:
+                progress("meshes", i + 1, n)
+    return folder

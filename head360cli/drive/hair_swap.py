@@ -1,0 +1,124 @@
+"""Give a head another hairstyle or hair colour, and show the styles on offer.
+
+The hair is separate from the head (the generator's hair branch), so a swap only rewrites
+the head file's ``hair_style`` and ``hair_color``: the face is rendered by the head branch
+alone and does not change (``head360 bench animate`` measures that).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from head360cli.errors import BadInputError
+
+__all__ = ["list_styles", "parse_colour", "style_sheet", "swap_hair"]
+
+
+def parse_colour(text: str) -> tuple[str, np.ndarray]:
+    """A hair colour from a SynHead-P colour name (``"dark brown"``), an sRGB hex code
+    (``"#6b4423"``) or three linear RGB numbers in [0, 1] (``"0.2,0.1,0.05"``).
+
+    Returns:
+        ``(name, linear RGB (3,))``; the name is the nearest SynHead-P colour's.
+
+    Raises:
+        BadInputError: None of those forms.
+    """
+    from head360cli.fitting.hair_class import nearest_colour_name
+    from head360cli.synth.hair import HAIR_COLOURS
+
+    t = text.strip().lower().replace("_", " ").replace("-", " ")
+    if t in HAIR_COLOURS:
+        return t, np.asarray(HAIR_COLOURS[t], np.float64)
+    rgb = None
+    if t.startswith("#") and len(t) == 7:
+        try:
+            srgb = np.array([int(t[i:i + 2], 16) for i in (1, 3, 5)]) / 255.0
+        except ValueError:
+            srgb = None
+        if srgb is not None:
+            rgb = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    elif t.count(",") == 2:
+        try:
+            rgb = np.array([float(v) for v in t.split(",")])
+        except ValueError:
+            rgb = None
+        if rgb is not None and not (np.isfinite(rgb).all() and (rgb >= 0).all()
+                                    and (rgb <= 1).all()):
+            raise BadInputError(f"expected linear RGB numbers in [0, 1], found {text!r}")
+    if rgb is None:
+        raise BadInputError(f"expected a hair colour name ({', '.join(HAIR_COLOURS)}), a "
+                            f"hex code like #6b4423 or R,G,B in [0, 1], found {text!r}")
+    return nearest_colour_name(rgb), rgb
+
+
+def list_styles() -> list[dict[str, Any]]:
+    """The 30 SynHead-P hairstyles: ``{"id", "name", "figaro"}`` each."""
+    from head360cli.fitting.hair_class import figaro_class
+    from head360cli.synth.hair import HAIRSTYLES
+
+    return [{"id": i, "name": s.name, "figaro": figaro_class(i)}
+            for i, s in enumerate(HAIRSTYLES)]
+
+
+def swap_hair(head_path: str | Path, out: str | Path, style: int | None = None,
+              colour: str | None = None) -> dict[str, Any]:
+    """Write a copy of a head file wearing hairstyle ``style`` and/or ``colour``.
+
+    Raises:
+        BadInputError: Neither a style nor a colour given.
+    """
+    import dataclasses
+
+    from head360cli.io.headfile import read_head, write_head
+    from head360cli.synth.hair import HAIRSTYLES
+
+    if style is None and colour is None:
+        raise BadInputError("expected --hair and/or --color, found neither")
+    head = read_head(head_path)
+    arrays = dict(head.arrays)
+    info = dict(head.info)
+    before = {"hair_style": int(arrays["hair_style"]),
+              "hair_color": np.asarray(arrays["hair_color"], float).round(4).tolist()}
+    if style is not None:
+        arrays["hair_style"] = np.array(int(style), np.int64)
+        info["hair_style_name"] = HAIRSTYLES[int(style)].name
+    if colour is not None:
+        name, rgb = parse_colour(colour)
+        arrays["hair_color"] = rgb.astype(np.float32)
+        info["hair_color_name"] = name
+    info["hair_swapped_from"] = before
+    write_head(dataclasses.replace(head, arrays=arrays, info=info), out)
+    k = int(arrays["hair_style"])
+    return {"head": str(out), "hair_style": {"id": k, "name": HAIRSTYLES[k].name},
+            "hair_color": np.asarray(arrays["hair_color"], float).round(4).tolist(),
+            "from": before}
+
+
+def style_sheet(renderer, out: str | Path, yaw: float = 30.0, size: int = 128,
+                progress: Any = None) -> Path:
+    """A PNG contact sheet of a head wearing each of the 30 styles (in its own colour),
+    seen from ``yaw`` degrees, ``size`` pixels per tile."""
+    from PIL import Image
+
+    from head360cli.drive.views import grid_image, view_cameras, view_intrinsics
+    from head360cli.io.atomic import atomic_path
+
+    styles = list_styles()
+    cam = view_cameras(yaw, 0.0)
+    k = view_intrinsics(renderer.size)
+    tiles = []
+    for i, s in enumerate(styles):
+        r = renderer.with_hair(s["id"], renderer.hair_colour)
+        frame = next(r.frames(cam, np.zeros((1, 52)), k))[0]
+        tiles.append(np.asarray(Image.fromarray(frame).resize((size, size),
+                                                               Image.LANCZOS)))
+        if progress:
+            progress("styles", i + 1, len(styles))
+    sheet = grid_image(np.stack(tiles), [f"{s['id']} {s['name']}" for s in styles], cols=6)
+    with atomic_path(out) as tmp:
+        Image.fromarray(sheet).save(tmp, format="PNG")
+    return Path(out)

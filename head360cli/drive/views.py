@@ -1,0 +1,148 @@
+"""Cameras by yaw and pitch, single views, view grids and turntables of a head.
+
+Yaw 0 and pitch 0 is the canonical frontal camera (the rig's front camera, which is also the
+input photo's view after fitting); positive yaw shows the head's left side, positive pitch
+looks from above.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from head360cli.errors import BadInputError
+
+__all__ = ["grid_image", "parse_expression", "parse_views", "view_cameras",
+           "view_intrinsics", "write_turntable"]
+
+
+def view_cameras(yaw_deg, pitch_deg):
+    """``(B, 4, 4)`` cameras at the rig's distance for yaws and pitches ``(B,)`` in
+    degrees."""
+    import torch
+
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
+
+    yaw = torch.as_tensor(np.atleast_1d(np.asarray(yaw_deg, np.float32)))
+    pitch = torch.as_tensor(np.atleast_1d(np.asarray(pitch_deg, np.float32)))
+    yaw, pitch = torch.broadcast_tensors(yaw, pitch)
+    return camera_on_sphere(yaw, pitch, RIG_DISTANCE)
+
+
+def view_intrinsics(size: int):
+    """``(3, 3)`` intrinsics of the rig's lens for a ``size`` x ``size`` image."""
+    from head360cli.geometry.cameras import RIG_FOV_DEG, intrinsics_from_fov
+
+    return intrinsics_from_fov(RIG_FOV_DEG, size, size)
+
+
+def parse_expression(text: str | None) -> np.ndarray:
+    """ARKit weights ``(52,)`` from ``"JawOpen=0.8,EyeBlinkLeft=1"`` (any spelling the
+    stream readers accept; unnamed shapes are 0).
+
+    Raises:
+        BadInputError: An unknown name, a missing ``=`` or a weight outside [0, 1].
+    """
+    from head360cli.mesh.arkit52 import INDEX, canonical_name
+
+    w = np.zeros(52)
+    if not text:
+        return w
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise BadInputError(f"expected NAME=WEIGHT in --expr, found {item.strip()!r}")
+        canonical = canonical_name(name.strip())
+        if canonical is None:
+            raise BadInputError(f"expected an ARKit blendshape name in --expr, found "
+                                f"{name.strip()!r} (e.g. JawOpen, EyeBlinkLeft)")
+        try:
+            weight = float(value)
+        except ValueError:
+            raise BadInputError(f"expected a number for {canonical}, found {value!r}"
+                                ) from None
+        if not 0.0 <= weight <= 1.0:
+            raise BadInputError(f"expected a weight in [0, 1] for {canonical}, found "
+                                f"{weight}")
+        w[INDEX[canonical]] = weight
+    return w
+
+
+def parse_views(text: str) -> list[tuple[float, float]]:
+    """Views from ``"0,45,90"`` (yaws at pitch 0) or ``"0:0,45:20,180:-10"`` (yaw:pitch),
+    in degrees.
+
+    Raises:
+        BadInputError: Not numbers, or a pitch beyond +-90 degrees.
+    """
+    views = []
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        yaw, _, pitch = item.partition(":")
+        try:
+            v = (float(yaw), float(pitch) if pitch else 0.0)
+        except ValueError:
+            raise BadInputError(f"expected YAW or YAW:PITCH in degrees, found {item!r}"
+                                ) from None
+        if not all(np.isfinite(v)) or abs(v[1]) > 90:
+            raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, "
+                                f"found {item!r}")
+        views.append(v)
+    if not views:
+        raise BadInputError(f"expected at least one view, found {text!r}")
+    return views
+
+
+def grid_image(images: np.ndarray, labels: list[str] | None = None, cols: int | None = None
+               ) -> np.ndarray:
+    """Tile ``(N, H, W, 3)`` uint8 images into one image, ``cols`` per row (default: a
+    near-square grid), with an optional label under each."""
+    import cv2
+
+    n, h, w = images.shape[:3]
+    cols = cols or int(np.ceil(np.sqrt(n)))
+    rows = int(np.ceil(n / cols))
+    band = 0 if labels is None else max(14, h // 12)
+    out = np.full((rows * (h + band), cols * w, 3), 255, np.uint8)
+    for i, image in enumerate(images):
+        y, x = (i // cols) * (h + band), (i % cols) * w
+        out[y:y + h, x:x + w] = image
+        if labels is not None:  # as large as fits the band and the tile's width
+            font = cv2.FONT_HERSHEY_SIMPLEX
+            scale = band / 30
+            width = cv2.getTextSize(labels[i], font, scale, 1)[0][0]
+            scale *= min(1.0, (w - 6) / max(width, 1))
+            cv2.putText(out, labels[i], (x + 3, y + h + int(band * 0.75)), font, scale,
+                        (40, 40, 40), 1, cv2.LINE_AA)
+    return out
+
+
+def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 0.0,
+                    fps: float = 24.0, expression: np.ndarray | None = None,
+                    progress: Any = None) -> Path:
+    """Render ``frames`` views turning once around a head (neutral expression unless one
+    is given) into a video (mp4, GIF or PNG folder by name), streaming frames to the
+    encoder."""
+    from head360cli.io.video import VideoWriter
+
+    if frames < 1:
+        raise BadInputError(f"expected at least 1 frame, found {frames}")
+    yaws = np.arange(frames) * (360.0 / frames)
+    cams = view_cameras(yaws, np.full(frames, pitch))
+    w = np.zeros(52) if expression is None else np.asarray(expression)
+    done = 0
+    with VideoWriter(out, fps=fps) as video:
+        for batch in renderer.frames(cams, np.broadcast_to(w, (frames, 52)),
+                                     view_intrinsics(renderer.size)):
+            for frame in batch:
+                video.write(frame)
+            done += len(batch)
+            if progress:
+                progress("turntable", done, frames)
+    return Path(out)

@@ -1,0 +1,142 @@
+"""Animation: head-pose cameras, stream preparation, frames out, memory-flat streaming."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+import torch
+
+from head360cli.drive.animate import (
+    HEAD_PIVOT,
+    AnimateConfig,
+    animate,
+    head_pose_cameras,
+    prepare_stream,
+)
+from head360cli.errors import BadInputError
+from head360cli.io.arkit import ArkitStream
+from head360cli.mesh.arkit52 import INDEX
+
+
+def _stream(n=30, fps=30.0, rotation=False):
+    w = np.zeros((n, 52), np.float32)
+    w[:, INDEX["jawOpen"]] = np.linspace(0, 1, n)
+    rot = np.zeros((n, 3), np.float32) if rotation else None
+    if rotation:
+        rot[:, 0] = np.linspace(0, 0.5, n)
+    return ArkitStream(w, np.arange(n) / fps, fps, head_rotation=rot)
+
+
+def test_zero_head_rotation_keeps_the_camera():
+    from head360cli.drive.views import view_cameras
+
+    base = view_cameras(20.0, 5.0)[0]
+    cams = head_pose_cameras(np.zeros((3, 3)), base)
+    torch.testing.assert_close(cams, base[None].expand(3, 4, 4), atol=1e-6, rtol=0)
+
+
+def test_head_yaw_equals_the_camera_turning_the_other_way():
+    """A head turned to its left by 30 degrees about a vertical axis through the pivot is
+    seen by the front camera as a still head is seen from 30 degrees to its right."""
+    from head360cli.drive.views import view_cameras
+
+    base = view_cameras(0.0, 0.0)[0]
+    cam = head_pose_cameras(np.array([[np.radians(30), 0, 0]]), base)[0]
+    # the camera's position relative to the pivot turned by -30 degrees about +y
+    rel = cam[:3, 3].double().numpy() - np.array(HEAD_PIVOT)
+    rel0 = base[:3, 3].double().numpy() - np.array(HEAD_PIVOT)
+    assert np.linalg.norm(rel) == pytest.approx(np.linalg.norm(rel0), abs=1e-6)
+    assert np.degrees(np.arctan2(rel[0], rel[2])) == pytest.approx(-30.0, abs=1e-4)
+    # pitching down (positive pitch) puts the camera above the head
+    down = head_pose_cameras(np.array([[0, np.radians(20), 0]]), base)[0]
+    assert down[1, 3] > base[1, 3] + 0.05
+
+
+def test_prepare_stream_cuts_resamples_and_checks():
+    s = _stream(60, 30.0, rotation=True)
+    out = prepare_stream(s, AnimateConfig(fps=15.0, start=0.5, end=1.5))
+    assert out.fps == 15.0 and out.num_frames == 15
+    assert out.weights[0, INDEX["jawOpen"]] == pytest.approx(15 / 59, abs=1e-6)
+    with pytest.raises(BadInputError, match="after --start"):
+        prepare_stream(s, AnimateConfig(start=1.0, end=0.5))
+    with pytest.raises(BadInputError, match="head rotation"):
+        prepare_stream(_stream(), AnimateConfig(head_pose=True))
+    # dropped frames keep their time: a gap of 10 frames is bridged, not skipped
+    gap = _stream(40)
+    keep = np.r_[0:15, 25:40]
+    gap = ArkitStream(gap.weights[keep], gap.timestamps[keep], 30.0)
+    assert prepare_stream(gap, AnimateConfig()).num_frames == 40
+
+
+def test_animate_renders_each_frame_and_follows_the_jaw(head_file, tmp_path):
+    import imageio.v3 as iio
+
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=4, size=64)
+    res = animate(r, _stream(6, rotation=True), tmp_path / "frames",
+                  AnimateConfig(head_pose=True))
+    assert res["frames"] == 6 and res["render_fps"] > 0
+    frames = [iio.imread(p) for p in sorted((tmp_path / "frames").iterdir())]
+    assert len(frames) == 6
+    # the mouth opens and the head turns: frames differ, first from last the most
+    d = [np.abs(f.astype(int) - frames[0]).mean() for f in frames]
+    assert d[-1] > d[1] > 0
+    with pytest.raises(BadInputError):
+        animate(r, _stream(), None)
+
+
+def test_frames_do_not_accumulate(head_file):
+    """The generator of frames keeps nothing: a long run allocates no more than a short
+    one (tracemalloc over numpy and Python; torch's CPU tensors are freed per batch)."""
+    import tracemalloc
+
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=2, size=32)
+    k = view_intrinsics(32)
+
+    def peak(n):
+        cams = view_cameras(0.0, 0.0).expand(n, 4, 4)
+        w = np.zeros((n, 52), np.float32)
+        tracemalloc.start()
+        for _ in r.frames(cams, w, k):
+            pass
+        p = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return p
+
+    peak(2)
+    assert peak(40) < 2 * peak(4) + 200_000
+
+
+def test_cli_animate_reads_stdin_and_writes_a_gif(run_cli, head_file, tmp_path,
+                                                   monkeypatch):
+    from head360cli.io.arkit import write_arkit_csv
+
+    buf = io.StringIO()
+    write_arkit_csv(_stream(8), buf)
+    monkeypatch.setattr("sys.stdin", io.StringIO(buf.getvalue()))
+    out = tmp_path / "a.gif"
+    r = run_cli("animate", head_file, "--arkit", "-", "-o", out, "--size", "64",
+                "--samples", "2", "--fps", "10", "--json")
+    assert r.code == 0, r.err
+    import json
+
+    res = json.loads(r.out)
+    assert res["frames"] == 3 and out.is_file()  # 8 frames at 30 fps = 0.233 s -> 3 at 10
+
+
+def test_cli_animate_errors(run_cli, head_file, tmp_path):
+    r = run_cli("animate", head_file, "--arkit", tmp_path / "none.csv", "-o",
+                tmp_path / "a.mp4")
+    assert r.code == 3 and "does not exist" in r.err
+    bad = tmp_path / "bad.csv"
+    bad.write_text("foo,bar\n1,2\n")
+    r = run_cli("animate", head_file, "--arkit", bad, "-o", tmp_path / "a.mp4")
+    assert r.code == 3 and not (tmp_path / "a.mp4").exists()
+    r = run_cli("animate", head_file, "--arkit", bad)
+    assert r.code == 3 and "--mesh-sequence" in r.err

@@ -1,0 +1,49 @@
+"""Baking: push-pull filling, the baked texture, the mesh sequence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from head360cli.drive.bake import grow_fill
+
+
+def test_grow_fill_keeps_known_pixels_and_fills_the_rest():
+    colour = np.zeros((9, 13, 3))
+    weight = np.zeros((9, 13))
+    colour[2, 3] = [1, 0, 0]
+    colour[7, 10] = [0, 0, 1]
+    weight[2, 3] = weight[7, 10] = 1
+    out = grow_fill(colour, weight)
+    np.testing.assert_allclose(out[2, 3], [1, 0, 0])
+    np.testing.assert_allclose(out[7, 10], [0, 0, 1])
+    assert np.isfinite(out).all()
+    assert out[1, 2, 0] > out[1, 2, 2]  # near the red pixel: redder
+    assert out[8, 12, 2] > out[8, 12, 0]
+    np.testing.assert_allclose(out.sum(-1), 1.0, atol=1e-9)  # mixes of the two
+    np.testing.assert_allclose(grow_fill(colour, np.zeros((9, 13))), colour.mean((0, 1))
+                               [None, None].repeat(9, 0).repeat(13, 1))
+
+
+@pytest.mark.slow
+def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
+    import trimesh
+
+    from head360cli.io.arkit import ArkitStream, write_arkit_csv
+    from head360cli.mesh.arkit52 import INDEX
+
+    w = np.zeros((3, 52), np.float32)
+    w[:, INDEX["jawOpen"]] = [0, 0.5, 1]
+    path = tmp_path / "s.csv"
+    write_arkit_csv(ArkitStream(w, np.arange(3) / 30, 30.0), path)
+    r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "m")
+    assert r.code == 0, r.err
+    names = sorted(p.name for p in (tmp_path / "m").iterdir())
+    assert names == ["frame_00000.obj", "frame_00001.obj", "frame_00002.obj", "head.mtl",
+                     "head_head.png"]
+    meshes = [trimesh.load(tmp_path / "m" / n, force="mesh", process=False)
+              for n in names[:3]]
+    moved = [np.abs(m.vertices - meshes[0].vertices).max() for m in meshes]
+    assert 0 == moved[0] < moved[1] < moved[2]
+    r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "m")
+    assert r.code == 3 and "not empty" in r.err

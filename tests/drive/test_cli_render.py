@@ -1,0 +1,51 @@
+"""``head360 render``: a view, a grid, an expression, a turntable; clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from PIL import Image
+
+
+def test_render_view_grid_and_expression(run_cli, head_file, tmp_path):
+    out = tmp_path / "v.png"
+    r = run_cli("render", head_file, "--yaw", "30", "--size", "64", "--samples", "4",
+                "-o", out)
+    assert r.code == 0, r.err
+    assert Image.open(out).size == (64, 64)
+    r = run_cli("render", head_file, "--views", "0,90:20,180", "--size", "64",
+                "--samples", "4", "-o", tmp_path / "g.png", "--json")
+    assert r.code == 0 and json.loads(r.out)["views"] == [[0, 0], [90, 20], [180, 0]]
+    w, h = Image.open(tmp_path / "g.png").size
+    assert w == 3 * 64 and h > 64
+    neutral = np.asarray(Image.open(out)).astype(int)
+    run_cli("render", head_file, "--yaw", "30", "--size", "64", "--samples", "4",
+            "--expr", "JawOpen=1", "-o", tmp_path / "jaw.png")
+    jaw = np.asarray(Image.open(tmp_path / "jaw.png")).astype(int)
+    assert np.abs(jaw - neutral).max() > 40  # the mouth opened
+
+
+def test_render_turntable_and_errors(run_cli, head_file, tmp_path):
+    r = run_cli("render", head_file, "--turntable", "--frames", "3", "--size", "64",
+                "--samples", "2", "-o", tmp_path / "t.gif")
+    assert r.code == 0, r.err
+    assert Image.open(tmp_path / "t.gif").n_frames == 3
+    cases = [
+        (["--expr", "Nose=1"], "ARKit"),
+        (["--pitch", "100"], "pitch"),
+        (["--size", "63"], "multiple of 2"),
+        (["--turntable", "--views", "0"], "both"),
+    ]
+    for extra, words in cases:
+        r = run_cli("render", head_file, *extra, "-o", tmp_path / "x.png")
+        assert r.code == 3 and words in r.err, (extra, r.err)
+        assert not (tmp_path / "x.png").exists()
+    r = run_cli("render", head_file, "-o", tmp_path / "x.mp4")
+    assert r.code == 3 and "--turntable" in r.err
+    r = run_cli("render", tmp_path / "none.h360", "-o", tmp_path / "x.png")
+    assert r.code == 3
+    bad = tmp_path / "bad.h360"
+    bad.write_bytes(b"not a head")
+    r = run_cli("render", bad, "-o", tmp_path / "x.png")
+    assert r.code == 5

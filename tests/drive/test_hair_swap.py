@@ -1,0 +1,109 @@
+"""Hair swap: colours, the head file rewrite, the face left unchanged, the style list."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from head360cli.drive.hair_swap import list_styles, parse_colour, swap_hair
+from head360cli.errors import BadInputError
+
+
+def test_parse_colour_forms():
+    name, rgb = parse_colour("Dark-Brown")
+    assert name == "dark brown" and rgb == pytest.approx([0.12, 0.075, 0.045])
+    name, rgb = parse_colour("#ffffff")
+    assert rgb == pytest.approx([1.0, 1.0, 1.0]) and name in ("white", "platinum")
+    _, rgb = parse_colour("#808080")
+    assert rgb == pytest.approx([0.2158605] * 3, abs=1e-6)  # sRGB 0.502 -> linear
+    _, rgb = parse_colour("0.5, 0.2,0.1")
+    assert rgb == pytest.approx([0.5, 0.2, 0.1])
+    for bad in ("purple", "#12345", "#gg0000", "1,2,3", "0.1,0.2"):
+        with pytest.raises(BadInputError):
+            parse_colour(bad)
+
+
+def test_list_styles():
+    styles = list_styles()
+    assert len(styles) == 30 and styles[0]["name"] == "bald"
+    assert {s["figaro"] for s in styles} <= {"straight", "wavy", "curly", "kinky",
+                                             "braids", "dreadlocks", "short-men"}
+
+
+def test_swap_rewrites_only_the_hair(head_file, tmp_path):
+    from head360cli.io.headfile import read_head
+
+    out = tmp_path / "new.h360"
+    res = swap_hair(head_file, out, style=9, colour="blonde")
+    a, b = read_head(head_file), read_head(out)
+    assert int(b.arrays["hair_style"]) == 9 and res["hair_style"]["id"] == 9
+    assert b.arrays["hair_color"] == pytest.approx([0.70, 0.55, 0.32])
+    for key in a.arrays:
+        if key not in ("hair_style", "hair_color"):
+            np.testing.assert_array_equal(a.arrays[key], b.arrays[key])
+    assert b.model_hash == a.model_hash
+    assert b.info["hair_swapped_from"]["hair_style"] == int(a.arrays["hair_style"])
+    with pytest.raises(BadInputError):
+        swap_hair(head_file, tmp_path / "x.h360")
+
+
+def test_swap_leaves_the_face_unchanged(head_file):
+    """Pixels no hair covers in either render are the head branch's alone: identical."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=4, size=64, precision="fp32")
+    cams = view_cameras(np.array([0.0, 40.0]), 0.0)
+    w = np.zeros((2, 52))
+    k = view_intrinsics(64)
+    own = np.concatenate(list(r.frames(cams, w, k))).astype(int)
+    bald = np.concatenate(list(r.frames(cams, w, k, hair=False))).astype(int)
+    other = np.concatenate(list(r.with_hair(0 if r.hair_style != 0 else 5, r.hair_colour)
+                                .frames(cams, w, k))).astype(int)
+    face = ((np.abs(own - bald).max(-1) == 0) & (np.abs(other - bald).max(-1) == 0)
+            & (bald.min(-1) < 250))
+    assert face.sum() > 200
+    assert np.abs(own - other)[face].max() == 0
+
+
+def test_cli_swap_hair(run_cli, head_file, tmp_path):
+    r = run_cli("swap-hair", "--list", "--json")
+    assert r.code == 0 and len(json.loads(r.out)["styles"]) == 30
+    out = tmp_path / "bob.h360"
+    r = run_cli("swap-hair", head_file, "--hair", "bob", "--color", "#6b4423", "-o", out)
+    assert r.code == 0 and out.is_file() and "bob" in r.out
+    r = run_cli("swap-hair", head_file, "--hair", "mohawk2", "-o", tmp_path / "x.h360")
+    assert r.code == 3 and "long wavy" in r.err and not (tmp_path / "x.h360").exists()
+    r = run_cli("swap-hair", head_file, "--hair", "bob")
+    assert r.code == 3
+
+
+def test_contact_sheet_shows_the_30_styles(head_file, tmp_path):
+    from PIL import Image
+
+    from head360cli.drive.hair_swap import style_sheet
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=2, size=32)
+    out = style_sheet(r, tmp_path / "styles.png", size=32)
+    sheet = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    assert sheet.shape[1] == 6 * 32 and sheet.shape[0] > 5 * 32
+    tiles = [sheet[row * (sheet.shape[0] // 5):row * (sheet.shape[0] // 5) + 32,
+                   col * 32:(col + 1) * 32] for row in range(5) for col in range(6)]
+    # bald (0) and an afro (9) differ; every tile shows a head on white
+    assert np.abs(tiles[0] - tiles[9]).mean() > 3
+    assert all(t.min() < 200 for t in tiles)
+
+
+@pytest.mark.slow
+def test_cli_contact_sheet_without_a_head_uses_the_mean_head(run_cli, tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "styles.png"
+    r = run_cli("swap-hair", "--list", "-o", out)
+    assert r.code == 0, r.err
+    assert Image.open(out).size[0] == 6 * 128
+    r = run_cli("swap-hair", "--list", "-o", tmp_path / "styles.jpg")
+    assert r.code == 3 and not (tmp_path / "styles.jpg").exists()

@@ -1,0 +1,71 @@
+"""Views: cameras by yaw and pitch, option parsing, grids, turntables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from head360cli.drive.views import (
+    grid_image,
+    parse_expression,
+    parse_views,
+    view_cameras,
+    write_turntable,
+)
+from head360cli.errors import BadInputError
+from head360cli.mesh.arkit52 import INDEX
+
+
+def test_yaw_zero_is_the_rig_front_camera_and_positive_yaw_sees_the_left_side():
+    from head360cli.geometry.cameras import rig72
+
+    rig, yaw, pitch = rig72()
+    front = rig[int(np.flatnonzero((yaw.numpy() == 0) & (pitch.numpy() == 0))[0])]
+    torch.testing.assert_close(view_cameras(0.0, 0.0)[0], front, atol=1e-6, rtol=0)
+    eye = view_cameras(90.0, 0.0)[0, :3, 3]
+    assert eye[0] > 0.5  # on the head's left (+x), looking at it
+    above = view_cameras(0.0, 60.0)[0, :3, 3]
+    assert above[1] > 0.5
+
+
+def test_parse_expression_accepts_any_spelling_and_rejects_bad_items():
+    w = parse_expression("JawOpen=0.8, eyeBlinkLeft=1,mouthSmile_L=0.25")
+    assert w[INDEX["jawOpen"]] == pytest.approx(0.8)
+    assert w[INDEX["eyeBlinkLeft"]] == 1.0
+    assert w[INDEX["mouthSmileLeft"]] == 0.25
+    assert w.sum() == pytest.approx(2.05)
+    assert not parse_expression(None).any()
+    for bad in ("JawOpen", "Nose=1", "JawOpen=1.5", "JawOpen=x"):
+        with pytest.raises(BadInputError):
+            parse_expression(bad)
+
+
+def test_parse_views():
+    assert parse_views("0,45, 90:20") == [(0.0, 0.0), (45.0, 0.0), (90.0, 20.0)]
+    for bad in ("", "a", "0:95", "nan"):
+        with pytest.raises(BadInputError):
+            parse_views(bad)
+
+
+def test_grid_image_tiles_in_rows():
+    tiles = np.stack([np.full((8, 10, 3), i * 20, np.uint8) for i in range(5)])
+    g = grid_image(tiles, cols=3)
+    assert g.shape == (16, 30, 3)
+    assert (g[8:, 10:20] == 80).all() and (g[8:, 20:] == 255).all()
+    assert grid_image(tiles, ["a"] * 5, cols=5).shape[0] > 8
+
+
+def test_turntable_streams_every_frame(head_file, tmp_path):
+    import imageio.v3 as iio
+
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=4, size=64)
+    out = write_turntable(r, tmp_path / "turn", frames=5)
+    frames = sorted(out.iterdir())
+    assert len(frames) == 5
+    first = iio.imread(frames[0])
+    assert first.shape == (64, 64, 3) and first.min() < 200  # a head, on white
+    with pytest.raises(BadInputError):
+        write_turntable(r, tmp_path / "none.gif", frames=0)
