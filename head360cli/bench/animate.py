@@ -1,0 +1,292 @@
+"""``head360 bench animate``: animation, measured.
+
+The head is the astronaut photo that ships with scikit-image, fitted with the fast preset
+(what ``head360 demo`` makes), driven by the real Live Link Face captures in
+``../shared/data/arkit`` when they are there (else by a synthetic stream).
+
+- Throughput: frames per second of 256 x 256 frames from the stream's weights, for samples
+  per ray and float32/bfloat16 networks, with the PSNR of each against a 32-sample float32
+  render of the same frames (the converged answer), and the CLI's own frames per second
+  with the video encoder.
+- Peak memory: the resident set of a ``head360 animate`` process that renders a whole
+  capture, against one that renders its first 10 seconds.
+- Expression fidelity: dlib's 68 landmarks on animated frames; the correlation of mouth
+  opening (inner lips over the eye distance) with jawOpen and of eye opening (lids over
+  eye width) with eyeBlink, over a capture.
+- Hair swap: PSNR of the face (the landmarks' hull, less the pixels either hairstyle
+  covers) between the head with its own hair and with each other style; and over the
+  whole hull.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["bench_animate", "eye_opening", "mouth_opening"]
+
+SWAP_STYLES = (0, 2, 7, 9, 12, 17, 22, 28)
+"""Hairstyles the swap measurement puts on the head (bald, short, long, voluminous)."""
+
+
+def mouth_opening(lm: np.ndarray) -> float:
+    """Inner-lip gap over the outer eye-corner distance, from 68 iBUG landmarks."""
+    gap = np.linalg.norm(lm[[61, 62, 63]] - lm[[67, 66, 65]], axis=1).mean()
+    return float(gap / np.linalg.norm(lm[36] - lm[45]))
+
+
+def eye_opening(lm: np.ndarray, which: str) -> float:
+    """Eyelid gap over eye width of the image's ``left`` (iBUG 36-41, the subject's right
+    eye) or ``right`` eye (42-47)."""
+    i = 36 if which == "left" else 42
+    e = lm[i:i + 6]
+    gap = (np.linalg.norm(e[1] - e[5]) + np.linalg.norm(e[2] - e[4])) / 2
+    return float(gap / np.linalg.norm(e[0] - e[3]))
+
+
+def _stream(data: Path | None):
+    from head360cli.io.arkit import ArkitStream
+
+    if data is not None:
+        from head360cli.io.arkit import read_arkit_csv
+
+        caps = sorted((data / "arkit").glob("livelinkface_*.csv"))
+        if caps:
+            streams = [read_arkit_csv(p, on_bad="hold") for p in caps]
+            return max(zip(streams, caps, strict=True), key=lambda s: s[0].num_frames)
+    from head360cli.mesh.arkit52 import INDEX
+
+    rng = np.random.default_rng(0)
+    t = np.arange(600) / 60.0
+    w = np.zeros((600, 52), np.float32)
+    w[:, INDEX["jawOpen"]] = 0.5 + 0.5 * np.sin(2 * np.pi * 0.7 * t)
+    blink = (np.sin(2 * np.pi * 0.4 * t) > 0.8).astype(np.float32)
+    w[:, INDEX["eyeBlinkLeft"]] = w[:, INDEX["eyeBlinkRight"]] = blink
+    w += rng.uniform(0, 0.05, w.shape).astype(np.float32)
+    return ArkitStream(np.clip(w, 0, 1), t, 60.0), None
+
+
+def _psnr(a, b) -> float:
+    mse = float(((a - b) ** 2).mean())
+    return 10 * np.log10(1 / max(mse, 1e-12))
+
+
+def _speed(head: Path, weights: np.ndarray) -> list[dict[str, Any]]:
+    import torch
+
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    k = view_intrinsics(256)
+    cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
+    pick = np.linspace(0, len(weights) - 1, 8).astype(int)
+
+    def frames(r, idx):
+        return torch.cat([torch.as_tensor(f) for f in
+                          r.frames(cams[idx], weights[idx], k, uint8=False)])
+
+    ref = frames(load_head_renderer(head, samples=32, precision="fp32"), pick)
+    rows = []
+    for samples in (6, 8, 12):
+        for precision in ("fp32", "bf16"):
+            r = load_head_renderer(head, samples=samples, precision=precision)
+            list(r.frames(cams[:2], weights[:2], k))  # warm up
+            t0 = time.perf_counter()
+            for _ in r.frames(cams, weights, k):
+                pass
+            seconds = time.perf_counter() - t0
+            rows.append({"samples": samples, "precision": precision,
+                         "fps": round(len(weights) / seconds, 2),
+                         "ms_per_frame": round(1000 * seconds / len(weights), 1),
+                         "psnr_vs_32_samples": round(_psnr(frames(r, pick), ref), 2)})
+    return rows
+
+
+def _run_cli(args: list[str]) -> dict[str, Any]:
+    """Run ``head360 ARGS --json`` in a new process; its JSON plus its peak RSS."""
+    code = ("import json, resource, sys\n"
+            "from head360cli.cli import main\n"
+            "rc = main(sys.argv[1:])\n"
+            "print(json.dumps({'rc': rc, 'peak_rss_mib': resource.getrusage("
+            "resource.RUSAGE_SELF).ru_maxrss / 1024}), file=sys.stderr)\n")
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-c", code, *args, "--json", "--quiet"],
+                       capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    tail = json.loads(p.stderr.strip().splitlines()[-1])
+    if tail["rc"] != 0:
+        raise RuntimeError(f"head360 {' '.join(args)} failed: {p.stderr.strip()[-300:]}")
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    return {**out, "peak_rss_mib": round(tail["peak_rss_mib"], 1), "wall_s": round(wall, 1)}
+
+
+def _memory(head: Path, capture: Path, work: Path) -> dict[str, Any]:
+    short = _run_cli(["animate", str(head), "--arkit", str(capture), "--end", "10",
+                      "-o", str(work / "short.mp4")])
+    full = _run_cli(["animate", str(head), "--arkit", str(capture),
+                     "-o", str(work / "full.mp4")])
+    keep = ("frames", "render_fps", "peak_rss_mib", "wall_s")
+    return {"first_10_s": {k: short[k] for k in keep}, "whole": {k: full[k] for k in keep},
+            "capture": capture.name}
+
+
+def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.mesh.arkit52 import INDEX
+
+    r = load_head_renderer(head, samples=8)
+    det = LandmarkDetector("hog")
+    idx = np.arange(0, stream.num_frames, stride)
+    w = stream.weights[idx]
+    cams = view_cameras(0.0, 0.0).expand(len(idx), 4, 4)
+    mouth, left, right, found = [], [], [], []
+    i = 0
+    for batch in r.frames(cams, w, view_intrinsics(r.size)):
+        for frame in batch:
+            try:
+                lm = det.detect_one(frame).landmarks
+                mouth.append(mouth_opening(lm))
+                left.append(eye_opening(lm, "left"))
+                right.append(eye_opening(lm, "right"))
+                found.append(i)
+            except NoFaceError:
+                pass
+            i += 1
+    found = np.asarray(found, int)
+    jaw = w[found, INDEX["jawOpen"]]
+    # the image's left eye is the subject's right eye
+    blink_r, blink_l = w[found, INDEX["eyeBlinkRight"]], w[found, INDEX["eyeBlinkLeft"]]
+
+    def corr(a, b):
+        a, b = np.asarray(a), np.asarray(b)
+        if len(a) < 3 or a.std() == 0 or b.std() == 0:
+            return None
+        return round(float(np.corrcoef(a, b)[0, 1]), 4)
+
+    return {"frames": len(idx), "stride": stride, "faces_found": len(found),
+            "jaw_open_vs_mouth_opening": corr(jaw, mouth),
+            "blink_right_vs_left_image_eye_opening": corr(blink_r, left),
+            "blink_left_vs_right_image_eye_opening": corr(blink_l, right),
+            "jaw_open_range": [round(float(jaw.min()), 3), round(float(jaw.max()), 3)]
+            if len(found) else None}
+
+
+def _swap(head: Path) -> dict[str, Any]:
+    import cv2
+    import torch
+
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.geometry.cameras import project
+    from head360cli.synth.hair import HAIRSTYLES
+
+    r = load_head_renderer(head, precision="fp32")
+    yaws = np.array([0.0, 30.0, -30.0])
+    cams = view_cameras(yaws, 0.0)
+    k = view_intrinsics(r.size)
+    w = np.zeros((len(yaws), 52))
+    own = np.concatenate(list(r.frames(cams, w, k))).astype(np.float64) / 255
+    bald = np.concatenate(list(r.frames(cams, w, k, hair=False))).astype(np.float64) / 255
+    lm = torch.tensor(r.model.landmark_points(r.neutral), dtype=torch.float32)
+    pix, _ = project(lm[None].expand(len(yaws), -1, -1), cams, k)
+    hulls = []
+    for p in pix.numpy():
+        m = np.zeros((r.size, r.size), np.uint8)
+        cv2.fillConvexPoly(m, cv2.convexHull(p[:27].astype(np.int32)), 1)
+        hulls.append(m > 0)
+    hull = np.stack(hulls)
+    hair_own = np.abs(own - bald).max(-1) > 0.05
+    rows = []
+    for style in SWAP_STYLES:
+        if style == r.hair_style:
+            continue
+        other = r.with_hair(style, r.hair_colour)
+        img = np.concatenate(list(other.frames(cams, w, k))).astype(np.float64) / 255
+        face = hull & ~hair_own & ~(np.abs(img - bald).max(-1) > 0.05)
+        rows.append({"style": HAIRSTYLES[style].name,
+                     "psnr_face": round(_psnr(img[face], own[face]), 2),
+                     "psnr_hull": round(_psnr(img[hull], own[hull]), 2),
+                     "face_pixels": int(face.sum())})
+    return {"own_style": HAIRSTYLES[r.hair_style].name, "views_yaw": yaws.tolist(),
+            "styles": rows,
+            "mean_psnr_face": round(float(np.mean([x["psnr_face"] for x in rows])), 2),
+            "mean_psnr_hull": round(float(np.mean([x["psnr_hull"] for x in rows])), 2)}
+
+
+def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
+                  progress=None) -> tuple[dict[str, Any], str]:
+    """Run every part; returns ``(result, markdown)``."""
+    import torch
+
+    from head360cli.fitting.pipeline import run_demo
+    from head360cli.paths import shared_data_dir
+
+    say = progress or (lambda text: None)
+    data = shared_data_dir()
+    stream, capture = _stream(data)
+    result: dict[str, Any] = {"threads": torch.get_num_threads(),
+                              "stream": capture.name if capture else "synthetic",
+                              "stream_frames": stream.num_frames}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        say("fitting the astronaut (fast preset)")
+        run_demo(work, frames=4)
+        head = work / "astronaut.h360"
+        say("throughput against samples and precision")
+        result["speed"] = _speed(head, stream.weights[:frames])
+        say("expression fidelity (dlib landmarks on frames)")
+        result["fidelity"] = _fidelity(head, stream, stride)
+        say("hair swap: face before and after")
+        result["swap"] = _swap(head)
+        if memory and capture is not None:
+            say(f"peak memory: head360 animate on {capture.name}")
+            result["memory"] = _memory(head, capture, work)
+    result["seconds"] = round(time.perf_counter() - t0, 1)
+    return result, _markdown(result)
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    lines = ["# head360 bench animate", "",
+             f"Stream: {r['stream']} ({r['stream_frames']} frames); {r['threads']} threads.",
+             "", "## Throughput, 256 x 256 (render only)", "",
+             "| samples | networks | frames/s | ms/frame | PSNR vs 32 samples |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
+              f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples']:.2f} |"
+              for s in r["speed"]]
+    f = r["fidelity"]
+    lines += ["", "## Expression fidelity (dlib landmarks on frames)", "",
+              f"{f['faces_found']} of {f['frames']} frames (every {f['stride']}th) with a "
+              "face found.", "", "| weight | image measure | correlation |", "|---|---|---|",
+              f"| jawOpen | mouth opening | {f['jaw_open_vs_mouth_opening']} |",
+              f"| eyeBlinkRight | left image eye opening | "
+              f"{f['blink_right_vs_left_image_eye_opening']} |",
+              f"| eyeBlinkLeft | right image eye opening | "
+              f"{f['blink_left_vs_right_image_eye_opening']} |"]
+    s = r["swap"]
+    lines += ["", f"## Hair swap (own style: {s['own_style']}; views at yaw "
+              f"{', '.join(f'{y:g}' for y in s['views_yaw'])})", "",
+              "| style | face PSNR | hull PSNR |", "|---|---|---|"]
+    lines += [f"| {x['style']} | {x['psnr_face']:.2f} | {x['psnr_hull']:.2f} |"
+              for x in s["styles"]]
+    lines.append(f"| mean | {s['mean_psnr_face']:.2f} | {s['mean_psnr_hull']:.2f} |")
+    if "memory" in r:
+        m = r["memory"]
+        lines += ["", f"## Peak memory of `head360 animate` ({m['capture']})", "",
+                  "| run | frames | frames/s with encoding | peak RSS MiB | wall s |",
+                  "|---|---|---|---|---|"]
+        for name, v in (("first 10 s", m["first_10_s"]), ("whole capture", m["whole"])):
+            lines.append(f"| {name} | {v['frames']} | {v['render_fps']:.1f} | "
+                         f"{v['peak_rss_mib']:.0f} | {v['wall_s']:.0f} |")
+    return "\n".join(lines) + "\n"
