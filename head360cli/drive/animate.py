@@ -18,7 +18,8 @@ import numpy as np
 
 from head360cli.errors import BadInputError
 
-__all__ = ["HEAD_PIVOT", "AnimateConfig", "animate", "head_pose_cameras"]
+__all__ = ["HEAD_PIVOT", "AnimateConfig", "animate", "head_motion", "head_pose_cameras",
+           "prepare_stream"]
 
 HEAD_PIVOT = (0.0, -0.10, -0.02)
 """Head coordinates (metres) of the point the head turns about with ``--head-pose``: the
@@ -50,21 +51,10 @@ class AnimateConfig:
     """Render the hair (False: the bald head)."""
 
 
-def head_pose_cameras(rotation: np.ndarray, c2w, pivot=HEAD_PIVOT):
-    """Cameras that see a fixed head as a still camera sees the head turned.
-
-    Args:
-        rotation: ``(F, 3)`` head yaw, pitch, roll in radians (ARKit order; yaw turns the
-            face towards the head's left, pitch tips it down, roll tilts it towards its
-            left shoulder).
-        c2w: ``(4, 4)`` the still camera.
-        pivot: The point the head turns about (head coordinates).
-
-    Returns:
-        ``(F, 4, 4)`` camera-to-world matrices: ``inverse(head motion) @ c2w``.
-    """
-    import torch
-
+def head_motion(rotation: np.ndarray, pivot=HEAD_PIVOT) -> np.ndarray:
+    """``(F, 4, 4)`` rigid motions of the head for ``rotation (F, 3)``: yaw, pitch, roll
+    in radians (ARKit order; yaw turns the face towards the head's left, pitch tips it
+    down, roll tilts it towards its left shoulder), about ``pivot``."""
     r = np.asarray(rotation, np.float64)
     cy, sy = np.cos(r[:, 0]), np.sin(r[:, 0])
     cp, sp = np.cos(r[:, 1]), np.sin(r[:, 1])
@@ -80,7 +70,19 @@ def head_pose_cameras(rotation: np.ndarray, c2w, pivot=HEAD_PIVOT):
     p = np.asarray(pivot, np.float64)
     motion[:, :3, :3] = rot
     motion[:, :3, 3] = p - rot @ p
-    inverse = np.linalg.inv(motion)
+    return motion
+
+
+def head_pose_cameras(rotation: np.ndarray, c2w, pivot=HEAD_PIVOT):
+    """Cameras that see a fixed head as a still camera ``c2w (4, 4)`` sees the head
+    turned by ``rotation (F, 3)`` (see :func:`head_motion`).
+
+    Returns:
+        ``(F, 4, 4)`` camera-to-world matrices: ``inverse(head motion) @ c2w``.
+    """
+    import torch
+
+    inverse = np.linalg.inv(head_motion(rotation, pivot))
     base = np.asarray(c2w.detach().cpu() if hasattr(c2w, "detach") else c2w, np.float64)
     return torch.tensor(inverse @ base, dtype=torch.float32)
 
@@ -135,8 +137,10 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
         from head360cli.drive.bake import write_mesh_sequence
 
         t0 = time.perf_counter()
+        motions = head_motion(stream.head_rotation) if cfg.head_pose else None
         result["files"]["mesh_sequence"] = str(write_mesh_sequence(
-            renderer, stream.weights, mesh_dir, progress=progress))
+            renderer, stream.weights, mesh_dir, motions=motions, hair=cfg.hair,
+            progress=progress))
         result["mesh_seconds"] = time.perf_counter() - t0
     if out is not None:
         t0 = time.perf_counter()

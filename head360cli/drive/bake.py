@@ -226,19 +226,27 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
 
 
 def write_mesh_sequence(renderer, weights: np.ndarray, folder: str | Path,
+                        motions: np.ndarray | None = None, hair: bool = True,
                         texture_size: int = 512, progress: Any = None) -> Path:
     """One OBJ per frame (``frame_00000.obj`` ...) of the head with ARKit ``weights
-    (F, 52)``, sharing one material and baked texture, into a new folder (made under a
-    temporary name and renamed when complete)."""
+    (F, 52)``, moved by rigid ``motions (F, 4, 4)`` when given (the stream's head pose),
+    sharing one material and baked texture, into a new folder (made under a temporary
+    name and renamed when complete)."""
     from head360cli.io.atomic import atomic_dir
     from head360cli.io.mesh import write_obj
 
     folder = Path(folder)
     texture, hair_colours = bake_head(renderer, texture_size)
+    if not hair:
+        hair_colours = None
     n = len(weights)
     with atomic_dir(folder) as tmp:
         for i, w in enumerate(weights):
             parts = _parts(renderer, texture, hair_colours, w, targets=False)
+            if motions is not None:
+                m = motions[i]
+                for part in parts:
+                    part.verts = part.verts @ m[:3, :3].T + m[:3, 3]
             write_obj(tmp / f"frame_{i:05d}.obj", parts, material="head",
                       write_material=i == 0)
             if progress:

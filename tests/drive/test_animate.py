@@ -140,3 +140,15 @@ def test_cli_animate_errors(run_cli, head_file, tmp_path):
     assert r.code == 3 and not (tmp_path / "a.mp4").exists()
     r = run_cli("animate", head_file, "--arkit", bad)
     assert r.code == 3 and "--mesh-sequence" in r.err
+
+
+def test_head_motion_is_rigid_about_the_pivot():
+    from head360cli.drive.animate import head_motion
+
+    m = head_motion(np.array([[0.3, -0.2, 0.1], [0.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(m[1], np.eye(4), atol=1e-12)
+    r = m[0, :3, :3]
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+    np.testing.assert_allclose(m[0, :3, :3] @ HEAD_PIVOT + m[0, :3, 3], HEAD_PIVOT,
+                               atol=1e-12)

@@ -47,3 +47,14 @@ def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
     assert 0 == moved[0] < moved[1] < moved[2]
     r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "m")
     assert r.code == 3 and "not empty" in r.err
+    # with the stream's head pose the meshes turn; without hair there is one object
+    rot = np.zeros((3, 3), np.float32)
+    rot[:, 0] = [0.0, 0.0, 0.5]
+    write_arkit_csv(ArkitStream(w, np.arange(3) / 30, 30.0, head_rotation=rot), path)
+    r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "p",
+                "--head-pose", "--no-hair")
+    assert r.code == 0, r.err
+    turned = trimesh.load(tmp_path / "p" / "frame_00002.obj", force="mesh", process=False)
+    still = trimesh.load(tmp_path / "p" / "frame_00001.obj", force="mesh", process=False)
+    assert turned.vertices[:, 0].mean() > still.vertices[:, 0].mean() + 0.005
+    assert "o hair" not in (tmp_path / "p" / "frame_00000.obj").read_text()
