@@ -152,3 +152,28 @@ def test_head_motion_is_rigid_about_the_pivot():
     assert np.linalg.det(r) == pytest.approx(1.0)
     np.testing.assert_allclose(m[0, :3, :3] @ HEAD_PIVOT + m[0, :3, 3], HEAD_PIVOT,
                                atol=1e-12)
+
+
+def test_cli_animate_stream_full_of_nan(run_cli, head_file, tmp_path):
+    from head360cli.mesh.arkit52 import ARKIT52
+
+    path = tmp_path / "nan.csv"
+    path.write_text("time," + ",".join(ARKIT52) + "\n"
+                    + "".join(f"{i / 30}," + ",".join(["nan"] * 52) + "\n" for i in range(4)))
+    r = run_cli("animate", head_file, "--arkit", path, "-o", tmp_path / "h.gif",
+                "--size", "32", "--samples", "2")
+    assert r.code == 0 and "held the previous frame's value for 208" in r.err
+    r = run_cli("animate", head_file, "--arkit", path, "-o", tmp_path / "e.gif",
+                "--on-bad", "error")
+    assert r.code == 3 and "line 2" in r.err and not (tmp_path / "e.gif").exists()
+
+
+def test_extreme_expression_and_vertical_views_stay_finite(head_file):
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=2, size=32)
+    cams = view_cameras(np.array([0.0, 0.0, 0.0]), np.array([90.0, -90.0, 0.0]))
+    w = np.ones((3, 52))
+    img = r.render(cams, view_intrinsics(32), w)
+    assert torch.isfinite(img).all() and (img < 0.9).any(dim=1).flatten(1).any(1).all()
