@@ -32,7 +32,7 @@ ANIMATE_SAMPLES = 8
 43.0 dB) at 1.5x the frame rate (``head360 bench animate`` measures both)."""
 
 
-def _renderer(head: str, samples: int | None, size: int | None):
+def _renderer(head: str, samples: int | None, size: int | None, precision: str = "auto"):
     from head360cli.devices import resolve_device
     from head360cli.fitting.pipeline import load_head_renderer
 
@@ -44,7 +44,7 @@ def _renderer(head: str, samples: int | None, size: int | None):
         raise BadInputError(f"head file {head!r} does not exist")
     try:
         return load_head_renderer(head, str(resolve_device(_settings().device)),
-                                  samples=samples, size=size)
+                                  samples=samples, size=size, precision=precision)
     except ValueError as exc:  # an image size the generator cannot make
         raise BadInputError(str(exc)) from None
 
@@ -55,6 +55,10 @@ def _quality_options(f):
                      "fewer is faster.")(f)
     f = click.option("--size", type=int, default=None,
                      help="Image width and height in pixels, even (default 256).")(f)
+    f = click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]),
+                     default="auto", show_default=True,
+                     help="Decoders and RefineNet in bfloat16 (auto: where the CPU or GPU "
+                     "has it; images within 1/100 of fp32's) or float32.")(f)
     return click.option("--no-hair", is_flag=True, help="Render the head bald.")(f)
 
 
@@ -77,7 +81,7 @@ def _quality_options(f):
 @common_options
 def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: float,
            pitch: float, views: str | None, expr: str | None, samples: int | None,
-           size: int | None, no_hair: bool) -> None:
+           size: int | None, precision: str, no_hair: bool) -> None:
     """Render a head: one view, a grid of views, or a turntable.
 
     \b
@@ -110,7 +114,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     if not turntable and Path(out).suffix.lower() != ".png":
         raise BadInputError(f"expected a .png output for a view, found {out!r} (use "
                             "--turntable for a video)")
-    r = _renderer(head, samples, size)
+    r = _renderer(head, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
                         progress=_progress_printer())
@@ -158,7 +162,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
             yaw: float, pitch: float, on_bad: str, samples: int | None, size: int | None,
-            no_hair: bool) -> None:
+            precision: str, no_hair: bool) -> None:
     """Drive a head with an ARKit-52 blendshape stream.
 
     Only the mesh is recomputed per frame; frames stream to the encoder, so memory does
@@ -187,7 +191,7 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
     for warning in stream.warnings:
         _warn(warning)
-    r = _renderer(head, samples or ANIMATE_SAMPLES, size)
+    r = _renderer(head, samples or ANIMATE_SAMPLES, size, precision)
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
                         yaw=yaw, pitch=pitch, hair=not no_hair)
     res = run(r, stream, out, cfg, mesh_dir=mesh_dir, progress=_progress_printer())

@@ -49,3 +49,16 @@ def test_render_turntable_and_errors(run_cli, head_file, tmp_path):
     bad.write_bytes(b"not a head")
     r = run_cli("render", bad, "-o", tmp_path / "x.png")
     assert r.code == 5
+
+
+def test_render_precision_option(run_cli, head_file, tmp_path):
+    images = []
+    for precision in ("fp32", "bf16"):
+        out = tmp_path / f"{precision}.png"
+        r = run_cli("render", head_file, "--size", "64", "--samples", "4", "--precision",
+                    precision, "-o", out)
+        assert r.code == 0, r.err
+        images.append(np.asarray(Image.open(out)).astype(int))
+    assert np.abs(images[0] - images[1]).max() <= 12
+    assert run_cli("render", head_file, "--precision", "fp16", "-o", tmp_path / "x.png"
+                   ).code == 2
