@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Fit every photo in a folder, several at a time, and keep going when one fails.
+#
+#   examples/batch/fit_folder.sh PHOTOS_DIR OUT_DIR [JOBS] [-- extra head360 fit options]
+#
+# For each photo NAME.jpg|jpeg|png it writes OUT_DIR/NAME.h360 (+ preview and summary),
+# OUT_DIR/NAME.result.json (head360's --json answer, also for failures) and NAME.err
+# (warnings and errors). Failed photos are listed in OUT_DIR/failed.txt. The exit status
+# is the number of photos that failed (at most 125), so 0 means all fitted.
+# Collect the results into one CSV with:  python examples/batch/collect.py OUT_DIR
+set -u
+if [ $# -lt 2 ]; then
+    echo "usage: $0 PHOTOS_DIR OUT_DIR [JOBS] [-- head360 fit options]" >&2
+    exit 2
+fi
+photos=$1; out=$2; jobs=${3:-2}
+shift $(( $# >= 3 ? 3 : 2 ))
+[ "${1:-}" = "--" ] && shift
+mkdir -p "$out" || exit 2
+rm -f "$out/failed.txt"
+# one torch thread per job, unless the caller chose otherwise
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+
+find "$photos" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \) \
+    -print0 | sort -z |
+    xargs -0 -r -P "$jobs" -I{} bash -c '
+        photo=$1; out=$2; shift 2
+        name=$(basename "${photo%.*}")
+        if ! head360 fit "$photo" -o "$out/$name.h360" --json --quiet "$@" \
+                > "$out/$name.result.json" 2> "$out/$name.err"; then
+            echo "$photo" >> "$out/failed.txt"
+        fi' _ {} "$out" "$@"
+
+failed=0
+[ -f "$out/failed.txt" ] && failed=$(wc -l < "$out/failed.txt")
+echo "fitted $(find "$out" -maxdepth 1 -name '*.result.json' | wc -l) photo(s), $failed failed" >&2
+exit $(( failed > 125 ? 125 : failed ))

@@ -1,0 +1,82 @@
+"""The batch scripts in examples/batch: parallel runs that survive a bad input and say
+how many failed, and the CSV collector."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import REPO
+
+pytestmark = pytest.mark.skipif(shutil.which("bash") is None or shutil.which("xargs") is None,
+                                reason="needs bash and xargs")
+
+
+def _env():
+    env = dict(os.environ)
+    env["PATH"] = os.path.dirname(sys.executable) + os.pathsep + env.get("PATH", "")
+    return env
+
+
+def _collect(out):
+    p = subprocess.run([sys.executable, str(REPO / "examples/batch/collect.py"), str(out)],
+                       capture_output=True, text=True, check=True)
+    return list(csv.DictReader(io.StringIO(p.stdout)))
+
+
+@pytest.mark.slow
+def test_fit_folder_keeps_going_and_counts_failures(tmp_path):
+    from PIL import Image
+    from skimage import data
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    Image.fromarray(data.astronaut()).save(photos / "astronaut.png")
+    (photos / "broken.jpg").write_text("not a photo")
+    Image.new("RGB", (64, 64), "white").save(photos / "blank.png")  # no face
+    out = tmp_path / "out"
+    p = subprocess.run(["bash", str(REPO / "examples/batch/fit_folder.sh"), str(photos),
+                        str(out), "2"], capture_output=True, text=True, env=_env())
+    assert p.returncode == 2, p.stderr  # two of three failed
+    assert "3 photo(s), 2 failed" in p.stderr
+    assert (out / "astronaut.h360").is_file()
+    rows = {r["name"]: r for r in _collect(out)}
+    assert rows["astronaut"]["ok"] == "True" and rows["astronaut"]["hair_style"]
+    assert rows["broken"]["ok"] == "False" and rows["broken"]["error_type"]
+    assert rows["blank"]["error_type"] == "NoFaceError"
+    assert sorted((out / "failed.txt").read_text().split()) == sorted(
+        str(photos / n) for n in ("blank.png", "broken.jpg"))
+
+
+def test_animate_heads_one_stream_many_heads(tmp_path, head_file):
+    heads = tmp_path / "heads"
+    heads.mkdir()
+    shutil.copy(head_file, heads / "a.h360")
+    shutil.copy(head_file, heads / "b.h360")
+    (heads / "bad.h360").write_bytes(b"not a head")
+    out = tmp_path / "out"
+    p = subprocess.run(["bash", str(REPO / "examples/batch/animate_heads.sh"), str(heads),
+                        str(REPO / "examples/smile_blink_livelinkface.csv"), str(out), "2",
+                        "--", "--end", "0.11", "--size", "32", "--samples", "2"],
+                       capture_output=True, text=True, env=_env())
+    assert p.returncode == 1, p.stderr
+    assert (out / "a.mp4").is_file() and (out / "b.mp4").is_file()
+    rows = {r["name"]: r for r in _collect(out)}
+    assert rows["a"]["ok"] == "True" and rows["a"]["frames"] == "7"
+    assert rows["bad"]["ok"] == "False" and rows["bad"]["error_type"] == "FileFormatError"
+
+
+def test_scripts_explain_their_usage():
+    for script in ("fit_folder.sh", "animate_heads.sh"):
+        p = subprocess.run(["bash", str(REPO / "examples/batch" / script)],
+                           capture_output=True, text=True)
+        assert p.returncode == 2 and "usage:" in p.stderr
+    p = subprocess.run([sys.executable, str(REPO / "examples/batch/collect.py")],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "usage:" in p.stderr
