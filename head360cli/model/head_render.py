@@ -149,5 +149,5 @@ class HeadRenderer:
             verts = self.vertices(np.asarray(weights[i:i + n], np.float32))
             h = self.hair.repeat(n) if hair and self.hair is not None else None
             out = self.gen(verts, cams, k, texture=self.texture.expand(n, -1, -1, -1),
-                           hair=h)["rgb"]
+                           hair=h)["rgb"].clamp(0, 1)  # the RefineNet may overshoot
             yield to_uint8(out) if uint8 else out.cpu()
