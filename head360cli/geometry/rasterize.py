@@ -17,11 +17,33 @@ differentiable with respect to the vertex positions (visibility is not).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 
 import torch
 
-__all__ = ["Fragments", "interpolate", "interpolate_face_corners", "rasterize"]
+__all__ = ["Fragments", "interpolate", "interpolate_face_corners", "rasterize",
+           "static_windows"]
+
+
+_STATIC_LEVELS: tuple[int, ...] | None = None
+
+
+@contextlib.contextmanager
+def static_windows(sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64)) -> Iterator[None]:
+    """Inside the ``with`` block, rasterize with this fixed list of candidate-window sizes
+    instead of one chosen from the data, so the graph has no data-dependent control flow
+    (``torch.export`` and ONNX need that). Triangles wider or taller than the last size
+    are not drawn; with the default that is 64 pixels, far above the generator's
+    triangles at its 128-pixel resolutions."""
+    global _STATIC_LEVELS
+    own = _STATIC_LEVELS
+    _STATIC_LEVELS = tuple(sizes)
+    try:
+        yield
+    finally:
+        _STATIC_LEVELS = own
 
 
 @dataclasses.dataclass
@@ -125,12 +147,18 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     sizes = size[bi, fi]
 
     pix_all, key_all, face_all = [], [], []
-    k = 1
+    static = _STATIC_LEVELS is not None
+    if static:  # a fixed list of window sizes: no data-dependent Python control flow
+        windows = list(_STATIC_LEVELS)
+    else:  # as many sizes as the largest triangle needs
+        max_size = int(sizes.max().item()) if sizes.numel() else 0
+        windows = [1]
+        while windows[-1] < max_size:
+            windows.append(windows[-1] * 2)
     lower = 0
-    max_size = int(sizes.max().item()) if sizes.numel() else 0
-    while lower < max_size:
+    for k in windows:
         sel = torch.nonzero((sizes > lower) & (sizes <= k), as_tuple=True)[0]
-        if sel.numel():
+        if static or sel.numel():
             d = torch.arange(k, device=device, dtype=dtype)
             dy, dx = torch.meshgrid(d, d, indexing="ij")
             offsets = torch.stack([dx.reshape(-1), dy.reshape(-1),
@@ -149,7 +177,6 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
                            + key_plane[:, 2])
             face_all.append(fi[s_idx])
         lower = k
-        k *= 2
 
     face_id = torch.full((b * hw,), -1, dtype=torch.long, device=device)
     if pix_all:
@@ -165,7 +192,7 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     fg = torch.nonzero(face_id >= 0, as_tuple=True)[0]
     bary = torch.zeros(b * hw, 3, dtype=dtype, device=device)
     zout = torch.zeros(b * hw, dtype=dtype, device=device)
-    if fg.numel():
+    if static or fg.numel():
         fb = fg // hw
         rem = fg % hw
         cy = (rem // width).to(dtype) + 0.5

@@ -112,9 +112,12 @@ def composite(density: torch.Tensor, features: torch.Tensor, depths: torch.Tenso
     s = depths.shape[-1]
     delta = torch.cat([depths[..., 1:] - depths[..., :-1],
                        torch.full_like(depths[..., :1], 2.0 * shell / s)], -1)
-    alpha = 1.0 - torch.exp(-density * delta)
-    trans = torch.cumprod(torch.cat([torch.ones_like(alpha[..., :1]),
-                                     1.0 - alpha[..., :-1] + 1e-10], -1), -1)
+    optical = density * delta
+    alpha = 1.0 - torch.exp(-optical)
+    # transmittance to each sample: exp(-sum of the optical depths before it) (a cumsum,
+    # not a cumprod of 1 - alpha: the same values, and ONNX has CumSum)
+    trans = torch.exp(-torch.cumsum(torch.cat([torch.zeros_like(optical[..., :1]),
+                                               optical[..., :-1]], -1), -1))
     weights = alpha * trans * near[..., None]
     acc = weights.sum(-1)
     feats = (weights[..., None] * features).sum(-2)
