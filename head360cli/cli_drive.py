@@ -352,6 +352,60 @@ def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
           f"{res['morph_targets']} morph targets, parts {', '.join(res['parts'])})")
 
 
+@cli.command("export-onnx")
+@click.option("-o", "--out", default="generator.onnx", show_default=True,
+              type=click.Path(dir_okay=False),
+              help="The graph with hair; the bald graph goes beside it (NAME_bald.onnx).")
+@click.option("--head", "head", default=None, type=_HEAD,
+              help="Trace with this head and write its per-head inputs "
+              "(<head>_inputs.npz) for a torch-free runner (default: the mean head).")
+@click.option("--samples", type=int, default=8, show_default=True,
+              help="Samples per ray, fixed in the graph.")
+@click.option("--size", type=int, default=256, show_default=True,
+              help="Image size, fixed in the graph.")
+@common_options
+def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None:
+    """Export the per-frame generator (rasterization included) to ONNX for onnxruntime.
+
+    Inputs per frame: the mesh vertices, the neural texture, the camera and, for the hair
+    graph, the hair mesh and its planes; output: the RGB image. The runner class
+    head360cli.export.onnx.OnnxFrameRunner calls it without torch.
+
+    \b
+    Examples:
+      head360 export-onnx -o generator.onnx
+      head360 export-onnx --head me.h360 --samples 12 -o me.onnx
+    """
+    import numpy as np
+
+    from head360cli.export.onnx import export_onnx, head_inputs
+    from head360cli.io.atomic import atomic_path
+
+    if not 1 <= samples <= 64 or not 32 <= size <= 2048:
+        raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
+                            f"{samples} and {size}")
+    if head is not None:
+        r = _renderer(head, samples, size, "fp32")
+        if r.hair is None:
+            r = r.with_hair(11, r.hair_colour)  # the bald graph needs no hair; trace bob
+    else:
+        r = _mean_head_renderer()
+        try:
+            r.gen.image_size(size)  # raises now for a size the generator cannot make
+        except ValueError as exc:
+            raise BadInputError(str(exc)) from None
+        r.samples, r.size = samples, size
+        r = r.with_hair(11, r.hair_colour)
+    res = export_onnx(r, out, progress=_progress_printer())
+    if head is not None:
+        path = Path(out).with_name(f"{Path(head).stem}_inputs.npz")
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, **head_inputs(_renderer(head, samples, size, "fp32")))
+        res["files"].append(str(path))
+    _emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
+          f"{size}x{size}): " + ", ".join(res["files"]))
+
+
 @bench.command("animate")
 @click.option("--frames", default=120, show_default=True,
               help="Frames per throughput measurement.")

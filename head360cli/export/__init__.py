@@ -1,0 +1,1 @@
+"""Export of the generator (ONNX) and runners that need no torch."""

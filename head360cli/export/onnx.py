@@ -1,0 +1,235 @@
+"""ONNX export of the per-frame generator and a torch-free runner for it.
+
+What changes per frame goes in; what a head keeps is made once by the caller (with torch,
+or read from a head file and the exported extras):
+
+    verts (1, V, 3), texture (1, C, R, R), c2w (1, 4, 4), intrinsics (1, 3, 3)
+    [+ hair_verts (1, HAIR_VERTS, 3), hair_faces (HAIR_FACES, 3),
+       hair_planes (1, P, C + 2, r, r)]
+        -> rgb (1, 3, S, S)
+
+(hair meshes are padded to fixed sizes, so one graph serves all 30 hairstyles).
+
+Two graphs are written: ``NAME.onnx`` renders a head with hair, ``NAME_bald.onnx`` without
+(the hair branch has no "no hair" input that would give the bald image). Rasterization is
+inside the graphs (the rasterizer's ``static_windows`` mode); ray culling is not (it needs
+data-dependent shapes), so the graph decodes every ray. Samples per ray and the image size
+are fixed at export.
+
+:class:`OnnxFrameRunner` runs the graphs in onnxruntime with the same arguments as
+:class:`FrameModel` (numpy arrays instead of tensors); it imports neither torch nor the
+generator.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["HAIR_FACES", "HAIR_VERTS", "OnnxFrameRunner", "export_onnx", "head_inputs",
+           "pad_hair"]
+
+META_KEY = "head360"
+"""Metadata key of the export settings stored in each ONNX file."""
+
+HAIR_VERTS = 12288
+"""Hair meshes are padded to this many vertices (the largest style has about 10,400)..."""
+HAIR_FACES = 16384
+"""...and this many triangles (about 12,000), so one graph serves every hairstyle: the
+padding triangles have zero area and are never drawn."""
+
+
+def pad_hair(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(1, HAIR_VERTS, 3)`` float32 and ``(HAIR_FACES, 3)`` int64 from a hair mesh
+    ``(1, H, 3)``, ``(G, 3)``.
+
+    Raises:
+        BadInputError: The mesh is larger than the padding.
+    """
+    from head360cli.errors import BadInputError
+
+    v = np.asarray(verts, np.float32).reshape(-1, 3)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(v) > HAIR_VERTS or len(f) > HAIR_FACES:
+        raise BadInputError(f"expected a hair mesh of at most {HAIR_VERTS} vertices and "
+                            f"{HAIR_FACES} triangles, found {len(v)} and {len(f)}")
+    pv = np.zeros((HAIR_VERTS, 3), np.float32)
+    pv[:len(v)] = v
+    pf = np.zeros((HAIR_FACES, 3), np.int64)  # (0, 0, 0): zero area, never drawn
+    pf[:len(f)] = f
+    return pv[None], pf
+
+
+def _frame_model(gen, hair: bool):
+    import torch
+
+    from head360cli.model.generator import Hair
+
+    class FrameModel(torch.nn.Module):
+        """One frame of one head: the generator with its per-head parts as inputs."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.gen = gen
+
+        def forward(self, verts, texture, c2w, intrinsics, hair_verts=None, hair_faces=None,
+                    hair_planes=None):
+            h = None
+            if hair:
+                uv = torch.zeros_like(hair_verts[0, :, :2])  # unused: planes are given
+                h = Hair([(hair_verts[0], hair_faces, uv)],
+                         torch.zeros(1, dtype=torch.long), torch.zeros(1, 3),
+                         [hair_planes])
+            return self.gen(verts, c2w, intrinsics, texture=texture, hair=h)["rgb"].clamp(0, 1)
+
+    return FrameModel().eval()
+
+
+def _example(renderer, hair: bool) -> tuple:
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    args = (renderer.vertices(np.zeros((1, 52))), renderer.texture,
+            view_cameras(0.0, 0.0).to(renderer.device),
+            view_intrinsics(renderer.size)[None].to(renderer.device))
+    if hair:
+        import torch
+
+        hv, hf, _ = renderer.hair.meshes[0]
+        pv, pf = pad_hair(hv[None].cpu().numpy(), hf.cpu().numpy())
+        args += (torch.as_tensor(pv, device=renderer.device),
+                 torch.as_tensor(pf, device=renderer.device), renderer.hair.planes[0])
+    return args
+
+
+def export_onnx(renderer, out: str | Path, progress: Any = None) -> dict[str, Any]:
+    """Export the generator as it renders ``renderer``'s head (its samples per ray and
+    image size) to ``out`` (with hair) and ``<out stem>_bald.onnx``.
+
+    Returns:
+        ``{"files": [...], "seconds": ..., "samples": ..., "size": ...}``.
+    """
+    import torch
+
+    from head360cli.errors import BadInputError
+    from head360cli.geometry.rasterize import static_windows
+    from head360cli.io.atomic import atomic_path
+
+    out = Path(out)
+    if out.suffix.lower() != ".onnx":
+        raise BadInputError(f"expected an .onnx output, found {out.name!r}")
+    if not out.parent.is_dir():
+        raise BadInputError(f"output folder {str(out.parent)!r} does not exist")
+    if renderer.hair is None:
+        raise BadInputError("expected a head with hair to export the hair graph (a bald "
+                            "head has no hair mesh to trace with)")
+    gen = renderer.gen
+    t0 = time.perf_counter()
+    files = []
+    meta = {"samples": renderer.samples, "size": renderer.size,
+            "texture_channels": gen.cfg.texture_channels,
+            "texture_res": gen.cfg.texture_res}
+    own = (gen.cull_rays, gen.hair_rays_only, gen.network_dtype)
+    gen.cull_rays, gen.hair_rays_only, gen.network_dtype = False, False, None
+    try:
+        for hair, path in ((True, out), (False, out.with_name(f"{out.stem}_bald.onnx"))):
+            if progress:
+                progress("export", len(files), 2)
+            model = _frame_model(gen, hair)
+            args = _example(renderer, hair)
+            names = ["verts", "texture", "c2w", "intrinsics"]
+            if hair:
+                names += ["hair_verts", "hair_faces", "hair_planes"]
+            with torch.no_grad(), gen.samples_per_ray(renderer.samples), \
+                    gen.image_size(renderer.size), static_windows():
+                program = torch.onnx.export(model, args, input_names=names,
+                                            output_names=["rgb"], dynamo=True,
+                                            opset_version=18, verbose=False)
+            program.model.metadata_props[META_KEY] = json.dumps({**meta, "hair": hair})
+            with atomic_path(path) as tmp:
+                program.save(tmp)
+            files.append(str(path))
+    finally:
+        gen.cull_rays, gen.hair_rays_only, gen.network_dtype = own
+    return {"files": files, "seconds": time.perf_counter() - t0, **meta}
+
+
+def head_inputs(renderer) -> dict[str, np.ndarray]:
+    """What a torch-free runner needs of one head: ``base (V, 3)`` and ``deltas
+    (52, V, 3)`` (the mesh is ``base + w @ deltas``), ``texture (1, C, R, R)``, and for a
+    head with hair ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``."""
+    out = {"base": renderer.neutral.astype(np.float32),
+           "deltas": renderer.deltas.astype(np.float32),
+           "texture": renderer.texture.detach().cpu().numpy().astype(np.float32)}
+    if renderer.hair is not None:
+        hv, hf, _ = renderer.hair.meshes[0]
+        out.update(hair_verts=hv[None].cpu().numpy().astype(np.float32),
+                   hair_faces=hf.cpu().numpy().astype(np.int64),
+                   hair_planes=renderer.hair.planes[0].detach().cpu().numpy()
+                   .astype(np.float32))
+    return out
+
+
+class OnnxFrameRunner:
+    """Render frames with an exported generator in onnxruntime (no torch needed).
+
+    Args:
+        path: The ``.onnx`` file with hair (its ``_bald.onnx`` sibling is found by name).
+        threads: Intra-op threads (default: onnxruntime's choice).
+    """
+
+    def __init__(self, path: str | Path, threads: int | None = None) -> None:
+        import onnxruntime as ort
+
+        from head360cli.errors import FileFormatError
+
+        path = Path(path)
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = int(threads)
+        self.sessions = {}
+        for hair, p in ((True, path), (False, path.with_name(f"{path.stem}_bald.onnx"))):
+            try:
+                self.sessions[hair] = ort.InferenceSession(
+                    str(p), opts, providers=["CPUExecutionProvider"])
+            except Exception as exc:
+                raise FileFormatError(f"{p}: expected an exported head360 generator "
+                                      f"({exc})") from None
+        meta = self.sessions[True].get_modelmeta().custom_metadata_map.get(META_KEY)
+        if meta is None:
+            raise FileFormatError(f"{path}: expected head360 export metadata, found none")
+        self.meta = json.loads(meta)
+        self.size = int(self.meta["size"])
+
+    def __call__(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
+                 intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,
+                 hair_faces: np.ndarray | None = None,
+                 hair_planes: np.ndarray | None = None) -> np.ndarray:
+        """``rgb (1, 3, S, S)`` in [0, 1]; the arguments of the torch ``FrameModel`` as
+        float32 (faces int64) arrays; no hair arguments renders the bald head."""
+        hair = hair_verts is not None
+        feeds = {"verts": verts, "texture": texture, "c2w": c2w, "intrinsics": intrinsics}
+        if hair:
+            hair_verts, hair_faces = pad_hair(hair_verts, hair_faces)
+            feeds.update(hair_verts=hair_verts, hair_faces=hair_faces,
+                         hair_planes=hair_planes)
+        sess = self.sessions[hair]
+        wanted = {i.name for i in sess.get_inputs()}
+        feeds = {k: np.ascontiguousarray(v, np.int64 if k == "hair_faces" else np.float32)
+                 for k, v in feeds.items() if k in wanted}
+        return sess.run(None, feeds)[0]
+
+    def render(self, inputs: dict[str, np.ndarray], weights: np.ndarray, c2w: np.ndarray,
+               intrinsics: np.ndarray, hair: bool = True) -> np.ndarray:
+        """One frame ``(1, 3, S, S)`` of a head given as :func:`head_inputs`, with ARKit
+        ``weights (52,)`` and a camera, in numpy and onnxruntime only."""
+        verts = inputs["base"] + np.tensordot(np.asarray(weights, np.float32),
+                                              inputs["deltas"], 1)
+        extra = {}
+        if hair and "hair_verts" in inputs:
+            extra = {k: inputs[k] for k in ("hair_verts", "hair_faces", "hair_planes")}
+        return self(verts[None], inputs["texture"], np.asarray(c2w).reshape(1, 4, 4),
+                    np.asarray(intrinsics).reshape(1, 3, 3), **extra)
