@@ -83,3 +83,29 @@ def test_cli_export_onnx_writes_both_graphs_and_the_head_inputs(run_cli, head_fi
     inputs = np.load(files[-1])
     assert inputs["deltas"].shape[0] == 52 and inputs["texture"].ndim == 4
     assert run_cli("export-onnx", "--size", "33", "-o", tmp_path / "x.onnx").code == 3
+
+
+@pytest.mark.slow
+def test_runner_needs_no_torch(exported, tmp_path):
+    """The runner renders in a process where importing torch fails."""
+    import subprocess
+    import sys
+
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.export.onnx import head_inputs
+
+    r, out, _ = exported
+    np.savez(tmp_path / "inputs.npz", **head_inputs(r),
+             c2w=view_cameras(30.0, 0.0).numpy(), k=view_intrinsics(48).numpy())
+    code = (
+        "import sys\n"
+        "sys.modules['torch'] = None  # any import of torch now raises\n"
+        "import numpy as np\n"
+        "from head360cli.export.onnx import OnnxFrameRunner\n"
+        f"d = dict(np.load({str(tmp_path / 'inputs.npz')!r}))\n"
+        f"img = OnnxFrameRunner({str(out)!r}).render(d, np.zeros(52), d['c2w'], d['k'])\n"
+        "assert img.shape == (1, 3, 48, 48) and np.isfinite(img).all()\n"
+        "print('ok', float(img.mean()))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert p.stdout.startswith("ok")
