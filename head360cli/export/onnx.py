@@ -12,9 +12,12 @@ or read from a head file and the exported extras):
 
 Two graphs are written: ``NAME.onnx`` renders a head with hair, ``NAME_bald.onnx`` without
 (the hair branch has no "no hair" input that would give the bald image). Rasterization is
-inside the graphs (the rasterizer's ``static_windows`` mode); ray culling is not (it needs
-data-dependent shapes), so the graph decodes every ray. Samples per ray and the image size
-are fixed at export.
+inside the graphs (the rasterizer's ``static_windows`` mode), and so is ray culling: the
+rays near a surface are found with ``NonZero``, so only they are decoded, as in torch.
+The projection and the rasterizer's coverage test are written element by element, so
+onnxruntime covers exactly the pixels torch covers (a matrix product rounds differently in
+each, and one flipped pixel on a silhouette changed images by 7e-3). Samples per ray and
+the image size are fixed at export.
 
 :class:`OnnxFrameRunner` runs the graphs in onnxruntime with the same arguments as
 :class:`FrameModel` (numpy arrays instead of tensors); it imports neither torch nor the
@@ -105,9 +108,14 @@ def _example(renderer, hair: bool) -> tuple:
     return args
 
 
-def export_onnx(renderer, out: str | Path, progress: Any = None) -> dict[str, Any]:
+def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = True
+                ) -> dict[str, Any]:
     """Export the generator as it renders ``renderer``'s head (its samples per ray and
     image size) to ``out`` (with hair) and ``<out stem>_bald.onnx``.
+
+    ``cull`` keeps the generator's ray culling in the graph (the rays near a surface are
+    found with ``NonZero``, so the decoders see a data-dependent number of points);
+    without it every ray is decoded (static shapes, slower, for runtimes that need them).
 
     Returns:
         ``{"files": [...], "seconds": ..., "samples": ..., "size": ...}``.
@@ -129,11 +137,11 @@ def export_onnx(renderer, out: str | Path, progress: Any = None) -> dict[str, An
     gen = renderer.gen
     t0 = time.perf_counter()
     files = []
-    meta = {"samples": renderer.samples, "size": renderer.size,
+    meta = {"samples": renderer.samples, "size": renderer.size, "cull": bool(cull),
             "texture_channels": gen.cfg.texture_channels,
             "texture_res": gen.cfg.texture_res}
     own = (gen.cull_rays, gen.hair_rays_only, gen.network_dtype)
-    gen.cull_rays, gen.hair_rays_only, gen.network_dtype = False, False, None
+    gen.cull_rays, gen.hair_rays_only, gen.network_dtype = cull, cull, None
     try:
         for hair, path in ((True, out), (False, out.with_name(f"{out.stem}_bald.onnx"))):
             if progress:

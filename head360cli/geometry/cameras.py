@@ -158,8 +158,13 @@ def project(points: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor
         and the depth along the camera's z axis. Points behind the camera have depth <= 0
         and meaningless pixels.
     """
-    w2c = invert_rigid(c2w)
-    cam = points @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]
+    # R^T (p - t) written out element by element rather than as a matrix product: the
+    # result is then rounded the same way by torch and by onnxruntime (whose GEMM kernels
+    # sum in another order), so an exported rasterizer covers the same pixels.
+    rot = c2w[:, None, :3, :3]
+    d = points - c2w[:, None, :3, 3]
+    cam = (d[..., 0:1] * rot[..., 0, :] + d[..., 1:2] * rot[..., 1, :]
+           + d[..., 2:3] * rot[..., 2, :])
     depth = cam[..., 2]
     safe = torch.where(depth.abs() < 1e-9, torch.full_like(depth, 1e-9), depth)
     k = intrinsics.expand(points.shape[0], 3, 3)

@@ -161,9 +161,11 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         if static or sel.numel():
             d = torch.arange(k, device=device, dtype=dtype)
             dy, dx = torch.meshgrid(d, d, indexing="ij")
-            offsets = torch.stack([dx.reshape(-1), dy.reshape(-1),
-                                   torch.ones(k * k, device=device, dtype=dtype)])  # (3, K2)
-            values = plane[sel, :3] @ offsets  # (n, 3, K2): the three barycentrics
+            offsets = torch.stack([dx.reshape(-1), dy.reshape(-1)])  # (2, K2)
+            p = plane[sel, :3]  # (n, 3, 3)
+            # (n, 3, K2): the three barycentrics, element-wise rather than a matrix
+            # product so that torch and onnxruntime round them alike (same coverage)
+            values = (p[..., 0:1] * offsets[0] + p[..., 1:2] * offsets[1]) + p[..., 2:3]
             inside = ((values.amin(1) >= -eps)
                       & (offsets[0][None] <= (tj1 - tj0)[sel][:, None])
                       & (offsets[1][None] <= (ti1 - ti0)[sel][:, None]))

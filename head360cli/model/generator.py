@@ -93,9 +93,17 @@ def near_rays(near: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
     Returns:
         ``order (B, n)``: ray indices, the near ones first and in order, ``n`` the largest
-        count of near rays in the batch; ``kept (B, n)`` bool, which of them are near.
+        count of near rays in the batch (at least 1); ``kept (B, n)`` bool, which of them
+        are near. A one-item batch takes its near rays with ``nonzero`` (plus ray 0, so
+        ``n >= 1``), which needs no Python integer from the data and so exports to ONNX
+        with a data-dependent ray count.
     """
     keep = near > 0
+    if keep.shape[0] == 1:
+        first = torch.zeros_like(keep)
+        first[:, 0] = True
+        order = torch.nonzero(keep[0] | first[0]).reshape(1, -1)
+        return order, torch.gather(keep, 1, order)
     n = max(int(keep.sum(1).max()), 1)
     order = torch.argsort((~keep).to(torch.uint8), dim=1, stable=True)[:, :n]
     return order, torch.gather(keep, 1, order)

@@ -132,12 +132,16 @@ def test_a_generator_without_hair_refuses_hair(parts, hair):
 def test_culling_far_rays_changes_nothing(parts, hair):
     """Decoding only the rays near a surface gives the same image as decoding all, and
     the same gradients."""
-    from head360cli.model.generator import near_rays
+    from head360cli.model.generator import Hair, near_rays
 
     near = torch.tensor([[0.0, 1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0]])
     order, kept = near_rays(near)
     assert order.tolist() == [[1, 3], [0, 1]]
     assert kept.tolist() == [[True, True], [True, False]]
+    order, kept = near_rays(near[:1])  # one item: nonzero, ray 0 always included
+    assert order.tolist() == [[0, 1, 3]] and kept.tolist() == [[False, True, True]]
+    order, kept = near_rays(torch.zeros(1, 4))
+    assert order.tolist() == [[0]] and kept.tolist() == [[False]]
     model, verts, c2w, k = parts
     torch.manual_seed(0)
     gen = Generator(TINY, model.faces, model.uv, model.faces_uv)
@@ -151,6 +155,14 @@ def test_culling_far_rays_changes_nothing(parts, hair):
     for key in ("rgb", "alpha", "hair_alpha", "depth_low"):
         torch.testing.assert_close(outs[True][key], outs[False][key], atol=1e-6, rtol=0)
     torch.testing.assert_close(grads[True], grads[False], atol=1e-7, rtol=1e-4)
+    first = Hair(hair.meshes[:1], hair.style[:1], hair.colour[:1])
+    with torch.no_grad():  # one-item batches take the nonzero path
+        one = {}
+        for cull in (False, True):
+            gen.cull_rays = cull
+            one[cull] = gen(verts[:1], c2w[:1], k, code=code[:1].detach(),
+                            hair=first)["rgb"]
+    torch.testing.assert_close(one[True], one[False], atol=1e-6, rtol=0)
 
 
 def test_samples_per_ray_is_scoped(parts):
