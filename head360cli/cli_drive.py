@@ -62,6 +62,48 @@ def _quality_options(f):
     return click.option("--no-hair", is_flag=True, help="Render the head bald.")(f)
 
 
+def _backend_options(f):
+    f = click.option("--onnx", "onnx_path", default="generator.onnx", show_default=True,
+                     type=click.Path(dir_okay=False),
+                     help="With --backend onnx: the graph from head360 export-onnx (its "
+                     "samples per ray and size are used).")(f)
+    return click.option("--backend", type=click.Choice(["torch", "onnx"]), default="torch",
+                        show_default=True,
+                        help="Render with torch, or with onnxruntime and an exported graph "
+                        "(same images to 1e-5).")(f)
+
+
+def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | None,
+                      size: int | None, precision: str):
+    """The head's renderer; with ``backend == "onnx"`` its frames come from onnxruntime
+    (samples and size as fixed in the graph; the user's, if given, must agree)."""
+    if backend == "torch":
+        return _renderer(head, samples, size, precision)
+    from head360cli.errors import ModelMismatchError
+    from head360cli.export.onnx import OnnxFrameRunner
+    from head360cli.fitting.pipeline import generator_hash
+
+    if not Path(onnx_path).is_file():
+        raise BadInputError(f"ONNX graph {onnx_path!r} does not exist (run head360 "
+                            "export-onnx first, or pass --onnx FILE)")
+    runner = OnnxFrameRunner(onnx_path)
+    fixed = {"--samples": (samples, runner.meta["samples"]), "--size": (size, runner.size)}
+    for name, (asked, graph) in fixed.items():
+        if asked is not None and asked != graph:
+            raise BadInputError(f"expected {name} {graph} (fixed in {onnx_path}), found "
+                                f"{asked}")
+    if precision == "bf16":
+        raise BadInputError("expected --precision auto or fp32 with --backend onnx (the "
+                            "graph is float32), found bf16")
+    made_with = runner.meta.get("generator_sha256")
+    if made_with is not None and made_with != generator_hash():
+        raise ModelMismatchError(f"{onnx_path} was exported from another generator than "
+                                 "the installed one: export it again")
+    r = _renderer(head, runner.meta["samples"], runner.size, "fp32")
+    r.use_runner(runner)
+    return r
+
+
 @cli.command()
 @click.argument("head", type=_HEAD)
 @click.option("-o", "--out", required=True, type=click.Path(),
@@ -78,10 +120,12 @@ def _quality_options(f):
 @click.option("--expr", default=None,
               help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1' (default neutral).")
 @_quality_options
+@_backend_options
 @common_options
 def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: float,
            pitch: float, views: str | None, expr: str | None, samples: int | None,
-           size: int | None, precision: str, no_hair: bool) -> None:
+           size: int | None, precision: str, no_hair: bool, backend: str,
+           onnx_path: str) -> None:
     """Render a head: one view, a grid of views, or a turntable.
 
     \b
@@ -91,6 +135,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
       head360 render me.h360 --expr JawOpen=0.8,EyeBlinkLeft=1 -o smile.png
       head360 render me.h360 --views 0,45,90,180,270 -o views.png
       head360 render me.h360 --turntable --frames 96 -o turn.mp4
+      head360 render me.h360 --backend onnx --onnx generator.onnx -o front.png
     """
     import numpy as np
 
@@ -114,7 +159,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     if not turntable and Path(out).suffix.lower() != ".png":
         raise BadInputError(f"expected a .png output for a view, found {out!r} (use "
                             "--turntable for a video)")
-    r = _renderer(head, samples, size, precision)
+    r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
                         progress=_progress_printer())
@@ -158,11 +203,12 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
               show_default=True, help="Bad cells in the stream: stop, drop the row, or "
               "hold the last good value.")
 @_quality_options
+@_backend_options
 @common_options
 def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
             yaw: float, pitch: float, on_bad: str, samples: int | None, size: int | None,
-            precision: str, no_hair: bool) -> None:
+            precision: str, no_hair: bool, backend: str, onnx_path: str) -> None:
     """Drive a head with an ARKit-52 blendshape stream.
 
     Only the mesh is recomputed per frame; frames stream to the encoder, so memory does
@@ -175,6 +221,7 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
       head360 animate me.h360 --arkit take.csv --fps 30 --smooth 0.03 -o talk.mp4
       cat take.csv | head360 animate me.h360 --arkit - -o talk.mp4
       head360 animate me.h360 --arkit take.csv --mesh-sequence frames/
+      head360 animate me.h360 --arkit take.csv --backend onnx --onnx gen.onnx -o talk.mp4
     """
     from head360cli.drive.animate import AnimateConfig
     from head360cli.drive.animate import animate as run
@@ -191,7 +238,9 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
     for warning in stream.warnings:
         _warn(warning)
-    r = _renderer(head, samples or ANIMATE_SAMPLES, size, precision)
+    r = _backend_renderer(head, backend, onnx_path,
+                          samples or (None if backend == "onnx" else ANIMATE_SAMPLES), size,
+                          precision)
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
                         yaw=yaw, pitch=pitch, hair=not no_hair)
     res = run(r, stream, out, cfg, mesh_dir=mesh_dir, progress=_progress_printer())

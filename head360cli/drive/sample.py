@@ -32,7 +32,7 @@ def sample_heads(n: int, seed: int = 0, scale: float = 1.0, bald: bool = False,
     import torch
 
     from head360cli.errors import BadInputError
-    from head360cli.fitting.pipeline import _generator_hash
+    from head360cli.fitting.pipeline import generator_hash
     from head360cli.io.headfile import HeadFile
     from head360cli.mesh.bilinear import load_bilinear
     from head360cli.model.train import load_generator
@@ -48,7 +48,7 @@ def sample_heads(n: int, seed: int = 0, scale: float = 1.0, bald: bool = False,
     code_mean, code_cov = c.mean(0), np.cov(c, rowvar=False)
     rng = np.random.default_rng(seed)
     colours = list(HAIR_COLOURS)
-    model_hash = _generator_hash()
+    model_hash = generator_hash()
     heads = []
     for _ in range(n):
         shape = _gaussian(rng, model.code_mean, model.code_cov, scale)

@@ -137,7 +137,10 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     gen = renderer.gen
     t0 = time.perf_counter()
     files = []
+    from head360cli.fitting.pipeline import generator_hash
+
     meta = {"samples": renderer.samples, "size": renderer.size, "cull": bool(cull),
+            "generator_sha256": generator_hash(),
             "texture_channels": gen.cfg.texture_channels,
             "texture_res": gen.cfg.texture_res}
     own = (gen.cull_rays, gen.hair_rays_only, gen.network_dtype)

@@ -457,7 +457,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     stem = out.with_suffix("")
     paths = {"head": out, "preview": Path(f"{stem}_preview.png"),
              "summary": Path(f"{stem}.json")}
-    model_hash = _generator_hash()
+    model_hash = generator_hash()
     head_file = HeadFile(
         arrays={"shape": fit.shape.astype(np.float32),
                 "expression": fit.expression.astype(np.float32),
@@ -517,7 +517,7 @@ def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
     return 10 * np.log10(1.0 / max(mse, 1e-10))
 
 
-def _generator_hash() -> str:
+def generator_hash() -> str:
     import hashlib
 
     from head360cli.paths import models_dir
@@ -540,7 +540,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
 
-    head = read_head(path, expected_model_hash=_generator_hash())
+    head = read_head(path, expected_model_hash=generator_hash())
     gen, _ = load_generator(device=device)
     a = head.arrays
     return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),

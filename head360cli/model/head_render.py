@@ -72,7 +72,23 @@ class HeadRenderer:
         self._deltas = torch.tensor(deltas.reshape(52, -1), dtype=torch.float32,
                                     device=self.device)
         self.texture = texture.to(self.device)[None]
+        self.runner = None
+        """A frame function that renders instead of the torch generator (see
+        :meth:`use_runner`), or ``None``."""
         self.set_hair(hair_style, hair_colour)
+
+    def use_runner(self, runner) -> None:
+        """Render frames with ``runner`` instead of the torch generator: a callable
+        ``runner(verts (1, V, 3), texture (1, C, R, R), c2w (1, 4, 4), intrinsics
+        (1, 3, 3)[, hair_verts (1, H, 3), hair_faces (G, 3), hair_planes])`` of numpy
+        arrays returning ``rgb (1, 3, S, S)`` in [0, 1], such as
+        :class:`~head360cli.export.onnx.OnnxFrameRunner`. Its image size must be this
+        renderer's (``runner.size``). The meshes still come from :meth:`vertices`, so both
+        backends see the same input."""
+        size = getattr(runner, "size", self.size)
+        if size != self.size:
+            raise ValueError(f"expected a runner for {self.size} px images, found {size}")
+        self.runner = runner
 
     def set_hair(self, hair_style: int, hair_colour: np.ndarray) -> None:
         """Put on another hairstyle and colour (its planes are made once, here)."""
@@ -142,7 +158,24 @@ class HeadRenderer:
             finally:
                 self.gen.network_dtype = own_dtype
 
+    def _runner_frames(self, c2w, weights, k, hair, uint8):
+        tex = self.texture.detach().cpu().numpy()
+        extra = ()
+        if hair and self.hair is not None:
+            hv, hf, _ = self.hair.meshes[0]
+            extra = (hv[None].cpu().numpy(), hf.cpu().numpy(),
+                     self.hair.planes[0].detach().cpu().numpy())
+        kk = k.reshape(1, 3, 3).cpu().numpy()
+        for i in range(len(c2w)):
+            verts = self.vertices(np.asarray(weights[i:i + 1], np.float32)).cpu().numpy()
+            out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
+                                               *extra))
+            yield to_uint8(out) if uint8 else out
+
     def _frames(self, c2w, weights, k, hair, batch, uint8):
+        if self.runner is not None:
+            yield from self._runner_frames(c2w, weights, k, hair, uint8)
+            return
         for i in range(0, len(c2w), batch):
             cams = c2w[i:i + batch].to(self.device)
             n = len(cams)

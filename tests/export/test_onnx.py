@@ -109,3 +109,45 @@ def test_runner_needs_no_torch(exported, tmp_path):
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr[-2000:]
     assert p.stdout.startswith("ok")
+
+
+@pytest.mark.slow
+def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_file, tmp_path):
+    """``render`` and ``animate`` with ``--backend onnx`` give torch's frames (to one
+    8-bit level); samples and size come from the graph, and conflicts are refused."""
+    import imageio.v3 as iio
+
+    from head360cli.io.arkit import ArkitStream, write_arkit_csv
+    from head360cli.mesh.arkit52 import INDEX
+
+    _, out, _ = exported
+    view = ("--yaw", "30", "--pitch", "10", "--expr", "JawOpen=0.7,EyeBlinkLeft=1")
+    a, b = tmp_path / "onnx.png", tmp_path / "torch.png"
+    r = run_cli("render", head_file, *view, "--backend", "onnx", "--onnx", out, "-o", a)
+    assert r.code == 0, r.err
+    assert run_cli("render", head_file, *view, "--samples", "3", "--size", "48",
+                   "--precision", "fp32", "-o", b).code == 0
+    ia, ib = iio.imread(a).astype(int), iio.imread(b).astype(int)
+    assert ia.shape == (48, 48, 3) and np.abs(ia - ib).max() <= 1
+    w = np.zeros((4, 52), np.float32)
+    w[:, INDEX["jawOpen"]] = np.linspace(0, 1, 4)
+    csv = tmp_path / "s.csv"
+    write_arkit_csv(ArkitStream(w, np.arange(4) / 30.0, 30.0), csv)
+    frames = {}
+    for backend in ("onnx", "torch"):
+        d = tmp_path / backend
+        args = ["--samples", "3", "--size", "48", "--precision", "fp32"]
+        r = run_cli("animate", head_file, "--arkit", csv, "-o", d, "--backend", backend,
+                    "--onnx", out, *(args if backend == "torch" else []))
+        assert r.code == 0, r.err
+        frames[backend] = np.stack([iio.imread(p) for p in sorted(d.glob("*.png"))])
+    assert frames["onnx"].shape == (4, 48, 48, 3)
+    assert np.abs(frames["onnx"].astype(int) - frames["torch"]).max() <= 1
+    # the graph fixes samples and size; bf16 does not apply; a missing graph is named
+    assert run_cli("render", head_file, "--backend", "onnx", "--onnx", out, "--size", "64",
+                   "-o", a).code == 3
+    assert run_cli("render", head_file, "--backend", "onnx", "--onnx", out, "--precision",
+                   "bf16", "-o", a).code == 3
+    r = run_cli("render", head_file, "--backend", "onnx", "--onnx", tmp_path / "no.onnx",
+                "-o", a)
+    assert r.code == 3 and "export-onnx" in r.err
