@@ -486,3 +486,111 @@ def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -
                                (lambda t: click.echo(f"bench animate: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "animate")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
+@bench.command("onnx")
+@click.option("--heads", default=100, show_default=True,
+              help="Random heads, expressions and cameras for parity.")
+@click.option("--size", default=256, show_default=True, help="Image size of the graph.")
+@click.option("--samples", default=8, show_default=True, help="Samples per ray.")
+@click.option("--repeats", default=10, show_default=True, help="Timed frames per speed.")
+@click.option("--onnx", "graph", default=None, type=click.Path(dir_okay=False),
+              help="Use this exported graph (default: export one, about 90 s).")
+@click.option("--out", "out_dir", default="bench-results", show_default=True,
+              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+@common_options
+def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, graph: str | None,
+                   out_dir: str) -> None:
+    """onnxruntime against torch: largest difference over random heads, and speed.
+
+    \b
+    Examples:
+      head360 bench onnx
+      head360 bench onnx --heads 10 --size 128 --samples 4
+    """
+    from head360cli.bench.onnx import bench_onnx
+    from head360cli.bench.report import save
+
+    if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000:
+        raise BadInputError(f"expected --heads in 1..10000 and --repeats in 1..1000, found "
+                            f"{heads} and {repeats}")
+    if not 1 <= samples <= 64 or not 32 <= size <= 2048:
+        raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
+                            f"{samples} and {size}")
+    if graph is not None and not Path(graph).is_file():
+        raise BadInputError(f"ONNX graph {graph!r} does not exist")
+    progress = None if _settings().quiet else (lambda t: click.echo(f"bench onnx: {t}",
+                                                                    err=True))
+    result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress)
+    result["files"] = save(result, md, out_dir, "onnx")
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
+@bench.command("summary")
+@click.argument("folder", default="bench-results", type=click.Path(file_okay=False))
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="Where bench.json, bench.md and bench.png go (default: FOLDER).")
+@common_options
+def bench_summary_cmd(folder: str, out_dir: str | None) -> None:
+    """Every stage's speed against error in one table and plot, from the stage results.
+
+    \b
+    Examples:
+      head360 bench summary
+      head360 bench summary bench-results --out docs/bench
+    """
+    from head360cli.bench.summary import summarize
+
+    if not Path(folder).is_dir():
+        raise BadInputError(f"results folder {folder!r} does not exist")
+    result, md = summarize(folder, out_dir)
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
+@bench.command("all")
+@click.option("--out", "out_dir", default="bench-results", show_default=True,
+              type=click.Path(file_okay=False), help="Where every result goes.")
+@click.option("--quick", is_flag=True,
+              help="Small versions of each stage (minutes, not an hour); noisier numbers.")
+@click.option("--skip", multiple=True,
+              type=click.Choice(["fit-shape", "fit", "generator", "animate", "onnx",
+                                 "synth"]), help="Leave a stage out (repeatable).")
+@common_options
+def bench_all_cmd(out_dir: str, quick: bool, skip: tuple[str, ...]) -> None:
+    """Run every stage's benchmark, then the summary table and plot.
+
+    Each stage runs in its own process; one that fails is reported and the others go on
+    (exit status 1 if any failed, after the summary of the rest).
+
+    \b
+    Examples:
+      head360 bench all
+      head360 bench all --quick --out bench-quick
+      head360 bench all --skip generator --skip synth
+    """
+    import subprocess
+    import time
+
+    from head360cli.bench.summary import STAGE_RUNS, summarize
+
+    failed, timings = [], {}
+    for stage, (full, small) in STAGE_RUNS.items():
+        if stage in skip:
+            continue
+        cmd = [sys.executable, "-m", "head360cli", "bench", stage, "--out", out_dir,
+               *(small if quick else full)]
+        if not _settings().quiet:
+            click.echo(f"bench all: {stage}: {' '.join(cmd[3:])}", err=True)
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL if _settings().quiet else None)
+        timings[stage] = round(time.perf_counter() - t0, 1)
+        if done.returncode != 0:
+            failed.append(stage)
+            _warn(f"bench {stage} failed with exit status {done.returncode}")
+    result, md = summarize(out_dir)
+    result.update(failed=failed, seconds=timings)
+    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}"
+          + (f"\nfailed: {', '.join(failed)}" if failed else ""))
+    if failed:
+        sys.exit(1)

@@ -151,3 +151,20 @@ def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_fil
     r = run_cli("render", head_file, "--backend", "onnx", "--onnx", tmp_path / "no.onnx",
                 "-o", a)
     assert r.code == 3 and "export-onnx" in r.err
+
+
+@pytest.mark.slow
+def test_bench_onnx_on_the_exported_graph(exported):
+    """The benchmark's parity rows are real comparisons (tiny: two heads)."""
+    from head360cli.bench.onnx import bench_onnx, random_expression
+
+    _, out, _ = exported
+    result, md = bench_onnx(heads=2, repeats=1, graph=out)
+    assert result["size"] == 48 and result["samples"] == 3
+    assert result["parity"]["all_finite"] and len(result["parity"]["rows"]) == 2
+    assert 0 <= result["parity"]["max_abs_diff"] <= 1e-3
+    backends = {(s["backend"], s["hair"]) for s in result["speed"]}
+    assert {("torch", "yes"), ("onnxruntime", "yes"), ("onnxruntime", "no")} <= backends
+    assert "onnxruntime" in md
+    w = random_expression(np.random.default_rng(0))
+    assert w.shape == (52,) and w.min() >= 0 and w.max() <= 1

@@ -1,0 +1,63 @@
+"""``head360 bench summary`` and ``bench all``: one table and one plot from the stages."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from head360cli.bench.summary import collect, summarize
+
+STAGES = {
+    "fit_shape": {"iterations_sweep": [
+        {"iterations": 4, "fit_ms_median": 3.7, "real_nme_fit_%_yaw0-30": 3.56},
+        {"iterations": 12, "fit_ms_median": 6.0, "real_nme_fit_%_yaw0-30": 3.42}]},
+    "fit": {"sweep": [{"texture_steps": 5, "psnr_face": 21.4, "invert_s": 1.5,
+                       "total_s": 4.0}]},
+    "animate": {"speed": [{"samples": 8, "precision": "fp32", "ms_per_frame": 96.9,
+                           "psnr_vs_32_samples": 38.18}]},
+    "onnx": {"parity": {"max_abs_diff": 4.6e-5},
+             "speed": [{"backend": "torch", "precision": "fp32", "hair": "yes",
+                        "ms_per_frame": 95.6},
+                       {"backend": "onnxruntime", "precision": "fp32", "hair": "yes",
+                        "ms_per_frame": 154.0}]},
+}
+
+
+def test_collect_makes_one_row_per_measured_setting():
+    rows = collect(STAGES)
+    assert [r["stage"] for r in rows] == ["shape fit", "shape fit", "inversion",
+                                          "render (animation)", "torch vs onnxruntime",
+                                          "torch vs onnxruntime"]
+    assert rows[2] == {"stage": "inversion", "setting": "5 texture steps", "ms": 1500.0,
+                       "metric": "face PSNR dB (photo)", "value": 21.4, "better": "higher"}
+    assert rows[-1]["value"] == pytest.approx(4.6e-5) and rows[-2]["value"] == 0.0
+    assert collect({}) == []
+
+
+def test_summarize_writes_table_and_plot(tmp_path):
+    from PIL import Image
+
+    for name, result in STAGES.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(result))
+    result, md = summarize(tmp_path, tmp_path / "out")
+    assert result["stages"] == ["fit_shape", "fit", "animate", "onnx"]
+    assert "| inversion | 5 texture steps | 1500.0 | face PSNR dB (photo) | 21.4 | higher |" in md
+    saved = json.loads((tmp_path / "out" / "bench.json").read_text())
+    assert len(saved["rows"]) == 6
+    img = np.asarray(Image.open(tmp_path / "out" / "bench.png"))
+    assert img.shape == (640, 960, 3)  # four panels: two rows of three
+    assert (img < 128).any() and (img == 255).mean() > 0.5  # drawn, mostly background
+
+
+def test_summary_and_all_on_the_command_line(run_cli, tmp_path):
+    assert run_cli("bench", "summary", tmp_path).code == 3  # no results there
+    (tmp_path / "onnx.json").write_text(json.dumps(STAGES["onnx"]))
+    skip = [a for s in ("fit-shape", "fit", "generator", "animate", "onnx", "synth")
+            for a in ("--skip", s)]
+    r = run_cli("bench", "all", "--out", tmp_path, *skip, "--json")
+    assert r.code == 0, r.err
+    res = json.loads(r.out)
+    assert res["failed"] == [] and res["stages"] == ["onnx"]
+    assert (tmp_path / "bench.md").is_file() and (tmp_path / "bench.png").is_file()
