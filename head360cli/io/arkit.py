@@ -681,6 +681,24 @@ def _timecode(seconds: float, fps: float) -> str:
     return f"{h:02d}:{m:02d}:{s:02d}:{ff:02d}.{round(frac * 1000):03d}"
 
 
+def _timecode_rate(timestamps: np.ndarray, fps: float) -> float:
+    """The frame rate to number Live Link Face timecodes at, so that reading them back
+    gives the same times: a reader infers the rate from the largest frame number (the
+    next standard rate above it), so a stream at a non-standard rate (10 frames per
+    second, say) is numbered at the first standard rate that this inference recovers
+    (timecodes carry fractions of a frame, so nothing is rounded away)."""
+    if fps in STANDARD_RATES or len(timestamps) == 0:
+        return fps
+    frac = np.asarray(timestamps, np.float64) % 1.0
+    for rate in STANDARD_RATES:
+        if rate < fps:
+            continue
+        top = int(np.floor(frac * rate + 1e-9).max())
+        if next((r for r in STANDARD_RATES if r > top), None) == rate:
+            return rate
+    return fps  # too short to tell: a reader needs the rate given (read_arkit_csv fps=)
+
+
 def write_arkit_csv(
     stream: ArkitStream,
     target: str | Path | IO[str],
@@ -714,9 +732,10 @@ def write_arkit_csv(
             rot[:, :3] = head
         if eyes is not None:
             rot[:, 3:] = eyes
+        rate = _timecode_rate(start_seconds + stream.timestamps, fps)
         rows = (
             [
-                _timecode(start_seconds + float(stream.timestamps[i]), fps),
+                _timecode(start_seconds + float(stream.timestamps[i]), rate),
                 "61",
                 *(fmt.format(v) for v in stream.weights[i, order]),
                 *(fmt.format(v) for v in rot[i]),

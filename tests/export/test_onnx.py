@@ -39,6 +39,13 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
         assert got.shape == (1, 3, 48, 48) and np.isfinite(got).all()
         worst = max(worst, float(np.abs(got - ref).max()))
     assert worst <= 1e-3
+    # a camera whose rays all miss: the graph's culled ray set is empty but for ray 0
+    from tests.hard.test_named_cases import looking_away
+
+    away, k = looking_away(), view_intrinsics(48)
+    got = runner.render(inputs, np.zeros(52), away.numpy(), k.numpy())
+    assert np.isfinite(got).all() and got.min() > 0.97
+    assert np.abs(got - r.render(away, k, np.zeros(52)).numpy()).max() <= 1e-3
     # one graph for every hairstyle: another style's mesh, padded, renders like torch
     other = r.with_hair(9 if r.hair_style != 9 else 17, r.hair_colour)
     cam, k = view_cameras(20.0, 5.0), view_intrinsics(48)
