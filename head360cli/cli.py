@@ -623,7 +623,9 @@ def bench() -> None:
 
     \b
     Examples:
-      head360 bench synth                    renderer speed and a 100-identity corpus
+      head360 bench all                      every stage, then bench.md and bench.png
+      head360 bench all --quick              the same, small (minutes)
+      head360 bench summary                  the table and plot from results already there
       head360 bench synth -n 10 --out bench/
     """
 
