@@ -267,7 +267,7 @@ def _markdown(r: dict[str, Any]) -> str:
               for s in r["speed"]]
     f = r["fidelity"]
     lines += ["", "## Expression fidelity (dlib landmarks on frames)", "",
-              f"{f['faces_found']} of {f['frames']} frames (every {f['stride']}th) with a "
+              f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}) with a "
               "face found.", "", "| weight | image measure | correlation |", "|---|---|---|",
               f"| jawOpen | mouth opening | {f['jaw_open_vs_mouth_opening']} |",
               f"| eyeBlinkRight | left image eye opening | "

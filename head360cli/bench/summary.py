@@ -58,7 +58,7 @@ def collect(results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
         for s in r.get("sweep", []):
             setting = f"{s['samples']} samples, planes {s['plane_res']}"
             rows.append(_row("render (generator)", setting, s["ms_hair"],
-                             "PSNR dB vs ground truth (held-out views)", s["psnr_hair"],
+                             "PSNR dB vs ground truth, with hair", s["psnr_hair"],
                              "higher"))
     r = results.get("animate")
     if r:
@@ -123,7 +123,11 @@ def plot(rows: list[dict[str, Any]], path: str | Path, panel: int = 320) -> None
             while any(abs(ty - qy) < 11 and abs(px - qx) < 110 for qx, qy in placed):
                 ty += 12  # move the label below one it would overwrite
             placed.append((px, ty))
-            draw.text((px + 6, ty), label[:22], fill=(60, 60, 60))
+            text = label[:22]
+            tx = px + 6
+            if tx + draw.textlength(text) > ox + panel - 2:  # would leave the panel
+                tx = px - 6 - draw.textlength(text)
+            draw.text((tx, ty), text, fill=(60, 60, 60))
         draw.text((x0, y1 + 6), f"{10 ** xa:.3g} ms", fill="black")
         draw.text((x1 - 60, y1 + 6), f"{10 ** xb:.3g} ms", fill="black")
         draw.text((ox + 4, y0), f"{yb:.3g}", fill="black")
