@@ -19,7 +19,8 @@ code  exception              meaning
                              unsupported version or unsafe (pickles)
 6     ModelMismatchError     a file was made with another model than the one
                              loaded, or a checkpoint's config does not fit
-7     ModelNotFoundError     a model file the command needs is not installed
+7     ModelNotFoundError     a model file or an optional package the command
+                             needs is not installed
 130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
 ====  =====================  ==================================================
 """
@@ -76,7 +77,7 @@ class ModelMismatchError(Head360Error):
 
 
 class ModelNotFoundError(Head360Error, FileNotFoundError):
-    """A model file needed by the command is not installed."""
+    """A model file or an optional package needed by the command is not installed."""
 
     exit_code = 7
 

@@ -120,12 +120,19 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     Returns:
         ``{"files": [...], "seconds": ..., "samples": ..., "size": ...}``.
     """
+    import importlib.util
+
     import torch
 
-    from head360cli.errors import BadInputError
+    from head360cli.errors import BadInputError, ModelNotFoundError
     from head360cli.geometry.rasterize import static_windows
     from head360cli.io.atomic import atomic_path
 
+    missing = [m for m in ("onnx", "onnxscript") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ModelNotFoundError(f"exporting needs the optional packages onnx and "
+                                 f"onnxscript, found {', '.join(missing)} missing: pip "
+                                 f"install 'head360[export]'")
     out = Path(out)
     if out.suffix.lower() != ".onnx":
         raise BadInputError(f"expected an .onnx output, found {out.name!r}")

@@ -175,3 +175,15 @@ def test_bench_onnx_on_the_exported_graph(exported):
     assert "onnxruntime" in md
     w = random_expression(np.random.default_rng(0))
     assert w.shape == (52,) and w.min() >= 0 and w.max() <= 1
+
+
+def test_export_without_the_export_extra_says_what_to_install(run_cli, monkeypatch,
+                                                              tmp_path):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "onnxscript" else real(name, *a))
+    r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "g.onnx")
+    assert r.code == 7 and "head360[export]" in r.err
+    assert not (tmp_path / "g.onnx").exists()
