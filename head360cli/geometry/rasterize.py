@@ -191,10 +191,13 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         face_id = face_id.scatter_reduce(0, pix[win], face[win], reduce="amax",
                                          include_self=True)
 
+    if static:  # every pixel, then masked: no data-dependent (possibly empty) index sets
+        return _dense_fragments(face_id, tri, tri_z, area, b, height, width,
+                                perspective_correct)
     fg = torch.nonzero(face_id >= 0, as_tuple=True)[0]
     bary = torch.zeros(b * hw, 3, dtype=dtype, device=device)
     zout = torch.zeros(b * hw, dtype=dtype, device=device)
-    if static or fg.numel():
+    if fg.numel():
         fb = fg // hw
         rem = fg % hw
         cy = (rem // width).to(dtype) + 0.5
@@ -218,6 +221,37 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         bary=bary.view(b, height, width, 3),
         depth=zout.view(b, height, width),
     )
+
+
+def _dense_fragments(face_id, tri, tri_z, area, b, height, width, perspective_correct):
+    """The fragments of :func:`rasterize` computed at every pixel and masked where no
+    triangle is visible: the same element-wise formulas (so the same values), with no
+    index set that can be empty (onnxruntime's ScatterND refused an empty update)."""
+    hw = height * width
+    dtype = tri.dtype
+    covered = face_id >= 0
+    f = face_id.clamp_min(0)
+    pix = torch.arange(b * hw, device=tri.device)
+    fb, rem = pix // hw, pix % hw
+    cy = (rem // width).to(dtype) + 0.5
+    cx = (rem % width).to(dtype) + 0.5
+    a = area[fb, f]
+    a = torch.where(covered, a, torch.ones_like(a))  # no 0/0 where nothing is drawn
+    w0, w1, w2 = _barycentric(tri[fb, f], cx, cy, a)
+    w = torch.stack([w0, w1, w2], dim=-1).clamp(0.0, 1.0)
+    w = w / w.sum(-1, keepdim=True).clamp_min(1e-12)
+    tz = tri_z[fb, f]
+    if perspective_correct:
+        tz = torch.where(covered[:, None], tz, torch.ones_like(tz))
+        wz = w / tz
+        zf = 1.0 / wz.sum(-1)
+        w = wz * zf[:, None]
+    else:
+        zf = (w * tz).sum(-1)
+    bary = torch.where(covered[:, None], w, torch.zeros_like(w))
+    zout = torch.where(covered, zf, torch.zeros_like(zf))
+    return Fragments(face_id=face_id.view(b, height, width),
+                     bary=bary.view(b, height, width, 3), depth=zout.view(b, height, width))
 
 
 def interpolate(attr: torch.Tensor, faces: torch.Tensor, frags: Fragments) -> torch.Tensor:

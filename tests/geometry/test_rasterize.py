@@ -189,6 +189,10 @@ def test_static_windows_give_the_same_fragments():
     assert torch.equal(a.face_id, b.face_id)
     torch.testing.assert_close(a.bary, b.bary, atol=1e-6, rtol=0)
     torch.testing.assert_close(a.depth, b.depth, atol=1e-6, rtol=0)
+    with static_windows():  # nothing on screen: empty, finite, no index set to fail on
+        empty = rasterize(screen + 1000, depth, faces, 40, 40)
+    assert (empty.face_id == -1).all() and (empty.depth == 0).all()
+    assert torch.isfinite(empty.bary).all()
     with static_windows((1, 2, 4)):
         small = rasterize(screen, depth, faces, 40, 40)
     assert (small.face_id >= 0).sum() < (a.face_id >= 0).sum()
