@@ -268,7 +268,7 @@ class Generator(nn.Module):
                  if jitter else None)
         points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise)
         if self.cull_rays:  # decode only the rays that pass near a surface
-            order, kept = near_rays(near)
+            order, _ = near_rays(near)
             points = torch.gather(points, 1, order[..., None, None].expand(
                 -1, -1, c.samples, 3))
         kept_rays = points.shape[1]
@@ -310,15 +310,20 @@ class Generator(nn.Module):
         colour = torch.cat([colour, hair_part[..., None]], -1)
         density = density.view(b, kept_rays, c.samples)
         colour = colour.view(b, kept_rays, c.samples, -1)
-        if self.cull_rays:  # back to every ray; the others carry no weight
-            density = torch.zeros(b, rays, c.samples, dtype=density.dtype,
-                                  device=density.device).scatter(
-                1, order[..., None].expand(-1, -1, c.samples), density * kept[..., None])
-            colour = torch.zeros(b, rays, *colour.shape[2:], dtype=colour.dtype,
-                                 device=colour.device).scatter(
-                1, order[..., None, None].expand(-1, -1, *colour.shape[2:]),
-                colour * kept[..., None, None])
-        image, alpha, depth_low = composite(density, colour, depths, near, c.shell)
+        if self.cull_rays:
+            # composite the kept rays, then put them back among every ray: the others
+            # (and a kept ray that is not near, see near_rays) carry no weight, so they
+            # composite to zero, exactly what the zeros they get here are
+            image, alpha, depth_low = composite(
+                density, colour, torch.gather(depths, 1, order[..., None].expand(
+                    -1, -1, c.samples)), torch.gather(near, 1, order), c.shell)
+            image = torch.zeros(b, rays, image.shape[-1], dtype=image.dtype,
+                                device=image.device).scatter(
+                1, order[..., None].expand(-1, -1, image.shape[-1]), image)
+            alpha, depth_low = (torch.zeros(b, rays, dtype=v.dtype, device=v.device)
+                                .scatter(1, order, v) for v in (alpha, depth_low))
+        else:
+            image, alpha, depth_low = composite(density, colour, depths, near, c.shell)
         shape = (b, c.render_res, c.render_res)
         image = image.transpose(1, 2).reshape(b, -1, *shape[1:])
         image, hair_low = image[:, :-1], image[:, -1:]

@@ -87,14 +87,16 @@ def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
                       perspective_correct=False, near=float("-inf"))
     corner_uv = uv[faces_uv]  # (F, 3, 2)
     uvs = interpolate_face_corners(corner_uv, frags)  # (BP, res, res, 2)
-    tex = texture.repeat_interleave(p, 0)
-    feat = F.grid_sample(tex, uvs * 2.0 - 1.0, mode="bilinear", padding_mode="border",
-                         align_corners=False)  # (BP, C, res, res)
-    mask = frags.mask.to(feat.dtype)
-    feat = feat * mask[:, None]
-    surface = -frags.depth * mask
-    out = torch.cat([feat, surface[:, None], mask[:, None]], 1)
-    return out.view(b, p, -1, res, res)
+    # One texture read by all P planes at once: the grids stacked into one tall grid
+    # (the same values as sampling P copies of the texture, without making the copies)
+    grid = (uvs * 2.0 - 1.0).reshape(b, p * res, res, 2)
+    feat = F.grid_sample(texture, grid, mode="bilinear", padding_mode="border",
+                         align_corners=False)  # (B, C, P res, res)
+    feat = feat.view(b, -1, p, res, res)
+    mask = frags.mask.to(feat.dtype).view(b, 1, p, res, res)
+    surface = -frags.depth.view(b, 1, p, res, res) * mask
+    out = torch.cat([feat * mask, surface, mask], 1)  # (B, C + 2, P, res, res)
+    return out.transpose(1, 2).contiguous()
 
 
 def sample_planes(points: torch.Tensor, planes: torch.Tensor, names: tuple[str, ...],
@@ -120,7 +122,7 @@ def sample_planes(points: torch.Tensor, planes: torch.Tensor, names: tuple[str, 
     grid = uv.reshape(b * p, n, 1, 2)
     got = F.grid_sample(planes.reshape(b * p, c2, r, r), grid, mode="bilinear",
                         padding_mode="zeros", align_corners=False)  # (BP, C+2, N, 1)
-    got = got[..., 0].view(b, p, c2, n)
+    got = got.view(b, p, c2, n)  # a reshape, not a select: no copy in onnxruntime
     feat, surface, cover = got[:, :, :-2], got[:, :, -2], got[:, :, -1]
     # Coverage blends towards 0 at silhouettes; the surface height there is blended with
     # 0 too, so divide it back out where coverage is partial.
