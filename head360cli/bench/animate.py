@@ -7,7 +7,8 @@ The head is the astronaut photo that ships with scikit-image, fitted with the fa
 - Throughput: frames per second of 256 x 256 frames from the stream's weights, for samples
   per ray and float32/bfloat16 networks, with the PSNR of each against a 32-sample float32
   render of the same frames (the converged answer), and the CLI's own frames per second
-  with the video encoder.
+  with the video encoder; and against image size (128 to 512 pixels), scored at its own
+  size and, upsampled, against the 512-pixel converged render.
 - Peak memory: the resident set of a ``head360 animate`` process that renders a whole
   capture, against one that renders its first 10 seconds.
 - Expression fidelity: dlib's 68 landmarks on animated frames; the correlation of mouth
@@ -106,6 +107,55 @@ def _speed(head: Path, weights: np.ndarray) -> list[dict[str, Any]]:
                          "fps": round(len(weights) / seconds, 2),
                          "ms_per_frame": round(1000 * seconds / len(weights), 1),
                          "psnr_vs_32_samples": round(_psnr(frames(r, pick), ref), 2)})
+    return rows
+
+
+RESOLUTION_SIZES = (128, 256, 384, 512)
+"""Image sizes of the resolution sweep (multiples of the generator's upsampling ratio)."""
+
+
+def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
+                samples: int = 8) -> list[dict[str, Any]]:
+    """Frames per second and error against image size at the animation defaults.
+
+    Each size is scored twice against 32-sample float32 renders of the same frames: at its
+    own size (the sampling error) and, bilinearly upsampled, against the largest size
+    (what rendering fewer pixels loses)."""
+    import torch
+    import torch.nn.functional as F
+
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    pick = np.linspace(0, len(weights) - 1, 4).astype(int)
+    top = max(sizes)
+
+    def frames(r, size, idx):
+        cams = view_cameras(0.0, 0.0).expand(len(idx), 4, 4)
+        return torch.cat([torch.as_tensor(f) for f in r.frames(
+            cams, weights[idx], view_intrinsics(size), uint8=False)])
+
+    def up(x):  # (N, 3, S, S) -> (N, 3, top, top)
+        return F.interpolate(x, size=(top, top), mode="bilinear", align_corners=False)
+
+    refs = {size: frames(load_head_renderer(head, samples=32, size=size, precision="fp32"),
+                         size, pick) for size in sizes}
+    rows = []
+    for size in sizes:
+        r = load_head_renderer(head, samples=samples, size=size)
+        cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
+        k = view_intrinsics(size)
+        list(r.frames(cams[:2], weights[:2], k))  # warm up
+        t0 = time.perf_counter()
+        for _ in r.frames(cams, weights, k):
+            pass
+        seconds = time.perf_counter() - t0
+        got = frames(r, size, pick)
+        rows.append({"size": size, "samples": samples, "precision": r.precision,
+                     "fps": round(len(weights) / seconds, 2),
+                     "ms_per_frame": round(1000 * seconds / len(weights), 1),
+                     "psnr_vs_32_samples_same_size": round(_psnr(got, refs[size]), 2),
+                     f"psnr_vs_32_samples_{top}px": round(_psnr(up(got), refs[top]), 2)})
     return rows
 
 
@@ -245,6 +295,8 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         head = work / "astronaut.h360"
         say("throughput against samples and precision")
         result["speed"] = _speed(head, stream.weights[:frames])
+        say("throughput and error against image size")
+        result["resolution"] = _resolution(head, stream.weights[:frames])
         say("expression fidelity (dlib landmarks on frames)")
         result["fidelity"] = _fidelity(head, stream, stride)
         say("hair swap: face before and after")
@@ -265,6 +317,14 @@ def _markdown(r: dict[str, Any]) -> str:
     lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
               f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples']:.2f} |"
               for s in r["speed"]]
+    if "resolution" in r:
+        top = max(s["size"] for s in r["resolution"])
+        lines += ["", "## Throughput and error against image size (render only)", "",
+                  f"| size | samples | networks | frames/s | ms/frame | PSNR vs 32 samples, "
+                  f"same size | PSNR vs 32 samples at {top} px |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {s['size']} | {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
+                  f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples_same_size']:.2f} | "
+                  f"{s[f'psnr_vs_32_samples_{top}px']:.2f} |" for s in r["resolution"]]
     f = r["fidelity"]
     lines += ["", "## Expression fidelity (dlib landmarks on frames)", "",
               f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}) with a "

@@ -66,6 +66,12 @@ def collect(results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
             rows.append(_row("render (animation)", f"{s['samples']} samples, {s['precision']}",
                              s["ms_per_frame"], "PSNR dB vs 32 samples",
                              s["psnr_vs_32_samples"], "higher"))
+        for s in r.get("resolution", []):
+            top = max(x["size"] for x in r["resolution"])
+            rows.append(_row("render (image size)", f"{s['size']} px, {s['samples']} samples, "
+                             f"{s['precision']}", s["ms_per_frame"],
+                             f"PSNR dB vs 32 samples at {top} px",
+                             s[f"psnr_vs_32_samples_{top}px"], "higher"))
     r = results.get("onnx")
     if r:
         worst = r["parity"]["max_abs_diff"]

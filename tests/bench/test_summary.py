@@ -36,6 +36,18 @@ def test_collect_makes_one_row_per_measured_setting():
     assert collect({}) == []
 
 
+def test_collect_reads_the_image_size_sweep():
+    sweep = [{"size": 128, "samples": 8, "precision": "bf16", "ms_per_frame": 30.0,
+              "psnr_vs_32_samples_same_size": 38.0, "psnr_vs_32_samples_512px": 24.1},
+             {"size": 512, "samples": 8, "precision": "bf16", "ms_per_frame": 300.0,
+              "psnr_vs_32_samples_same_size": 37.5, "psnr_vs_32_samples_512px": 37.5}]
+    rows = collect({"animate": {"speed": [], "resolution": sweep}})
+    assert [(r["stage"], r["setting"], r["ms"], r["value"]) for r in rows] == [
+        ("render (image size)", "128 px, 8 samples, bf16", 30.0, 24.1),
+        ("render (image size)", "512 px, 8 samples, bf16", 300.0, 37.5)]
+    assert rows[0]["metric"] == "PSNR dB vs 32 samples at 512 px"
+
+
 def test_summarize_writes_table_and_plot(tmp_path):
     from PIL import Image
 
