@@ -198,22 +198,8 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     bary = torch.zeros(b * hw, 3, dtype=dtype, device=device)
     zout = torch.zeros(b * hw, dtype=dtype, device=device)
     if fg.numel():
-        fb = fg // hw
-        rem = fg % hw
-        cy = (rem // width).to(dtype) + 0.5
-        cx = (rem % width).to(dtype) + 0.5
-        f = face_id[fg]
-        t = tri[fb, f]  # (n, 3, 2), differentiable w.r.t. screen
-        w0, w1, w2 = _barycentric(t, cx, cy, area[fb, f])
-        w = torch.stack([w0, w1, w2], dim=-1).clamp(0.0, 1.0)
-        w = w / w.sum(-1, keepdim=True).clamp_min(1e-12)
-        tz = tri_z[fb, f]
-        if perspective_correct:
-            wz = w / tz
-            zf = 1.0 / wz.sum(-1)
-            w = wz * zf[:, None]
-        else:
-            zf = (w * tz).sum(-1)
+        w, zf = _surface_at(fg, face_id[fg], tri, tri_z, area, hw, width,
+                            perspective_correct)
         bary = bary.index_put((fg,), w)
         zout = zout.index_put((fg,), zf)
     return Fragments(
@@ -223,31 +209,43 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     )
 
 
-def _dense_fragments(face_id, tri, tri_z, area, b, height, width, perspective_correct):
-    """The fragments of :func:`rasterize` computed at every pixel and masked where no
-    triangle is visible: the same element-wise formulas (so the same values), with no
-    index set that can be empty (onnxruntime's ScatterND refused an empty update)."""
-    hw = height * width
+def _surface_at(pix: torch.Tensor, f: torch.Tensor, tri: torch.Tensor,
+                tri_z: torch.Tensor, area: torch.Tensor, hw: int, width: int,
+                perspective_correct: bool, covered: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Barycentrics ``(n, 3)`` and depth ``(n,)`` of triangle ``f[i]`` at the centre of
+    flat pixel ``pix[i]`` (``batch * H W + row * W + column``), recomputed from the
+    triangle so they are differentiable. Where ``covered`` is False the area and depths
+    are taken as 1 (no 0/0; the caller masks those pixels)."""
     dtype = tri.dtype
-    covered = face_id >= 0
-    f = face_id.clamp_min(0)
-    pix = torch.arange(b * hw, device=tri.device)
     fb, rem = pix // hw, pix % hw
     cy = (rem // width).to(dtype) + 0.5
     cx = (rem % width).to(dtype) + 0.5
     a = area[fb, f]
-    a = torch.where(covered, a, torch.ones_like(a))  # no 0/0 where nothing is drawn
+    tz = tri_z[fb, f]
+    if covered is not None:
+        a = torch.where(covered, a, torch.ones_like(a))
+        tz = torch.where(covered[:, None], tz, torch.ones_like(tz))
     w0, w1, w2 = _barycentric(tri[fb, f], cx, cy, a)
     w = torch.stack([w0, w1, w2], dim=-1).clamp(0.0, 1.0)
     w = w / w.sum(-1, keepdim=True).clamp_min(1e-12)
-    tz = tri_z[fb, f]
     if perspective_correct:
-        tz = torch.where(covered[:, None], tz, torch.ones_like(tz))
         wz = w / tz
         zf = 1.0 / wz.sum(-1)
-        w = wz * zf[:, None]
-    else:
-        zf = (w * tz).sum(-1)
+        return wz * zf[:, None], zf
+    return w, (w * tz).sum(-1)
+
+
+def _dense_fragments(face_id, tri, tri_z, area, b, height, width, perspective_correct):
+    """The fragments of :func:`rasterize` computed at every pixel and masked where no
+    triangle is visible: the same formulas (:func:`_surface_at`, so the same values),
+    with no index set that can be empty (onnxruntime's ScatterND refused an empty
+    update)."""
+    hw = height * width
+    covered = face_id >= 0
+    pix = torch.arange(b * hw, device=tri.device)
+    w, zf = _surface_at(pix, face_id.clamp_min(0), tri, tri_z, area, hw, width,
+                        perspective_correct, covered)
     bary = torch.where(covered[:, None], w, torch.zeros_like(w))
     zout = torch.where(covered, zf, torch.zeros_like(zf))
     return Fragments(face_id=face_id.view(b, height, width),
