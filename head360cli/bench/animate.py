@@ -79,34 +79,44 @@ def _psnr(a, b) -> float:
     return 10 * np.log10(1 / max(mse, 1e-12))
 
 
-def _speed(head: Path, weights: np.ndarray) -> list[dict[str, Any]]:
+def _render(r, weights: np.ndarray, size: int):
+    """``(N, 3, S, S)`` float frames of ``weights`` seen from the front."""
     import torch
 
     from head360cli.drive.views import view_cameras, view_intrinsics
+
+    cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
+    return torch.cat([torch.as_tensor(f) for f in
+                      r.frames(cams, weights, view_intrinsics(size), uint8=False)])
+
+
+def _timed(r, weights: np.ndarray, size: int) -> dict[str, float]:
+    """Frames per second of rendering ``weights`` (after two warm-up frames)."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
+    k = view_intrinsics(size)
+    list(r.frames(cams[:2], weights[:2], k))  # warm up
+    t0 = time.perf_counter()
+    for _ in r.frames(cams, weights, k):
+        pass
+    seconds = time.perf_counter() - t0
+    return {"fps": round(len(weights) / seconds, 2),
+            "ms_per_frame": round(1000 * seconds / len(weights), 1)}
+
+
+def _speed(head: Path, weights: np.ndarray) -> list[dict[str, Any]]:
     from head360cli.fitting.pipeline import load_head_renderer
 
-    k = view_intrinsics(256)
-    cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
-    pick = np.linspace(0, len(weights) - 1, 8).astype(int)
-
-    def frames(r, idx):
-        return torch.cat([torch.as_tensor(f) for f in
-                          r.frames(cams[idx], weights[idx], k, uint8=False)])
-
-    ref = frames(load_head_renderer(head, samples=32, precision="fp32"), pick)
+    pick = weights[np.linspace(0, len(weights) - 1, 8).astype(int)]
+    ref = _render(load_head_renderer(head, samples=32, precision="fp32"), pick, 256)
     rows = []
     for samples in (6, 8, 12):
         for precision in ("fp32", "bf16"):
             r = load_head_renderer(head, samples=samples, precision=precision)
-            list(r.frames(cams[:2], weights[:2], k))  # warm up
-            t0 = time.perf_counter()
-            for _ in r.frames(cams, weights, k):
-                pass
-            seconds = time.perf_counter() - t0
             rows.append({"samples": samples, "precision": precision,
-                         "fps": round(len(weights) / seconds, 2),
-                         "ms_per_frame": round(1000 * seconds / len(weights), 1),
-                         "psnr_vs_32_samples": round(_psnr(frames(r, pick), ref), 2)})
+                         **_timed(r, weights, 256),
+                         "psnr_vs_32_samples": round(_psnr(_render(r, pick, 256), ref), 2)})
     return rows
 
 
@@ -121,41 +131,23 @@ def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
     Each size is scored twice against 32-sample float32 renders of the same frames: at its
     own size (the sampling error) and, bilinearly upsampled, against the largest size
     (what rendering fewer pixels loses)."""
-    import torch
     import torch.nn.functional as F
 
-    from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.fitting.pipeline import load_head_renderer
 
-    pick = np.linspace(0, len(weights) - 1, 4).astype(int)
+    pick = weights[np.linspace(0, len(weights) - 1, 4).astype(int)]
     top = max(sizes)
-
-    def frames(r, size, idx):
-        cams = view_cameras(0.0, 0.0).expand(len(idx), 4, 4)
-        return torch.cat([torch.as_tensor(f) for f in r.frames(
-            cams, weights[idx], view_intrinsics(size), uint8=False)])
-
-    def up(x):  # (N, 3, S, S) -> (N, 3, top, top)
-        return F.interpolate(x, size=(top, top), mode="bilinear", align_corners=False)
-
-    refs = {size: frames(load_head_renderer(head, samples=32, size=size, precision="fp32"),
-                         size, pick) for size in sizes}
+    refs = {size: _render(load_head_renderer(head, samples=32, size=size, precision="fp32"),
+                          pick, size) for size in sizes}
     rows = []
     for size in sizes:
         r = load_head_renderer(head, samples=samples, size=size)
-        cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
-        k = view_intrinsics(size)
-        list(r.frames(cams[:2], weights[:2], k))  # warm up
-        t0 = time.perf_counter()
-        for _ in r.frames(cams, weights, k):
-            pass
-        seconds = time.perf_counter() - t0
-        got = frames(r, size, pick)
+        got = _render(r, pick, size)
+        up = F.interpolate(got, size=(top, top), mode="bilinear", align_corners=False)
         rows.append({"size": size, "samples": samples, "precision": r.precision,
-                     "fps": round(len(weights) / seconds, 2),
-                     "ms_per_frame": round(1000 * seconds / len(weights), 1),
+                     **_timed(r, weights, size),
                      "psnr_vs_32_samples_same_size": round(_psnr(got, refs[size]), 2),
-                     f"psnr_vs_32_samples_{top}px": round(_psnr(up(got), refs[top]), 2)})
+                     f"psnr_vs_32_samples_{top}px": round(_psnr(up, refs[top]), 2)})
     return rows
 
 

@@ -66,8 +66,9 @@ def collect(results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
             rows.append(_row("render (animation)", f"{s['samples']} samples, {s['precision']}",
                              s["ms_per_frame"], "PSNR dB vs 32 samples",
                              s["psnr_vs_32_samples"], "higher"))
-        for s in r.get("resolution", []):
-            top = max(x["size"] for x in r["resolution"])
+        sweep = r.get("resolution", [])
+        top = max((s["size"] for s in sweep), default=0)
+        for s in sweep:
             rows.append(_row("render (image size)", f"{s['size']} px, {s['samples']} samples, "
                              f"{s['precision']}", s["ms_per_frame"],
                              f"PSNR dB vs 32 samples at {top} px",
