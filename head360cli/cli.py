@@ -340,9 +340,12 @@ def _progress_printer():
 @click.option("--focal", type=float, default=None,
               help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
               "lens).")
+@click.option("--distance", type=float, default=None,
+              help="The camera's distance to the head in metres, when known (a rig): fixes "
+              "the head's size, which landmarks alone hardly tell from its distance.")
 @common_options
 def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
-        face: str, detector: str, focal: float | None) -> None:
+        face: str, detector: str, focal: float | None, distance: float | None) -> None:
     """Fit a head to a photo.
 
     Every stage: face and landmarks, shape fit, hair parsing, hairstyle and hair colour,
@@ -394,7 +397,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     target = out or f"{Path(photo).stem}.h360"
     result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
                        focal=focal, device=str(resolve_device(_settings().device)),
-                       hair_style=style, progress=_progress_printer())
+                       hair_style=style, distance=distance, progress=_progress_printer())
     for warning in result["warnings"]:
         _warn(warning)
     t = result["timings"]

@@ -179,7 +179,8 @@ PROFILE_YAW = 60.0
 
 
 def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | None,
-                 timings: dict[str, float], warnings: list[str] | None = None):
+                 timings: dict[str, float], warnings: list[str] | None = None,
+                 distance: float | None = None):
     """Load, detect and fit the shape; returns ``(image, found face, fit, model)``.
 
     Warnings for the user (several faces, a small face, a greyscale photo, a profile view)
@@ -228,7 +229,8 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     t0 = time.perf_counter()
     full_w, full_h = img.source_size
     f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
-    fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale)
+    fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale,
+                                 distance=distance)
     timings["shape"] = time.perf_counter() - t0
     yaw = fit.euler_degrees()["yaw"]
     if abs(yaw) > PROFILE_YAW:
@@ -343,7 +345,7 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
 
 def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,
               detector: str = "hog", focal: float | None = None, device: str = "cpu",
-              hair_style: int | None = None,
+              hair_style: int | None = None, distance: float | None = None,
               progress: Any = None) -> dict[str, Any]:
     """``head360 fit``: every stage, from a photo to a head file.
 
@@ -361,6 +363,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         focal: Focal length in pixels of the photo on disk (default: EXIF or 50 mm).
         device: Torch device for the generator.
         hair_style: Force a hairstyle id instead of the classifier's choice.
+        distance: The camera's distance to the head in metres, when known (fixes the
+            head's size; see :meth:`~head360cli.fitting.shape.ShapeFitter.fit`).
         progress: Callable ``(stage, step, total)`` for progress display.
 
     Returns:
@@ -393,7 +397,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     warnings: list[str] = []
     t_all = time.perf_counter()
     say("shape", 0, 1)
-    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings, warnings)
+    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings, warnings,
+                                          distance)
     t0 = time.perf_counter()
     gen, codes = load_generator(device=device)
     res = gen.cfg.image_res

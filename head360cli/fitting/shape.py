@@ -337,7 +337,8 @@ class ShapeFitter:
 
     # ----------------------------------------------------------------- public
     def fit(self, landmarks2d: np.ndarray, image_size: tuple[int, int],
-            focal: float | None = None, weights: np.ndarray | None = None) -> ShapeFit:
+            focal: float | None = None, weights: np.ndarray | None = None,
+            distance: float | None = None) -> ShapeFit:
         """Fit pose, identity and expression to 68 landmarks.
 
         Args:
@@ -346,14 +347,23 @@ class ShapeFitter:
             focal: Focal length in pixels (default :func:`default_focal`).
             weights: ``(68,)`` non-negative weight per landmark (default all 1); a zero
                 leaves a landmark out of the fit (it is still reported as fitted).
+            distance: The camera's distance in metres to the head's centre
+                (:data:`~head360cli.geometry.cameras.RIG_TARGET` in model axes), when
+                known. Landmarks alone hardly tell a small head near the camera from a
+                large one further away (the perspective cue is weak at a metre); a known
+                distance fixes the head's size. ``None``: free.
 
         Raises:
             BadInputError: Landmarks of the wrong shape, non-finite, or degenerate (all in
-                one point, on one line, or spanning fewer than 8 pixels).
+                one point, on one line, or spanning fewer than 8 pixels), or a distance
+                that is not a positive number.
         """
         t0 = time.perf_counter()
         uv_in = np.asarray(landmarks2d, dtype=np.float64)
         self._check(uv_in)
+        if distance is not None and not (np.isfinite(distance) and distance > 0):
+            raise BadInputError(f"expected a positive camera distance in metres, found "
+                                f"{distance}")
         sw = self._check_weights(weights)[self.order]
         uv = uv_in[self.order]  # solver order: fixed points, then the sliding jawline
         width, height = image_size
@@ -371,6 +381,7 @@ class ShapeFitter:
         inner = used[(used < nf) & np.isin(self.order[used], np.arange(17, 68))]
         pts = blocks["a0"] + _mv(blocks["b0"], s)
         rot, t = self._pose(pts[inner], uv[inner], f, centre)
+        t = self._at_distance(rot, t, distance)
         timings = {"pose": 0.0, "identity": 0.0, "expression": 0.0, "contour": 0.0}
         ew = np.ones(52)
         for _ in range(cfg.iterations):
@@ -412,6 +423,7 @@ class ShapeFitter:
             tp = time.perf_counter()
             pts = base + _mv(h, w)
             rot, t = self._pose_step(pts[used], uv[used], f, centre, rot, t)
+            t = self._at_distance(rot, t, distance)
             timings["pose"] += time.perf_counter() - tp
         fitted, _ = self._project(pts, rot, t, f, centre)
         vertices = np.concatenate([self.landmarks[self.fixed], self.cand_vertices[choice]])
@@ -419,6 +431,19 @@ class ShapeFitter:
         return ShapeFit(shape=s, expression=w, rotation=rot, translation=t, focal=f,
                         centre=centre, landmarks_fitted=fitted[self.unorder],
                         landmark_vertices=vertices[self.unorder], timings=timings)
+
+    @staticmethod
+    def _at_distance(rot: np.ndarray, t: np.ndarray, distance: float | None) -> np.ndarray:
+        """``t`` moved so that the head's centre lies ``distance`` from the camera, along
+        its current line of sight (where it projects does not change); the identity step
+        that follows then fits the head's size."""
+        if distance is None:
+            return t
+        from head360cli.geometry.cameras import RIG_TARGET
+
+        centre = rot @ np.asarray(RIG_TARGET, np.float64)
+        seen = centre + t
+        return seen * (distance / np.linalg.norm(seen)) - centre
 
     @staticmethod
     def _bounded(a: np.ndarray, b: np.ndarray, ridge: np.ndarray, w0: np.ndarray,

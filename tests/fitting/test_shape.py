@@ -146,3 +146,31 @@ def test_pose_steps_converge_to_the_true_pose():
         r, tt = ShapeFitter._pose_step(pts, uv, 800.0, centre, r, tt)
     np.testing.assert_allclose(r, rot, atol=1e-7)
     np.testing.assert_allclose(tt, t, atol=1e-8)
+
+
+def test_a_known_distance_fixes_the_head_size(fitter):
+    from head360cli.geometry.cameras import RIG_TARGET
+
+    model = fitter.model
+    rng = np.random.default_rng(11)
+    std = np.sqrt(np.diag(model.code_cov))
+    free, known = [], []  # relative errors of the head's extent
+    for _ in range(10):
+        s = rng.normal(size=model.rank) * std * 1.5  # sizes well away from the mean head
+        uv, rot, t = simulate_detections(fitter, s, np.zeros(52), rng.uniform(-20, 20),
+                                         rng.uniform(-10, 10), 1.0, rng, W, F)
+        distance = float(np.linalg.norm(rot @ np.asarray(RIG_TARGET) + t))
+        true = model.vertices(s, np.zeros(52))
+        for out, d in ((free, None), (known, distance)):
+            fit = fitter.fit(uv, (W, H), focal=F, distance=d)
+            size = np.ptp(model.vertices(fit.shape, fit.expression), 0) / np.ptp(true, 0)
+            out.append(np.abs(size - 1).mean())
+            if d is not None:
+                seen = fit.rotation @ np.asarray(RIG_TARGET) + fit.translation
+                assert np.linalg.norm(seen) == pytest.approx(d, rel=1e-9)
+    # Mean relative error of the head's extent (x, y, z), measured: 5.2 % free, 4.3 % with
+    # the distance known (at 0.6 m; the perspective cue is weaker further away).
+    assert np.mean(known) < 0.9 * np.mean(free)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(BadInputError, match="distance"):
+            fitter.fit(uv, (W, H), focal=F, distance=bad)
