@@ -340,7 +340,7 @@ def _progress_printer():
 @click.option("--focal", type=float, default=None,
               help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
               "lens).")
-@click.option("--distance", type=float, default=None,
+@click.option("--distance", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="The camera's distance to the head in metres, when known (a rig): fixes "
               "the head's size, which landmarks alone hardly tell from its distance.")
 @common_options
@@ -372,7 +372,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 
         result = fit_shape_photo(photo, out or "head360-out",
                                  face=face if face == "all" else int(face),
-                                 detector=detector, focal=focal)
+                                 detector=detector, focal=focal, distance=distance)
         faces = result.get("faces", [result])
         lines = []
         for r in faces:

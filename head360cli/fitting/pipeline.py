@@ -58,7 +58,8 @@ def _overlay(rgb: np.ndarray, detected: np.ndarray, fitted: np.ndarray, verts2d:
 
 
 def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str = 0,
-                    detector: str = "hog", focal: float | None = None) -> dict[str, Any]:
+                    detector: str = "hog", focal: float | None = None,
+                    distance: float | None = None) -> dict[str, Any]:
     """Detect, fit the bilinear model, and write ``<stem>[_faceN]_shape.obj``,
     ``_overlay.png`` and ``_shape.json`` into ``out_dir``.
 
@@ -69,6 +70,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
         detector: ``hog``, or ``cnn`` for hard faces.
         focal: Focal length in pixels of the image on disk (default: EXIF, else a
             50 mm-equivalent lens).
+        distance: The camera's distance to the head in metres, when known.
 
     Returns:
         The result (for one face) or ``{"faces": [...]}`` (for ``"all"``); landmarks in the
@@ -112,7 +114,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     results = []
     for index, found in chosen:
         t0 = time.perf_counter()
-        fit = fitter.fit(found.landmarks, img.size, focal=f_disk * scale)
+        fit = fitter.fit(found.landmarks, img.size, focal=f_disk * scale, distance=distance)
         t_fit = time.perf_counter() - t0
         t0 = time.perf_counter()
         verts = model.vertices(fit.shape, fit.expression)
@@ -145,7 +147,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
                                                                   strict=True)},
             "pose": {**{k: round(v, 3) for k, v in euler.items()},
                      "translation": fit.translation.round(5).tolist(),
-                     "focal": round(f_disk, 2)},
+                     "distance": round(fit.distance(), 5), "focal": round(f_disk, 2)},
             "model": model.meta["sha256"],
             "files": {k: str(v) for k, v in paths.items()},
         }
@@ -485,7 +487,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     euler = fit.euler_degrees()
     summary = {
         "photo": str(photo), "preset": preset, "face": face,
-        "pose": {k_: round(v, 2) for k_, v in euler.items()},
+        "pose": {**{k_: round(v, 2) for k_, v in euler.items()},
+                 "distance": round(fit.distance(), 4)},
         "hair_style": {"id": style, "name": HAIRSTYLES[style].name,
                        "chosen_by": "classifier" if hair_style is None else "user"},
         "hair_candidates": guess.top(3),

@@ -43,6 +43,13 @@ def _mv(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     leading axes is many times slower for these small blocks)."""
     return (a.reshape(-1, a.shape[-1]) @ v).reshape(a.shape[:-1])
 
+def _head_centre_seen(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``(3,)`` the head's centre (the rig's target) in camera coordinates."""
+    from head360cli.geometry.cameras import RIG_TARGET
+
+    return rot @ np.asarray(RIG_TARGET, np.float64) + t
+
+
 JAW = np.arange(17)
 CHIN_FIXED = (6, 7, 8, 9, 10)  # chin points keep their vertices (the outline's bottom)
 DEFAULT_FOCAL_35MM = 50.0
@@ -102,6 +109,11 @@ class ShapeFit:
     landmarks_fitted: np.ndarray
     landmark_vertices: np.ndarray
     timings: dict[str, float]
+
+    def distance(self) -> float:
+        """The camera's distance in metres to the head's centre
+        (:data:`~head360cli.geometry.cameras.RIG_TARGET`)."""
+        return float(np.linalg.norm(_head_centre_seen(self.rotation, self.translation)))
 
     def euler_degrees(self) -> dict[str, float]:
         """Yaw, pitch and roll in degrees, in the renderer's camera convention: the view
@@ -439,11 +451,8 @@ class ShapeFitter:
         that follows then fits the head's size."""
         if distance is None:
             return t
-        from head360cli.geometry.cameras import RIG_TARGET
-
-        centre = rot @ np.asarray(RIG_TARGET, np.float64)
-        seen = centre + t
-        return seen * (distance / np.linalg.norm(seen)) - centre
+        seen = _head_centre_seen(rot, t)
+        return seen * (distance / np.linalg.norm(seen)) - (seen - t)
 
     @staticmethod
     def _bounded(a: np.ndarray, b: np.ndarray, ridge: np.ndarray, w0: np.ndarray,

@@ -164,3 +164,16 @@ def test_profile_view_is_fitted_with_a_warning(shared_data, monkeypatch):
     assert any("profile view" in w for w in warnings)
     with pytest.raises(NoFaceError, match="--detector cnn"):
         _stage(folder / "image00251.jpg")
+
+
+def test_a_known_camera_distance_is_kept(run_cli, astronaut, tmp_path):
+    def distance(*extra):
+        r = run_cli("fit", "--stage", "shape", astronaut, "-o", tmp_path, "--json", *extra)
+        assert r.code == 0, r.err
+        return json.loads(r.out)["pose"]["distance"]
+
+    free = distance()
+    assert distance("--distance", "0.8") == pytest.approx(0.8, abs=1e-3)
+    assert abs(free - 0.8) > 0.05  # the option changed the fit
+    r = run_cli("fit", "--stage", "shape", astronaut, "-o", tmp_path, "--distance", "-1")
+    assert r.code == 2 and "distance" in r.err.lower()
