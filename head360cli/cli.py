@@ -360,6 +360,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
       head360 fit photo.jpg                      -> photo.h360, photo_preview.png, photo.json
       head360 fit photo.jpg -o me.h360 --preset quality
       head360 fit photo.jpg --hair bob --json
+      head360 fit rig_photo.jpg --distance 1.0 --focal 2400
       head360 fit photo.jpg --stage shape -o out/
       head360 fit group.jpg --stage shape --face all --json > faces.json
     """
