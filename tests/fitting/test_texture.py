@@ -75,16 +75,22 @@ def test_mirror_is_an_involution_on_the_head():
     assert (twice - x).abs().mean() < 0.06  # nearest-texel round trips at seams
 
 
-def test_inversion_lowers_the_photometric_loss():
+@pytest.fixture(scope="module")
+def scene():
+    """The shipped generator, its codes and a held-out head seen from one rig camera."""
     from head360cli.geometry.cameras import rig72
     from head360cli.model.data import Views
     from head360cli.model.train import load_generator
 
-    torch.manual_seed(0)
     gen, codes = load_generator()
-    views = Views(1, split="test")
     rig, _, _ = rig72()
-    batch = views.render(0, np.zeros(52, np.float32), rig[37:38])
+    batch = Views(1, split="test").render(0, np.zeros(52, np.float32), rig[37:38])
+    return gen, codes, batch
+
+
+def test_inversion_lowers_the_photometric_loss(scene):
+    gen, codes, batch = scene
+    torch.manual_seed(0)
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=2, steps=4, samples=4,
                               patience=10)
     calls = []
@@ -99,16 +105,9 @@ def test_inversion_lowers_the_photometric_loss():
     assert gen.cfg.samples == 12  # the generator's own setting is restored
 
 
-def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance():
-    from head360cli.geometry.cameras import rig72
-    from head360cli.model.data import Views
-    from head360cli.model.train import load_generator
-
+def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene):
+    gen, codes, batch = scene
     torch.manual_seed(0)
-    gen, codes = load_generator()
-    views = Views(1, split="test")
-    rig, _, _ = rig72()
-    batch = views.render(0, np.zeros(52, np.float32), rig[37:38])
     truth = batch.c2w[0]
     a = np.radians(6.0)  # the camera turned 6 degrees about the head, as a pitch error
     tilt = torch.eye(4)
