@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from head360cli.errors import BadInputError
+from head360cli.geometry.rig import RIG_TARGET
 from head360cli.mesh.bilinear import BilinearModel
 
 __all__ = ["FitConfig", "ShapeFit", "ShapeFitter", "default_focal"]
@@ -43,10 +44,9 @@ def _mv(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     leading axes is many times slower for these small blocks)."""
     return (a.reshape(-1, a.shape[-1]) @ v).reshape(a.shape[:-1])
 
+
 def _head_centre_seen(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``(3,)`` the head's centre (the rig's target) in camera coordinates."""
-    from head360cli.geometry.cameras import RIG_TARGET
-
     return rot @ np.asarray(RIG_TARGET, np.float64) + t
 
 
@@ -112,7 +112,7 @@ class ShapeFit:
 
     def distance(self) -> float:
         """The camera's distance in metres to the head's centre
-        (:data:`~head360cli.geometry.cameras.RIG_TARGET`)."""
+        (:data:`~head360cli.geometry.rig.RIG_TARGET`)."""
         return float(np.linalg.norm(_head_centre_seen(self.rotation, self.translation)))
 
     def euler_degrees(self) -> dict[str, float]:
@@ -360,7 +360,7 @@ class ShapeFitter:
             weights: ``(68,)`` non-negative weight per landmark (default all 1); a zero
                 leaves a landmark out of the fit (it is still reported as fitted).
             distance: The camera's distance in metres to the head's centre
-                (:data:`~head360cli.geometry.cameras.RIG_TARGET` in model axes), when
+                (:data:`~head360cli.geometry.rig.RIG_TARGET` in model axes), when
                 known. Landmarks alone hardly tell a small head near the camera from a
                 large one further away (the perspective cue is weak at a metre); a known
                 distance fixes the head's size. ``None``: free.

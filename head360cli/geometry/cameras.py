@@ -15,6 +15,14 @@ import math
 
 import torch
 
+from head360cli.geometry.rig import (
+    RIG_DISTANCE,
+    RIG_FOV_DEG,
+    RIG_PITCHES_DEG,
+    RIG_TARGET,
+    RIG_YAWS_DEG,
+)
+
 __all__ = [
     "RIG_DISTANCE",
     "RIG_FOV_DEG",
@@ -29,17 +37,6 @@ __all__ = [
     "project",
     "rig72",
 ]
-
-RIG_PITCHES_DEG = (-20.0, 0.0, 20.0)
-"""The rig's three camera heights (degrees above the horizon)."""
-RIG_YAWS_DEG = tuple(float(15 * k) for k in range(24))
-"""The rig's 24 yaw angles, every 15 degrees starting at the front."""
-RIG_DISTANCE = 1.0
-"""Distance from the rig's cameras to their target, metres."""
-RIG_FOV_DEG = 24.0
-"""Vertical field of view of the rig's cameras, degrees (0.43 m of height at the target)."""
-RIG_TARGET = (0.0, -0.03, 0.0)
-"""Point the rig looks at: a little below the head centre, to frame head, neck and hair."""
 
 
 def look_at(eye: torch.Tensor, target: torch.Tensor, up: torch.Tensor | None = None
