@@ -62,14 +62,28 @@ def _face_outline(lm: np.ndarray, forehead: float) -> np.ndarray:
     return np.concatenate([jaw, top]).astype(np.float32)
 
 
-def _skin_distance(lab: np.ndarray, samples: np.ndarray) -> np.ndarray:
+def _mahalanobis(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Mahalanobis distance ``(N,)`` of ``x (N, 3)`` to a Gaussian."""
+    d = x - mean
+    return np.sqrt(np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d))
+
+
+def _skin_distance(lab: np.ndarray, samples: np.ndarray, trims: int = 2) -> np.ndarray:
     """Mahalanobis distance ``(H, W)`` of every pixel to a Gaussian fitted to ``samples``
-    ``(N, 3)`` Lab values."""
-    mean = samples.mean(0)
-    cov = np.cov(samples.T) + np.diag([25.0, 4.0, 4.0])  # floor: lighting and noise
-    inv = np.linalg.inv(cov)
-    d = lab.reshape(-1, 3) - mean
-    return np.sqrt(np.einsum("ij,jk,ik->i", d, inv, d)).reshape(lab.shape[:2])
+    ``(N, 3)`` Lab values.
+
+    The fit is refitted ``trims`` times without the samples beyond 2.5 of its
+    deviations: the cheek polygons also catch eyelashes, nostrils and shadows, which
+    would otherwise widen the skin's lightness so far that dark hair passes for skin.
+    """
+    floor = np.diag([25.0, 4.0, 4.0])  # lighting and noise
+    mean, cov = samples.mean(0), np.cov(samples.T) + floor
+    for _ in range(trims):
+        inside = samples[_mahalanobis(samples, mean, cov) < 2.5]
+        if len(inside) < 20:
+            break
+        mean, cov = inside.mean(0), np.cov(inside.T) + floor
+    return _mahalanobis(lab.reshape(-1, 3), mean, cov).reshape(lab.shape[:2])
 
 
 def _texture_energy(lightness: np.ndarray, window: int) -> np.ndarray:

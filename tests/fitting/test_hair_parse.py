@@ -73,3 +73,20 @@ def test_real_masks_mean_iou_floor(shared_data):
         gt = cv2.resize(gt, img.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 127
         ious.append(mask_iou(parse_hair(img, det.detect_one(img).landmarks).hair, gt))
     assert np.mean(ious) > 0.5
+
+
+def test_skin_model_ignores_dark_outliers_in_the_cheek_samples():
+    """Cheek polygons catch lashes and nostrils: 10 % dark samples must not widen the
+    skin's lightness so far that dark hair passes for skin."""
+    from head360cli.fitting.hair_parse import _skin_distance
+
+    rng = np.random.default_rng(0)
+    skin = rng.normal((150.0, 145.0, 140.0), 4.0, (540, 3))
+    lashes = rng.normal((25.0, 130.0, 130.0), 4.0, (60, 3))
+    samples = np.concatenate([skin, lashes])
+    pixels = np.array([[[150.0, 145.0, 140.0], [30.0, 132.0, 133.0]]])  # skin, dark hair
+    trimmed = _skin_distance(pixels, samples)
+    assert trimmed[0, 0] < 1.0
+    assert trimmed[0, 1] > 10.0
+    # Without trimming the outliers, the same hair sits within 3 deviations of "skin".
+    assert _skin_distance(pixels, samples, trims=0)[0, 1] < 3.0
