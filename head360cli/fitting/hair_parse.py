@@ -10,8 +10,9 @@ seeded from what the 68 landmarks say about where hair can and cannot be:
   cheeks) probably are not.
 
 Without landmarks (a back view, a hair close-up), the photo is taken to be about the hair:
-GrabCut separates the foreground (the centre of the image is probably in it, the border
-is not) and that foreground is the hair.
+GrabCut separates the foreground (the centre of the image and what has its colours are
+probably in it; an edge of the frame is not, unless it has those colours too, as in a
+close-up where the hair runs off the frame) and that foreground is the hair.
 
 Everything runs at a working resolution of at most ``work_size`` pixels and is scaled back
 to the input's size.
@@ -68,9 +69,10 @@ def _mahalanobis(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray
     return np.sqrt(np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d))
 
 
-def _skin_distance(lab: np.ndarray, samples: np.ndarray, trims: int = 2) -> np.ndarray:
+def _colour_distance(lab: np.ndarray, samples: np.ndarray, trims: int = 2) -> np.ndarray:
     """Mahalanobis distance ``(H, W)`` of every pixel to a Gaussian fitted to ``samples``
-    ``(N, 3)`` Lab values.
+    ``(N, 3)`` Lab values (a skin model from the cheeks, a hair model from the centre of a photo
+    without a face).
 
     The fit is refitted ``trims`` times without the samples beyond 2.5 of its
     deviations: the cheek polygons also catch eyelashes, nostrils and shadows, which
@@ -182,7 +184,7 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # A greyscale photo has no skin colour: brightness alone would call blond or
         # grey hair skin, so no pixel is skin by colour there.
         grey = np.ptp(small.astype(np.int16), axis=2).max() <= 2
-        skin = (_skin_distance(lab, samples) < 3.0 if len(samples) >= 20 and not grey
+        skin = (_colour_distance(lab, samples) < 3.0 if len(samples) >= 20 and not grey
                 else np.zeros_like(face))
         neck = ((np.abs(xx - lm[8, 0]) < 0.3 * width) & (yy > lm[8, 1] + 0.05 * height)
                 & (yy < lm[8, 1] + 0.6 * height))
@@ -213,11 +215,19 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         hair = _clean(hair, cap | head, size)
         face = outline & ~hair & (skin | jaw_in)
     else:
-        # No face: a hair close-up or a back view. The foreground is the hair.
+        # No face: a hair close-up or a back view. The foreground is the hair, and so
+        # probably is whatever has the colours of a small core at the centre (small: a
+        # back view's head fills little of the frame). An edge of the frame is background
+        # only where few of its pixels have those colours: in a close-up the hair runs
+        # off the frame, and seeding it as background made the whole mask empty.
         centre = (np.abs(xx / sw - 0.5) < 0.25) & (np.abs(yy / sh - 0.45) < 0.3)
+        core = (np.abs(xx / sw - 0.5) < 0.1) & (np.abs(yy / sh - 0.45) < 0.12)
+        like_core = _colour_distance(lab, lab[core]) < 3.0
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
-        m[centre] = cv2.GC_PR_FGD
-        m[border] = cv2.GC_BGD
+        m[centre | like_core] = cv2.GC_PR_FGD
+        for edge in (np.s_[:band], np.s_[-band:], np.s_[:, :band], np.s_[:, -band:]):
+            if like_core[edge].mean() < 0.3:
+                m[edge] = cv2.GC_BGD
         hair = _clean(_grabcut(bgr, m, iterations), None, size)
     if scale < 1:
         def up(m: np.ndarray) -> np.ndarray:
