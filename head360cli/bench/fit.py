@@ -1,6 +1,8 @@
 """``head360 bench fit``: single-image fitting, measured.
 
 - Hair parsing: IoU of the hair mask on ``../shared/data/hair`` (Figaro, CelebAMask).
+- Hair parsing on held-out synthetic heads: IoU with the face (the hairstyle views
+  below), and without one: back views and close-ups on plain backdrops.
 - Hairstyle: top-1 and top-3 accuracy over the 30 styles on held-out SynHead-P heads
   (test split, one head per style, seen from yaw 10 and pitch 5 degrees), with the true
   mesh and (a) the true hair mask, (b) the parsed hair mask.
@@ -86,7 +88,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
     import torch
 
     from head360cli.fitting.hair_class import classify_hair, style_silhouettes
-    from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.hair_parse import mask_iou, parse_hair
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
     from head360cli.mesh.bilinear import load_bilinear
     from head360cli.model.data import Views
@@ -97,6 +99,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
     data = Views(views, split="test", size=res)
     c2w = camera_on_sphere(torch.tensor([10.0]), torch.tensor([5.0]), RIG_DISTANCE)
     hits = {"true_mask": [0, 0], "parsed_mask": [0, 0]}
+    ious = []
     for i in range(views):
         batch = data.render(i, np.zeros(52, np.float32), c2w, with_hair=True)
         head = data.head(i)
@@ -106,12 +109,53 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
         lm = px[0].numpy()[model.landmarks]
         masks = {"true_mask": batch.hair_alpha[0, 0].numpy() > 0.5,
                  "parsed_mask": parse_hair(to_uint8(batch.rgb)[0], lm).hair}
+        ious.append(mask_iou(masks["parsed_mask"], masks["true_mask"]))
         for key, mask in masks.items():
             rank = classify_hair(mask, sil).ranking
             hits[key][0] += rank[0] == head.hair_style
             hits[key][1] += head.hair_style in rank[:3]
     return {k: {"top1": round(v[0] / views, 4), "top3": round(v[1] / views, 4)}
-            for k, v in hits.items()} | {"heads": views, "yaw": 10.0, "pitch": 5.0}
+            for k, v in hits.items()} | {"heads": views, "yaw": 10.0, "pitch": 5.0,
+                                         "parsed_iou": round(float(np.mean(ious)), 4)}
+
+
+def _hair_parse_no_face(heads: int = 30) -> dict[str, Any]:
+    """Hair IoU of the parse without a face on held-out corpus heads: back views (yaw 180,
+    pitch 10) and close-ups (a crop of 0.6 times the hair's extent around its middle,
+    seen from yaw 150, pitch 20), on four plain backdrops, at 256 x 256."""
+    import cv2
+    import torch
+
+    from head360cli.fitting.hair_parse import mask_iou, parse_hair
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
+    from head360cli.model.data import Views
+
+    data = Views(heads, split="test", size=384)
+    cams = camera_on_sphere(torch.tensor([180.0, 150.0]), torch.tensor([10.0, 20.0]),
+                            RIG_DISTANCE)
+    backdrops = np.array([(255, 255, 255), (40, 40, 40), (120, 140, 160), (200, 180, 150)])
+    ious: dict[str, list[float]] = {"back_view": [], "close_up": []}
+    for i in range(heads):
+        if data.head(i).hair_style == 0:  # bald: no hair to find
+            continue
+        batch = data.render(i, np.zeros(52, np.float32), cams, with_hair=True)
+        for v, kind in enumerate(ious):
+            alpha = batch.alpha[v, 0].numpy()[..., None]
+            rgb = (batch.rgb[v].permute(1, 2, 0).numpy() * alpha * 255
+                   + backdrops[(i + v) % 4] * (1 - alpha)).astype(np.uint8)
+            hair = batch.hair_alpha[v, 0].numpy() > 0.5
+            if kind == "close_up":
+                ys, xs = np.nonzero(hair)
+                half = max(32, int(0.3 * max(np.ptp(ys), np.ptp(xs))))
+                cy, cx = int(ys.mean()), int(xs.mean())
+                box = np.s_[max(0, cy - half):cy + half, max(0, cx - half):cx + half]
+                rgb, hair = rgb[box], hair[box]
+            rgb = cv2.resize(rgb, (256, 256), interpolation=cv2.INTER_AREA)
+            hair = cv2.resize(hair.astype(np.uint8), (256, 256),
+                              interpolation=cv2.INTER_NEAREST) > 0
+            ious[kind].append(mask_iou(parse_hair(rgb, None).hair, hair))
+    return {k: {"views": len(v), "mean_iou": round(float(np.mean(v)), 4)}
+            for k, v in ious.items()}
 
 
 def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
@@ -282,6 +326,8 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
             result["figaro_classes"] = _figaro_classes(data)
         say("hairstyle accuracy on held-out SynHead-P heads")
         result["hair_style"] = _hair_style()
+        say("hair parsing without a face on held-out SynHead-P heads")
+        result["hair_parse_no_face"] = _hair_parse_no_face()
         result["synthetic_fit"] = {}
         for preset in presets:
             say(f"synthetic fit, {preset}")
@@ -312,6 +358,11 @@ def _markdown(r: dict[str, Any]) -> str:
                   for k, v in r["hair_parse"].items()]
         lines.append("")
     h = r["hair_style"]
+    n = r["hair_parse_no_face"]
+    lines += ["Held-out synthetic heads (IoU of the parsed hair mask): with the face, yaw "
+              f"10 degrees {h['parsed_iou']:.3f}; no face, back views "
+              f"{n['back_view']['mean_iou']:.3f}, close-ups {n['close_up']['mean_iou']:.3f} "
+              f"({n['back_view']['views']} heads).", ""]
     lines += ["## Hairstyle (30 styles, held-out heads, true mesh)", "",
               "| hair mask | top-1 | top-3 |", "|---|---|---|",
               f"| true | {h['true_mask']['top1']:.2%} | {h['true_mask']['top3']:.2%} |",

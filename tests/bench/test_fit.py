@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from head360cli.bench.fit import _hair_style, _markdown
+from head360cli.bench.fit import _hair_parse_no_face, _hair_style, _markdown
 
 
 def test_hairstyle_accuracy_on_three_heads():
@@ -13,12 +13,23 @@ def test_hairstyle_accuracy_on_three_heads():
     # Heads 0..2 wear styles 0..2 (bald, buzz, crew): with the true mask at least the
     # bald head (empty mask) and one other are right.
     assert r["true_mask"]["top1"] >= 2 / 3
+    assert 0.5 < r["parsed_iou"] <= 1.0
+
+
+def test_hair_parse_without_a_face_on_three_heads():
+    """Heads 1 and 2 (buzz, crew; head 0 is bald and skipped), from behind and close up."""
+    r = _hair_parse_no_face(heads=3)
+    for kind in ("back_view", "close_up"):
+        assert r[kind]["views"] == 2
+        assert 0.5 < r[kind]["mean_iou"] <= 1.0
 
 
 def test_markdown_lists_every_part():
     r = {"hair_parse": {"figaro": {"photos": 2, "with_face": 0, "mean_iou": 0.5}},
          "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0},
-                        "parsed_mask": {"top1": 0.5, "top3": 0.8}},
+                        "parsed_mask": {"top1": 0.5, "top3": 0.8}, "parsed_iou": 0.9},
+         "hair_parse_no_face": {"back_view": {"views": 29, "mean_iou": 0.8},
+                                "close_up": {"views": 29, "mean_iou": 0.7}},
          "synthetic_fit": {"fast": {"mean": {"psnr_all_views": 15.0, "ssim_all_views": 0.8,
                                              "psnr_input_view": 20.0, "seconds": 12.0}}},
          "real": {"fast": {"mean": {"psnr_face": 22.0, "psnr_face_bald": 25.0,
@@ -29,5 +40,6 @@ def test_markdown_lists_every_part():
     for text in ("| figaro | 2 | 0 | 0.500 |", "| true | 90.00% | 100.00% |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 |",
                  "| fast | 22.00 | 25.00 | - | 0.700 | 13.0 |",
-                 "| 5 | 20.00 | 3.0 | 9.0 |"):
+                 "| 5 | 20.00 | 3.0 | 9.0 |",
+                 "yaw 10 degrees 0.900; no face, back views 0.800, close-ups 0.700 (29 heads)"):
         assert text in md
