@@ -586,10 +586,14 @@ PRESETS = {
               help="Processes that build the corpus heads before training.")
 @click.option("--export", "export", type=click.Path(dir_okay=False), default=None,
               help="Also write the shippable weights here (e.g. models/generator.pt).")
+@click.option("--init", "init", type=click.Path(dir_okay=False, exists=True), default=None,
+              help="Start a new run from these generator weights (their configuration "
+                   "replaces --preset and the ablation flags).")
 @common_options
 def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
           identities: int, seed: int, planes: str, no_refine: bool, no_detach: bool,
-          no_hair: bool, lr: float, group: int, workers: int, export: str | None) -> None:
+          no_hair: bool, lr: float, group: int, workers: int, export: str | None,
+          init: str | None) -> None:
     """Train the generator on SynHead-P (resumes a run folder that has a checkpoint).
 
     \b
@@ -597,6 +601,7 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
       head360 train runs/cpu --export models/generator.pt
       head360 train runs/tri --planes tri --minutes 20
       head360 train runs/gpu --preset gpu --device cuda --batch 16 --steps 6000
+      head360 train runs/more --init models/generator.pt --device cuda --minutes 10
       torchrun --nproc_per_node 2 -m head360cli train runs/ddp --steps 100
     """
     from head360cli.devices import resolve_device
@@ -612,7 +617,7 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
                               hair=not no_hair)
     cfg = TrainConfig(identities=identities, seed=seed, steps=steps, minutes=minutes,
                       batch=batch, lr=lr, detach=not no_detach, group=group,
-                      workers=workers)
+                      workers=workers, init=init or "")
     last = run_training(run_dir, cfg, gen_cfg, device=device, progress=not _settings().quiet)
     result: dict[str, Any] = {"run": run_dir, "last": last}
     if export and int(os.environ.get("RANK", "0")) == 0:

@@ -81,6 +81,10 @@ class TrainConfig:
     """Steps between log lines."""
     checkpoint_every: int = 200
     """Steps between checkpoints."""
+    init: str = ""
+    """Generator weights (``save_generator``'s file) to start a new run from instead of a
+    random initialisation: the networks and the training codes (``""``: none). The
+    generator configuration is then the weights' own."""
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -174,8 +178,19 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
                                   minutes=cfg.minutes)
         gen_cfg = GeneratorConfig.from_dict(state["generator_config"])
         start = int(state["step"])
+    init = None
+    if state is None and cfg.init:
+        init = torch.load(cfg.init, map_location="cpu", weights_only=True)
+        gen_cfg = GeneratorConfig.from_dict(init["generator_config"])
+        if init["codes"].shape[0] != cfg.identities:
+            raise ValueError(f"{cfg.init}: expected codes for {cfg.identities} identities, "
+                             f"found {init['codes'].shape[0]}")
     torch.manual_seed(cfg.seed)
     model = _Model(Generator(gen_cfg, *_topology()), cfg.identities).to(device)
+    if init is not None:
+        model.generator.load_state_dict(init["generator"])
+        with torch.no_grad():
+            model.codes.copy_(init["codes"])
     opt = torch.optim.Adam([
         {"params": model.generator.parameters(), "lr": cfg.lr},
         {"params": [model.codes], "lr": cfg.code_lr}])

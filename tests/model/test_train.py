@@ -46,6 +46,30 @@ def test_exported_weights_load_and_render(tmp_path):
     assert not gen.training
 
 
+def test_init_starts_a_new_run_from_exported_weights(tmp_path):
+    import dataclasses
+
+    train(tmp_path / "run", CFG, TINY, progress=False)
+    save_generator(tmp_path / "run" / CHECKPOINT, tmp_path / "g.pt")
+    shipped = torch.load(tmp_path / "g.pt", weights_only=True)
+    other = dataclasses.replace(TINY, hidden=TINY.hidden * 2)  # the weights' config wins
+    more = dataclasses.replace(CFG, init=str(tmp_path / "g.pt"), seed=1)
+    train(tmp_path / "more", more, other, progress=False, stop_at=1)
+    state = torch.load(tmp_path / "more" / CHECKPOINT, weights_only=False)
+    assert state["generator_config"] == TINY.to_dict()
+    assert state["train_config"]["init"] == str(tmp_path / "g.pt")
+    moved = [k for k, v in shipped["generator"].items()
+             if not torch.equal(v, state["model"]["generator." + k])]
+    # One step from the weights: every trained tensor moved a little, none is re-drawn.
+    assert moved and all(
+        (state["model"]["generator." + k] - shipped["generator"][k]).abs().max() < 0.05
+        for k in moved)
+    assert (state["model"]["codes"] - shipped["codes"]).abs().max() < 0.05
+    with pytest.raises(ValueError, match="expected codes for 3 identities, found 2"):
+        train(tmp_path / "bad", dataclasses.replace(more, identities=3), TINY,
+              progress=False, stop_at=1)
+
+
 @pytest.mark.skipif(shutil.which("torchrun") is None and not os.path.exists(
     os.path.join(os.path.dirname(sys.executable), "torchrun")), reason="torchrun missing")
 def test_two_process_data_parallel_on_cpu(tmp_path):
