@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from head360cli.bench.animate import _resolution
+from head360cli.bench.animate import _resolution, mesh_openings
 
 
 def test_resolution_sweep_scores_each_size_twice(head_file):
@@ -20,3 +20,20 @@ def test_resolution_sweep_scores_each_size_twice(head_file):
     assert rows[1]["psnr_vs_32_samples_64px"] == rows[1]["psnr_vs_32_samples_same_size"]
     # 32 pixels upsampled lose detail the 64-pixel render keeps
     assert rows[0]["psnr_vs_32_samples_64px"] < rows[1]["psnr_vs_32_samples_64px"]
+
+
+def test_mesh_openings_follow_jaw_and_blinks(head_file):
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.mesh.arkit52 import INDEX
+
+    r = load_head_renderer(head_file, samples=4)
+    w = np.zeros((8, 52), np.float32)
+    w[:4, INDEX["jawOpen"]] = [0.0, 0.3, 0.6, 1.0]
+    w[4:, INDEX["eyeBlinkLeft"]] = w[4:, INDEX["eyeBlinkRight"]] = [0.0, 0.3, 0.6, 1.0]
+    o = mesh_openings(r, w, view_cameras(0.0, 0.0)[0], view_intrinsics(256))
+    assert o.shape == (8, 3)
+    assert (np.diff(o[:4, 0]) > 0.01).all()  # the mouth opens with jawOpen
+    assert (np.diff(o[4:, 1]) < 0).all() and (np.diff(o[4:, 2]) < 0).all()  # lids close
+    assert o[7, 1] < 0.5 * o[4, 1] and o[7, 2] < 0.5 * o[4, 2]
+    assert np.allclose(o[:4, 1:], o[0, 1:], atol=0.02)  # the jaw leaves the eyes alone
