@@ -16,7 +16,17 @@ def machine() -> dict[str, Any]:
 
     import torch
 
-    return {"cpu_cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+    from head360cli.devices import fast_bfloat16
+
+    cpu = platform.processor()
+    try:  # the model name says more than the architecture; timings differ between CPUs
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f
+                        if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return {"cpu": cpu, "cpu_bf16": fast_bfloat16("cpu"),
+            "cpu_cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
             "torch": torch.__version__, "platform": platform.platform(),
             "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
 
