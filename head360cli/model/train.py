@@ -180,8 +180,15 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         start = int(state["step"])
     init = None
     if state is None and cfg.init:
-        init = torch.load(cfg.init, map_location="cpu", weights_only=True)
-        gen_cfg = GeneratorConfig.from_dict(init["generator_config"])
+        from head360cli.errors import FileFormatError
+
+        try:
+            init = torch.load(cfg.init, map_location="cpu", weights_only=True)
+            assert init.get("format") == "head360-generator"
+            gen_cfg = GeneratorConfig.from_dict(init["generator_config"])
+        except Exception as exc:  # pickle, zip and key errors alike
+            raise FileFormatError(f"{cfg.init}: expected head360 generator weights "
+                                  f"({exc!r})") from exc
         if init["codes"].shape[0] != cfg.identities:
             raise ValueError(f"{cfg.init}: expected codes for {cfg.identities} identities, "
                              f"found {init['codes'].shape[0]}")

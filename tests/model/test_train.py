@@ -11,6 +11,7 @@ import sys
 import pytest
 import torch
 
+from head360cli.errors import FileFormatError
 from head360cli.model.train import CHECKPOINT, TrainConfig, load_generator, save_generator, train
 from tests.model.test_generator import TINY
 
@@ -65,6 +66,10 @@ def test_init_starts_a_new_run_from_exported_weights(tmp_path):
         (state["model"]["generator." + k] - shipped["generator"][k]).abs().max() < 0.05
         for k in moved)
     assert (state["model"]["codes"] - shipped["codes"]).abs().max() < 0.05
+    (tmp_path / "junk.pt").write_bytes(b"not weights")
+    with pytest.raises(FileFormatError, match="expected head360 generator weights"):
+        train(tmp_path / "junk", dataclasses.replace(more, init=str(tmp_path / "junk.pt")),
+              TINY, progress=False, stop_at=1)
     with pytest.raises(ValueError, match="expected codes for 3 identities, found 2"):
         train(tmp_path / "bad", dataclasses.replace(more, identities=3), TINY,
               progress=False, stop_at=1)
