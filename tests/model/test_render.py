@@ -7,7 +7,7 @@ import math
 import torch
 
 from head360cli.geometry.cameras import camera_on_sphere, intrinsics_from_fov
-from head360cli.model.render import EMPTY, composite, samples_around, surface_samples
+from head360cli.model.render import composite, surface_samples
 from tests.model.test_planes import cube
 
 
@@ -28,42 +28,6 @@ def test_samples_straddle_the_rasterized_surface():
     assert torch.allclose(pts[0, centre, :, 0], off, atol=1e-5)
     assert torch.allclose(pts[0, centre, :, 1], -off, atol=1e-5)
     assert torch.allclose(pts[0, centre, :, 2], 1.0 - depths[0, centre], atol=1e-5)
-
-
-def test_covered_pixels_keep_their_depth_and_the_border_borrows_the_nearest():
-    # A near surface (0.5 m) over columns 0-2, a far one (0.9 m) over 3-5, nothing at 6-7.
-    depth = torch.full((1, 8, 8), EMPTY)
-    depth[:, :, :3], depth[:, :, 3:6] = 0.5, 0.9
-    c2w = torch.eye(4)[None]
-    k = intrinsics_from_fov(30.0, 8, 8)[None]
-    _, t, near = samples_around(depth, c2w, k, 2, 0.01)
-    mid = t.view(1, 8, 8, 2).mean(-1)[0, 4]
-    # Column 3 sits beside the near surface's edge but is covered by the far one: its
-    # samples stay around 0.9 m (borrowing 0.5 m left a background seam behind ears and
-    # hair); column 6, uncovered, borrows its neighbour's depth for a soft silhouette.
-    assert torch.allclose(mid[:6], torch.tensor([0.5, 0.5, 0.5, 0.9, 0.9, 0.9]))
-    assert mid[6] == 0.9 and near.view(8, 8)[4].tolist() == [1] * 7 + [0]
-
-
-def test_samples_behind_go_around_the_surface_under_the_hair():
-    depth = torch.full((1, 8, 8), EMPTY)
-    depth[:, :, :6] = 0.5  # hair over columns 0-5
-    behind = torch.full((1, 8, 8), EMPTY)
-    behind[:, :, :3], behind[:, :, 3:5] = 0.5, 0.6  # the head: on it at 0-2, 10 cm back at 3-4
-    c2w = torch.eye(4)[None]
-    k = intrinsics_from_fov(30.0, 8, 8)[None]
-    _, plain, near = samples_around(depth, c2w, k, 4, 0.01)
-    _, t, near_b = samples_around(depth, c2w, k, 4, 0.01, behind=behind)
-    t, plain = t.view(8, 8, 4)[4], plain.view(8, 8, 4)[4]
-    assert torch.equal(near_b, near)
-    # Where the head is the hair's surface, or where no head lies behind (columns 5-6
-    # borrow, column 5 from its neighbour at 0.6), the samples are the plain ones.
-    assert torch.allclose(t[:3], plain[:3]) and torch.allclose(t[6], plain[6])
-    # Where it lies behind, half the samples stay on the hair and half go to the head,
-    # sorted along the ray.
-    assert torch.allclose(t[3], torch.tensor([0.4925, 0.5025, 0.5975, 0.6075]))
-    assert torch.allclose(t[5], torch.tensor([0.4925, 0.5025, 0.5975, 0.6075]))
-    assert (t[:7].diff(dim=-1) >= 0).all()
 
 
 def test_compositing_of_known_densities():
