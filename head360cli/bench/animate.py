@@ -192,7 +192,9 @@ def mesh_openings(r, weights: np.ndarray, c2w, intrinsics) -> np.ndarray:
 
     from head360cli.geometry.cameras import project
 
-    pts = np.stack([r.model.landmark_points(r.model.vertices(r.shape, w)) for w in weights])
+    # the renderer's own mesh: neutral + w @ deltas (no bilinear contraction per frame)
+    verts = r.neutral + np.tensordot(np.asarray(weights, np.float64), r.deltas, 1)
+    pts = np.stack([r.model.landmark_points(v) for v in verts])
     px, _ = project(torch.as_tensor(pts, dtype=torch.float32),
                     c2w.expand(len(pts), 4, 4), intrinsics)
     return np.array([[mouth_opening(p), eye_opening(p, "left"), eye_opening(p, "right")]
