@@ -2,19 +2,31 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 
 @pytest.fixture(scope="module")
 def exported(head_file, tmp_path_factory):
-    from head360cli.export.onnx import export_onnx
+    """The graphs of ``head360 export-onnx --head``, exported once for the module (an
+    export takes minutes on a 2-core CPU): the renderer they were traced from, the graph
+    path, the command's exit code and its JSON."""
+    import contextlib
+    import io
+    import json
+
+    from head360cli.cli import main
     from head360cli.fitting.pipeline import load_head_renderer
 
     r = load_head_renderer(head_file, samples=3, size=48, precision="fp32")
     out = tmp_path_factory.mktemp("onnx") / "gen.onnx"
-    res = export_onnx(r, out)
-    return r, out, res
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = main(["export-onnx", "--head", str(head_file), "--samples", "3", "--size",
+                     "48", "-o", str(out), "--json"])
+    return r, out, code, json.loads(stdout.getvalue()) if code == 0 else None
 
 
 @pytest.mark.slow
@@ -22,8 +34,9 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.export.onnx import OnnxFrameRunner, head_inputs
 
-    r, out, res = exported
-    assert [p.split("/")[-1] for p in res["files"]] == ["gen.onnx", "gen_bald.onnx"]
+    r, out, code, res = exported
+    assert code == 0
+    assert [p.split("/")[-1] for p in res["files"]][:2] == ["gen.onnx", "gen_bald.onnx"]
     runner = OnnxFrameRunner(out)
     assert runner.size == 48 and runner.meta["samples"] == 3
     inputs = head_inputs(r)
@@ -77,19 +90,19 @@ def test_export_refuses_bad_targets(head_file, tmp_path):
 
 
 @pytest.mark.slow
-def test_cli_export_onnx_writes_both_graphs_and_the_head_inputs(run_cli, head_file,
-                                                                 tmp_path):
-    import json
-
-    out = tmp_path / "g.onnx"
-    r = run_cli("export-onnx", "--head", head_file, "--samples", "2", "--size", "32",
-                "-o", out, "--json")
-    assert r.code == 0, r.err
-    files = json.loads(r.out)["files"]
-    assert out.is_file() and (tmp_path / "g_bald.onnx").is_file()
+def test_cli_export_onnx_writes_both_graphs_and_the_head_inputs(run_cli, exported,
+                                                                 head_file, tmp_path):
+    _, out, code, res = exported
+    assert code == 0
+    files = res["files"]
+    assert files[:2] == [str(out), str(out.with_name("gen_bald.onnx"))]
+    assert all(Path(f).is_file() for f in files)
+    assert Path(files[-1]).name == f"{head_file.stem}_inputs.npz"
     inputs = np.load(files[-1])
     assert inputs["deltas"].shape[0] == 52 and inputs["texture"].ndim == 4
+    assert res["samples"] == 3 and res["size"] == 48
     assert run_cli("export-onnx", "--size", "33", "-o", tmp_path / "x.onnx").code == 3
+    assert not (tmp_path / "x.onnx").exists()
 
 
 @pytest.mark.slow
@@ -101,7 +114,7 @@ def test_runner_needs_no_torch(exported, tmp_path):
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.export.onnx import head_inputs
 
-    r, out, _ = exported
+    r, out, _, _ = exported
     np.savez(tmp_path / "inputs.npz", **head_inputs(r),
              c2w=view_cameras(30.0, 0.0).numpy(), k=view_intrinsics(48).numpy())
     code = (
@@ -127,7 +140,7 @@ def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_fil
     from head360cli.io.arkit import ArkitStream, write_arkit_csv
     from head360cli.mesh.arkit52 import INDEX
 
-    _, out, _ = exported
+    _, out, _, _ = exported
     view = ("--yaw", "30", "--pitch", "10", "--expr", "JawOpen=0.7,EyeBlinkLeft=1")
     a, b = tmp_path / "onnx.png", tmp_path / "torch.png"
     r = run_cli("render", head_file, *view, "--backend", "onnx", "--onnx", out, "-o", a)
@@ -165,7 +178,7 @@ def test_bench_onnx_on_the_exported_graph(exported):
     """The benchmark's parity rows are real comparisons (tiny: two heads)."""
     from head360cli.bench.onnx import bench_onnx, random_expression
 
-    _, out, _ = exported
+    _, out, _, _ = exported
     result, md = bench_onnx(heads=2, repeats=1, graph=out)
     assert result["size"] == 48 and result["samples"] == 3
     assert result["parity"]["all_finite"] and len(result["parity"]["rows"]) == 2
