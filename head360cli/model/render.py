@@ -1,8 +1,10 @@
 """The near-surface volume renderer: samples only around the rasterized surface.
 
 The mesh is rasterized from the camera at the feature resolution; each pixel's ray gets
-``samples`` points within ``shell`` metres in front of and behind that surface (pixels next
-to the silhouette borrow their neighbour's depth, so edges can be soft), the field gives
+``samples`` points within ``shell`` metres in front of and behind that surface (uncovered
+pixels next to a silhouette borrow their neighbour's depth, so edges can be soft; covered
+pixels keep their own, so a surface behind an edge, the head behind an ear or the hair, is
+still sampled), the field gives
 their density and features, and alpha compositing gives the feature image. Shapes are
 static (every pixel is computed, pixels without a surface nearby get zero weight), which
 keeps the graph exportable. Pure functions; nothing here holds parameters.
@@ -64,9 +66,11 @@ def samples_around(depth: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Ten
     dtype, device = c2w.dtype, c2w.device
     d = depth[:, None]
     mask = (d < EMPTY).to(dtype)
-    # Fill one pixel around the silhouette with the nearest covered depth.
+    # Fill one pixel around the silhouette with the nearest covered depth (only where the
+    # pixel itself has no surface: borrowing a nearer one there left background seams).
     d_fill = -F.max_pool2d(-d, 3, stride=1, padding=1)
     near = F.max_pool2d(mask, 3, stride=1, padding=1)
+    d_fill = torch.where(mask > 0, d, d_fill)
     d_fill = torch.where(near > 0, d_fill, torch.ones_like(d_fill))  # arbitrary, weight 0
     d_fill = d_fill.view(b, res * res)
     steps = torch.arange(samples, dtype=dtype, device=device)

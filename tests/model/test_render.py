@@ -7,7 +7,7 @@ import math
 import torch
 
 from head360cli.geometry.cameras import camera_on_sphere, intrinsics_from_fov
-from head360cli.model.render import composite, surface_samples
+from head360cli.model.render import EMPTY, composite, samples_around, surface_samples
 from tests.model.test_planes import cube
 
 
@@ -28,6 +28,21 @@ def test_samples_straddle_the_rasterized_surface():
     assert torch.allclose(pts[0, centre, :, 0], off, atol=1e-5)
     assert torch.allclose(pts[0, centre, :, 1], -off, atol=1e-5)
     assert torch.allclose(pts[0, centre, :, 2], 1.0 - depths[0, centre], atol=1e-5)
+
+
+def test_covered_pixels_keep_their_depth_and_the_border_borrows_the_nearest():
+    # A near surface (0.5 m) over columns 0-2, a far one (0.9 m) over 3-5, nothing at 6-7.
+    depth = torch.full((1, 8, 8), EMPTY)
+    depth[:, :, :3], depth[:, :, 3:6] = 0.5, 0.9
+    c2w = torch.eye(4)[None]
+    k = intrinsics_from_fov(30.0, 8, 8)[None]
+    _, t, near = samples_around(depth, c2w, k, 2, 0.01)
+    mid = t.view(1, 8, 8, 2).mean(-1)[0, 4]
+    # Column 3 sits beside the near surface's edge but is covered by the far one: its
+    # samples stay around 0.9 m (borrowing 0.5 m left a background seam behind ears and
+    # hair); column 6, uncovered, borrows its neighbour's depth for a soft silhouette.
+    assert torch.allclose(mid[:6], torch.tensor([0.5, 0.5, 0.5, 0.9, 0.9, 0.9]))
+    assert mid[6] == 0.9 and near.view(8, 8)[4].tolist() == [1] * 7 + [0]
 
 
 def test_compositing_of_known_densities():
