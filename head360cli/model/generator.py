@@ -253,6 +253,7 @@ class Generator(nn.Module):
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
                                                if m is not None]
         hair_near: dict[int, torch.Tensor] = {}
+        head_depth = depth
         if hair_items:
             depth = depth.clone()
             for i in hair_items:
@@ -266,7 +267,9 @@ class Generator(nn.Module):
         rays = c.render_res * c.render_res
         noise = (torch.rand(b, rays, c.samples, dtype=verts.dtype, device=verts.device)
                  if jitter else None)
-        points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise)
+        # with hair, half the samples stay around the head under it (seen through thin hair)
+        points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise,
+                                              behind=head_depth if hair_items else None)
         if self.cull_rays:  # decode only the rays that pass near a surface
             order, _ = near_rays(near)
             points = torch.gather(points, 1, order[..., None, None].expand(

@@ -45,8 +45,19 @@ def screen_depth(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
     return torch.where(frags.mask, frags.depth, torch.full_like(frags.depth, EMPTY))
 
 
+def _filled(depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(depth, near)`` of a ``(B, 1, res, res)`` depth map: covered pixels keep their
+    depth, uncovered ones next to a silhouette take their nearest neighbour's (only there:
+    borrowing a nearer one at a covered pixel left background seams behind ears and
+    hair); ``near`` is 1 where a surface is within one pixel."""
+    mask = (depth < EMPTY).to(depth.dtype)
+    fill = torch.where(mask > 0, depth, -F.max_pool2d(-depth, 3, stride=1, padding=1))
+    return fill, F.max_pool2d(mask, 3, stride=1, padding=1)
+
+
 def samples_around(depth: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
-                   samples: int, shell: float, jitter: torch.Tensor | None = None
+                   samples: int, shell: float, jitter: torch.Tensor | None = None,
+                   behind: torch.Tensor | None = None
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Points along each pixel's ray around a depth map's surface.
 
@@ -57,6 +68,10 @@ def samples_around(depth: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Ten
         samples: Points per ray ``S``.
         shell: Metres covered in front of and behind the surface.
         jitter: Optional ``(B, res * res, S)`` in [0, 1): stratified offsets (training).
+        behind: Optional ``(B, res, res)`` depth of a surface at or behind ``depth`` (the
+            head under the hair): the odd-numbered samples go around it instead, so both
+            are sampled. Where the two coincide the samples are exactly those without it;
+            the depths come back sorted along each ray.
 
     Returns:
         ``(points (B, res*res, S, 3), depths (B, res*res, S), near (B, res*res))`` where
@@ -64,18 +79,20 @@ def samples_around(depth: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Ten
     """
     b, res = depth.shape[0], depth.shape[-1]
     dtype, device = c2w.dtype, c2w.device
-    d = depth[:, None]
-    mask = (d < EMPTY).to(dtype)
-    # Fill one pixel around the silhouette with the nearest covered depth (only where the
-    # pixel itself has no surface: borrowing a nearer one there left background seams).
-    d_fill = -F.max_pool2d(-d, 3, stride=1, padding=1)
-    near = F.max_pool2d(mask, 3, stride=1, padding=1)
-    d_fill = torch.where(mask > 0, d, d_fill)
+    d_fill, near = _filled(depth[:, None])
     d_fill = torch.where(near > 0, d_fill, torch.ones_like(d_fill))  # arbitrary, weight 0
-    d_fill = d_fill.view(b, res * res)
+    d_fill = d_fill.view(b, res * res, 1)
     steps = torch.arange(samples, dtype=dtype, device=device)
     u = (steps + 0.5)[None, None] if jitter is None else steps + jitter
-    t = d_fill[..., None] + shell * (2.0 * u / samples - 1.0)  # (B, HW, S)
+    offsets = shell * (2.0 * u / samples - 1.0)
+    if behind is None:
+        t = d_fill + offsets  # (B, HW, S)
+    else:
+        d_back, near_back = _filled(behind[:, None])
+        d_back = torch.where(near_back > 0, d_back, d_fill.view(b, 1, res, res))
+        odd = (steps % 2 == 1)[None, None]
+        t = torch.where(odd, d_back.view(b, res * res, 1), d_fill) + offsets
+        t = torch.sort(t, dim=-1).values
     # Ray directions with unit depth, in world coordinates.
     ys, xs = torch.meshgrid(torch.arange(res, dtype=dtype, device=device),
                             torch.arange(res, dtype=dtype, device=device), indexing="ij")

@@ -45,6 +45,27 @@ def test_covered_pixels_keep_their_depth_and_the_border_borrows_the_nearest():
     assert mid[6] == 0.9 and near.view(8, 8)[4].tolist() == [1] * 7 + [0]
 
 
+def test_samples_behind_go_around_the_surface_under_the_hair():
+    depth = torch.full((1, 8, 8), EMPTY)
+    depth[:, :, :6] = 0.5  # hair over columns 0-5
+    behind = torch.full((1, 8, 8), EMPTY)
+    behind[:, :, :3], behind[:, :, 3:5] = 0.5, 0.6  # the head: on it at 0-2, 10 cm back at 3-4
+    c2w = torch.eye(4)[None]
+    k = intrinsics_from_fov(30.0, 8, 8)[None]
+    _, plain, near = samples_around(depth, c2w, k, 4, 0.01)
+    _, t, near_b = samples_around(depth, c2w, k, 4, 0.01, behind=behind)
+    t, plain = t.view(8, 8, 4)[4], plain.view(8, 8, 4)[4]
+    assert torch.equal(near_b, near)
+    # Where the head is the hair's surface, or where no head lies behind (columns 5-6
+    # borrow, column 5 from its neighbour at 0.6), the samples are the plain ones.
+    assert torch.allclose(t[:3], plain[:3]) and torch.allclose(t[6], plain[6])
+    # Where it lies behind, half the samples stay on the hair and half go to the head,
+    # sorted along the ray.
+    assert torch.allclose(t[3], torch.tensor([0.4925, 0.5025, 0.5975, 0.6075]))
+    assert torch.allclose(t[5], torch.tensor([0.4925, 0.5025, 0.5975, 0.6075]))
+    assert (t[:7].diff(dim=-1) >= 0).all()
+
+
 def test_compositing_of_known_densities():
     depths = torch.tensor([[[1.0, 1.1, 1.2]]])
     feats = torch.tensor([[[[1.0], [2.0], [3.0]]]])
