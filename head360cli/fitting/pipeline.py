@@ -301,6 +301,19 @@ def _aligned(img, fit, model, res: int):
     return c2w, k, affine, crop, posed, neutral
 
 
+def _inner_landmarks(model, posed: np.ndarray, detected: np.ndarray, affine: np.ndarray,
+                     device) -> tuple:
+    """The inner-face landmarks (17-67: brows, nose, eyes, mouth; not the jaw contour,
+    which slides with the view) as ``(points on the posed mesh (51, 3), detected pixels
+    in the crop (51, 2))``, the anchors of the inversion's camera refinement."""
+    import torch
+
+    points = model.landmark_points(posed)[17:]
+    pixels = detected[17:] @ affine[:, :2].T + affine[:, 2]
+    return (torch.tensor(points, dtype=torch.float32, device=device),
+            torch.tensor(pixels, dtype=torch.float32, device=device))
+
+
 def _hair_guess(img, parse, fit, model, res: int = 128):
     """Hairstyle ranking and hair colour of a parsed photo:
     ``(guess, colour estimate, nearest corpus colour name, its RGB)``."""
@@ -439,7 +452,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         gen, verts, cam, kk,
         torch.tensor(target, dtype=torch.float32, device=dev).permute(2, 0, 1) / 255.0,
         torch.tensor(mask, device=dev)[None], start, cfg,
-        progress=lambda s, n, loss: say("texture", s, n))
+        progress=lambda s, n, loss: say("texture", s, n),
+        landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev))
     timings["invert"] = inv.seconds
 
     say("preview", 0, 1)
