@@ -7,7 +7,8 @@ crop in which the head has the size it has in the training rig's views, so the g
 sees the scale it was trained at. :func:`invert_texture` first fits the texture code
 ``t`` (a few steps: a plausible head everywhere), then the neural texture itself, with L1
 on the face region and two regularisers that keep what the photo does not show plausible:
-staying near the generated texture, and left-right symmetry in texture space.
+staying near the generated texture, and left-right symmetry in texture space. While the
+code is fitted the camera is refined photometrically, held near the detected landmarks.
 """
 
 from __future__ import annotations
@@ -276,6 +277,12 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
     """
     from head360cli.geometry.cameras import project
 
+    if landmarks is not None:
+        shapes = tuple(tuple(x.shape) for x in landmarks)
+        if len(shapes) != 2 or len(shapes[0]) != 2 or shapes[0][1:] != (3,) \
+                or shapes[1] != (shapes[0][0], 2):
+            raise ValueError(f"expected landmarks as (points (L, 3), pixels (L, 2)), "
+                             f"found shapes {shapes}")
     t0 = time.perf_counter()
     gen.requires_grad_(False)
     v, cam, k = verts[None], c2w[None], intrinsics[None]

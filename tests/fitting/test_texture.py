@@ -167,3 +167,11 @@ def test_inversion_is_deterministic_and_restores_the_torch_setting(scene):
             for _ in range(2)]
     assert runs[0] == runs[1]
     assert torch.are_deterministic_algorithms_enabled() == before
+
+
+def test_landmarks_of_the_wrong_shape_are_refused(scene):
+    gen, codes, batch = scene
+    with pytest.raises(ValueError, match=r"expected landmarks as .* found shapes"):
+        invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
+                       batch.alpha[0], codes.mean(0),
+                       landmarks=(torch.zeros(51, 3), torch.zeros(50, 2)))
