@@ -180,15 +180,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         start = int(state["step"])
     init = None
     if state is None and cfg.init:
-        from head360cli.errors import FileFormatError
-
-        try:
-            init = torch.load(cfg.init, map_location="cpu", weights_only=True)
-            assert init.get("format") == "head360-generator"
-            gen_cfg = GeneratorConfig.from_dict(init["generator_config"])
-        except Exception as exc:  # pickle, zip and key errors alike
-            raise FileFormatError(f"{cfg.init}: expected head360 generator weights "
-                                  f"({exc!r})") from exc
+        init, gen_cfg = _read_weights(cfg.init)
         if init["codes"].shape[0] != cfg.identities:
             raise ValueError(f"{cfg.init}: expected codes for {cfg.identities} identities, "
                              f"found {init['codes'].shape[0]}")
@@ -325,12 +317,37 @@ def load_generator(path: str | Path | None = None, device: str = "cpu"
     if not path.is_file():
         raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
                                  "with 'head360 train'")
+    w, cfg = _read_weights(path)
     try:
-        w = torch.load(path, map_location="cpu", weights_only=True)
-        assert w.get("format") == "head360-generator"
-        cfg = GeneratorConfig.from_dict(w["generator_config"])
         gen = Generator(cfg, *_topology())
         gen.load_state_dict(w["generator"])
-    except Exception as exc:  # pickle, zip, key and shape errors alike
+    except (KeyError, RuntimeError) as exc:  # missing, extra or mis-shaped tensors
         raise FileFormatError(f"{path}: expected head360 generator weights ({exc})") from exc
     return gen.to(device).eval(), w["codes"].to(device)
+
+
+def _read_weights(path: str | Path) -> tuple[dict, GeneratorConfig]:
+    """The dictionary of a generator weights file and its generator config.
+
+    Raises:
+        FileFormatError: The file does not load, or is not head360 generator weights.
+    """
+    from head360cli.errors import FileFormatError
+
+    try:
+        w = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle and zip errors alike
+        raise FileFormatError(f"{path}: expected head360 generator weights ({exc})") from exc
+    if not isinstance(w, dict) or w.get("format") != "head360-generator":
+        found = w.get("format") if isinstance(w, dict) else type(w).__name__
+        raise FileFormatError(f"{path}: expected head360 generator weights, found "
+                              f"{found!r}")
+    missing = {"generator", "codes", "generator_config"} - set(w)
+    if missing:
+        raise FileFormatError(f"{path}: expected head360 generator weights, found no "
+                              f"{sorted(missing)}")
+    try:
+        return w, GeneratorConfig.from_dict(w["generator_config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FileFormatError(f"{path}: expected head360 generator weights ({exc!r})"
+                              ) from exc
