@@ -71,7 +71,7 @@ class InvertConfig:
     landmarks (brows, nose, eyes, mouth), of the squared distance in crop widths by which
     each one, projected with the refined camera, lies more than ``anchor_slack`` from
     where it was detected. Photometric error alone let the camera turn the head under
-    the face by 15-20 degrees and 40 pixels where a photo's colours mislead it (a
+    the face by 16-23 degrees and 40 pixels where a photo's colours mislead it (a
     greyscale photo); on synthetic photos the refinement turns 4-9 degrees and moves the
     landmarks 1-3 pixels (pitch with a compensating shift, which landmarks cannot see),
     and the slack leaves that free. Used only when :func:`invert_texture` is given
