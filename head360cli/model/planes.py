@@ -88,9 +88,13 @@ def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
     corner_uv = uv[faces_uv]  # (F, 3, 2)
     uvs = interpolate_face_corners(corner_uv, frags)  # (BP, res, res, 2)
     # One texture read by all P planes at once: the grids stacked into one tall grid
-    # (the same values as sampling P copies of the texture, without making the copies)
-    grid = (uvs * 2.0 - 1.0).reshape(b, p * res, res, 2)
-    feat = F.grid_sample(texture, grid, mode="bilinear", padding_mode="border",
+    # (the same values as sampling P copies of the texture, without making the copies).
+    # Border padding is written as a grid clamped half a texel inside the edge with zero
+    # padding: the same samples (the outer texel's weight is 1 at the clamp), and
+    # onnxruntime's border mode was 4x slower than its zero padding (35 vs 8 ms a frame)
+    lim = 1.0 - 1.0 / texture.shape[-1]
+    grid = (uvs * 2.0 - 1.0).clamp(-lim, lim).reshape(b, p * res, res, 2)
+    feat = F.grid_sample(texture, grid, mode="bilinear", padding_mode="zeros",
                          align_corners=False)  # (B, C, P res, res)
     feat = feat.view(b, -1, p, res, res)
     mask = frags.mask.to(feat.dtype).view(b, 1, p, res, res)
