@@ -106,8 +106,9 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     b = depth.shape[0]
     device, dtype = screen.device, screen.dtype
     hw = height * width
-    tri = screen[:, faces]  # (B, F, 3, 2)
-    tri_z = depth[:, faces]  # (B, F, 3)
+    corners = faces.reshape(-1)
+    tri = screen.index_select(1, corners).view(b, -1, 3, 2)  # (B, F, 3, 2)
+    tri_z = depth.index_select(1, corners).view(b, -1, 3)  # (B, F, 3)
     x, y = tri[..., 0], tri[..., 1]
     area = (x[..., 1] - x[..., 0]) * (y[..., 2] - y[..., 0]) - (
         x[..., 2] - x[..., 0]) * (y[..., 1] - y[..., 0])
@@ -122,15 +123,19 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         # With image y pointing down, a triangle that is counter-clockwise seen from the
         # camera has negative screen area.
         valid &= area < 0
-    size = torch.maximum(j1 - j0, i1 - i0) + 1  # bounding-box extent in pixels
 
     bi, fi = torch.nonzero(valid, as_tuple=True)
+    # Gathers here are index_select on a flat index: tensor indexing exports as ONNX
+    # GatherND, which onnxruntime (and torch, for a (batch, face) pair) runs 2-3x slower
+    sel_all = bi * faces.shape[0] + fi
+    t = tri.flatten(0, 1).index_select(0, sel_all)
+    tz = tri_z.flatten(0, 1).index_select(0, sel_all)
+    tj0, ti0, tj1, ti1, ar = torch.stack([j0, i0, j1, i1, area], -1).flatten(
+        0, 1).index_select(0, sel_all).unbind(1)
+    sizes = torch.maximum(tj1 - tj0, ti1 - ti0) + 1  # bounding-box extent in pixels
     # Plane equations of the selected triangles: w_k = A_k x + B_k y + C_k for the three
     # barycentrics, and the depth key (1/z for perspective, -z for orthographic, larger
     # is nearer) likewise, all linear in screen space.
-    t = tri[bi, fi]
-    tz = tri_z[bi, fi]
-    ar = area[bi, fi]
     x0, y0, x1, y1, x2, y2 = (t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1], t[:, 2, 0],
                               t[:, 2, 1])
     a = torch.stack([y1 - y2, y2 - y0, y0 - y1], 1) / ar[:, None]
@@ -140,11 +145,13 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     a = torch.cat([a, (a * key_v).sum(1, keepdim=True)], 1)  # (n, 4)
     bb = torch.cat([bb, (bb * key_v).sum(1, keepdim=True)], 1)
     c = torch.cat([c, (c * key_v).sum(1, keepdim=True)], 1)
-    tj0, ti0 = j0[bi, fi], i0[bi, fi]
     base = a * (tj0 + 0.5)[:, None] + bb * (ti0 + 0.5)[:, None] + c  # at the box corner
     plane = torch.stack([a, bb, base], 2)  # (n, 4, 3)
-    tj1, ti1 = j1[bi, fi], i1[bi, fi]
-    sizes = size[bi, fi]
+    # one row per triangle: its plane equations (12: three barycentrics, then the depth
+    # key), box corner and box extent (4); and its flat pixel offset and face id
+    table = torch.cat([plane.flatten(1), torch.stack([tj0, ti0, tj1 - tj0, ti1 - ti0], 1)],
+                      1)
+    ids = torch.stack([bi * hw, fi], 1)
 
     pix_all, key_all, face_all = [], [], []
     static = _STATIC_LEVELS is not None
@@ -162,22 +169,24 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
             d = torch.arange(k, device=device, dtype=dtype)
             dy, dx = torch.meshgrid(d, d, indexing="ij")
             offsets = torch.stack([dx.reshape(-1), dy.reshape(-1)])  # (2, K2)
-            p = plane[sel, :3]  # (n, 3, 3)
+            rows = table.index_select(0, sel)
+            p = rows[:, :9].view(-1, 3, 3)
             # (n, 3, K2): the three barycentrics, element-wise rather than a matrix
             # product so that torch and onnxruntime round them alike (same coverage)
             values = (p[..., 0:1] * offsets[0] + p[..., 1:2] * offsets[1]) + p[..., 2:3]
             inside = ((values.amin(1) >= -eps)
-                      & (offsets[0][None] <= (tj1 - tj0)[sel][:, None])
-                      & (offsets[1][None] <= (ti1 - ti0)[sel][:, None]))
+                      & (offsets[0][None] <= rows[:, 14:15])
+                      & (offsets[1][None] <= rows[:, 15:16]))
             row, col = torch.nonzero(inside, as_tuple=True)
-            s_idx = sel[row]
-            px = (tj0[s_idx] + offsets[0][col]).long()
-            py = (ti0[s_idx] + offsets[1][col]).long()
-            pix_all.append(bi[s_idx] * hw + py * width + px)
-            key_plane = plane[s_idx, 3]  # depth key only where needed
-            key_all.append(key_plane[:, 0] * offsets[0][col] + key_plane[:, 1] * offsets[1][col]
-                           + key_plane[:, 2])
-            face_all.append(fi[s_idx])
+            hit = rows.index_select(0, row)
+            hit_ids = ids.index_select(0, sel.index_select(0, row))
+            ox, oy = offsets[0].index_select(0, col), offsets[1].index_select(0, col)
+            px = (hit[:, 12] + ox).long()
+            py = (hit[:, 13] + oy).long()
+            pix_all.append(hit_ids[:, 0] + py * width + px)
+            # depth key only where needed
+            key_all.append(hit[:, 9] * ox + hit[:, 10] * oy + hit[:, 11])
+            face_all.append(hit_ids[:, 1])
         lower = k
 
     face_id = torch.full((b * hw,), -1, dtype=torch.long, device=device)
@@ -187,8 +196,9 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         face = torch.cat(face_all)
         zbuf = torch.full((b * hw,), float("-inf"), dtype=dtype, device=device)
         zbuf = zbuf.scatter_reduce(0, pix, key, reduce="amax", include_self=True)
-        win = key >= zbuf[pix]
-        face_id = face_id.scatter_reduce(0, pix[win], face[win], reduce="amax",
+        win = torch.nonzero(key >= zbuf.index_select(0, pix)).squeeze(1)
+        face_id = face_id.scatter_reduce(0, pix.index_select(0, win),
+                                         face.index_select(0, win), reduce="amax",
                                          include_self=True)
 
     if static:  # every pixel, then masked: no data-dependent (possibly empty) index sets
@@ -211,22 +221,18 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
 
 def _surface_at(pix: torch.Tensor, f: torch.Tensor, tri: torch.Tensor,
                 tri_z: torch.Tensor, area: torch.Tensor, hw: int, width: int,
-                perspective_correct: bool, covered: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+                perspective_correct: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """Barycentrics ``(n, 3)`` and depth ``(n,)`` of triangle ``f[i]`` at the centre of
     flat pixel ``pix[i]`` (``batch * H W + row * W + column``), recomputed from the
-    triangle so they are differentiable. Where ``covered`` is False the area and depths
-    are taken as 1 (no 0/0; the caller masks those pixels)."""
+    triangle so they are differentiable."""
     dtype = tri.dtype
     fb, rem = pix // hw, pix % hw
     cy = (rem // width).to(dtype) + 0.5
     cx = (rem % width).to(dtype) + 0.5
-    a = area[fb, f]
-    tz = tri_z[fb, f]
-    if covered is not None:
-        a = torch.where(covered, a, torch.ones_like(a))
-        tz = torch.where(covered[:, None], tz, torch.ones_like(tz))
-    w0, w1, w2 = _barycentric(tri[fb, f], cx, cy, a)
+    flat = fb * tri.shape[1] + f  # one flat gather per array (see rasterize)
+    a = area.flatten().index_select(0, flat)
+    tz = tri_z.flatten(0, 1).index_select(0, flat)
+    w0, w1, w2 = _barycentric(tri.flatten(0, 1).index_select(0, flat), cx, cy, a)
     w = torch.stack([w0, w1, w2], dim=-1).clamp(0.0, 1.0)
     w = w / w.sum(-1, keepdim=True).clamp_min(1e-12)
     if perspective_correct:
@@ -240,14 +246,25 @@ def _dense_fragments(face_id, tri, tri_z, area, b, height, width, perspective_co
     """The fragments of :func:`rasterize` computed at every pixel and masked where no
     triangle is visible: the same formulas (:func:`_surface_at`, so the same values),
     with no index set that can be empty (onnxruntime's ScatterND refused an empty
-    update)."""
+    update).
+
+    Uncovered pixels read a sentinel triangle appended to each batch item (unit area,
+    depth 1), so every value computed is finite and masking is a product; a ``where``
+    broadcast over the three barycentrics cost onnxruntime 6 ms a frame."""
     hw = height * width
+    n_faces = tri.shape[1]
     covered = face_id >= 0
+    unit = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], dtype=tri.dtype,
+                        device=tri.device)
+    tri = torch.cat([tri, unit.expand(b, 1, 3, 2)], 1)
+    tri_z = torch.cat([tri_z, torch.ones_like(tri_z[:, :1])], 1)
+    area = torch.cat([area, torch.ones_like(area[:, :1])], 1)
     pix = torch.arange(b * hw, device=tri.device)
-    w, zf = _surface_at(pix, face_id.clamp_min(0), tri, tri_z, area, hw, width,
-                        perspective_correct, covered)
-    bary = torch.where(covered[:, None], w, torch.zeros_like(w))
-    zout = torch.where(covered, zf, torch.zeros_like(zf))
+    w, zf = _surface_at(pix, torch.where(covered, face_id, n_faces), tri, tri_z, area, hw,
+                        width, perspective_correct)
+    keep = covered.to(w.dtype)
+    bary = w * keep[:, None]
+    zout = zf * keep
     return Fragments(face_id=face_id.view(b, height, width),
                      bary=bary.view(b, height, width, 3), depth=zout.view(b, height, width))
 
@@ -280,7 +297,8 @@ def interpolate_face_corners(corner_attr: torch.Tensor, frags: Fragments) -> tor
     b, h, w = frags.face_id.shape
     fid = frags.face_id.clamp_min(0).reshape(b, h * w)
     if corner_attr.dim() == 3:
-        corners = corner_attr[fid]  # (B, HW, 3, C)
+        corners = corner_attr.index_select(0, fid.reshape(-1)).view(
+            b, h * w, 3, corner_attr.shape[-1])  # (B, HW, 3, C)
     else:
         corners = torch.gather(
             corner_attr, 1,

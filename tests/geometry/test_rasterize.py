@@ -196,3 +196,24 @@ def test_static_windows_give_the_same_fragments():
     with static_windows((1, 2, 4)):
         small = rasterize(screen, depth, faces, 40, 40)
     assert (small.face_id >= 0).sum() < (a.face_id >= 0).sum()
+
+
+def test_static_windows_are_finite_where_the_first_triangle_is_not():
+    """Uncovered pixels of the export path are computed from a well-formed stand-in
+    triangle and masked by a product: a non-finite first triangle, which uncovered pixels
+    once read, must not leak NaN into them."""
+    from head360cli.geometry.rasterize import rasterize, static_windows
+
+    screen = torch.tensor([[[float("inf"), 1.0], [5.0, float("nan")], [9.0, 9.0],
+                            [2.0, 2.0], [12.0, 2.0], [2.0, 12.0]]])
+    depth = torch.tensor([[1.0, 1.0, 1.0, 2.0, 2.0, 2.0]])
+    faces = torch.tensor([[0, 1, 2], [3, 4, 5]])
+    a = rasterize(screen, depth, faces, 16, 16)
+    with static_windows():
+        b = rasterize(screen, depth, faces, 16, 16)
+    for frags in (a, b):
+        assert torch.isfinite(frags.bary).all() and torch.isfinite(frags.depth).all()
+        assert (frags.face_id[frags.mask] == 1).all() and frags.mask.sum() > 20
+    assert torch.equal(a.face_id, b.face_id)
+    torch.testing.assert_close(a.bary, b.bary, atol=1e-6, rtol=0)
+    assert (b.bary[~b.mask] == 0).all() and (b.depth[~b.mask] == 0).all()
