@@ -493,14 +493,17 @@ def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -
               help="Random heads, expressions and cameras for parity.")
 @click.option("--size", default=256, show_default=True, help="Image size of the graph.")
 @click.option("--samples", default=8, show_default=True, help="Samples per ray.")
-@click.option("--repeats", default=10, show_default=True, help="Timed frames per speed.")
+@click.option("--repeats", default=10, show_default=True,
+              help="Timed frames per block.")
+@click.option("--rounds", default=3, show_default=True,
+              help="Timed blocks per row, the backends taking turns.")
 @click.option("--onnx", "graph", default=None, type=click.Path(dir_okay=False),
               help="Use this exported graph (default: export one, about 90 s).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
-def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, graph: str | None,
-                   out_dir: str) -> None:
+def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: int,
+                   graph: str | None, out_dir: str) -> None:
     """onnxruntime against torch: largest difference over random heads, and speed.
 
     \b
@@ -511,9 +514,9 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, graph: str
     from head360cli.bench.onnx import bench_onnx
     from head360cli.bench.report import save
 
-    if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000:
-        raise BadInputError(f"expected --heads in 1..10000 and --repeats in 1..1000, found "
-                            f"{heads} and {repeats}")
+    if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000 or not 1 <= rounds <= 100:
+        raise BadInputError(f"expected --heads in 1..10000, --repeats in 1..1000 and "
+                            f"--rounds in 1..100, found {heads}, {repeats} and {rounds}")
     if not 1 <= samples <= 64 or not 32 <= size <= 2048:
         raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
                             f"{samples} and {size}")
@@ -521,7 +524,8 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, graph: str
         raise BadInputError(f"ONNX graph {graph!r} does not exist")
     progress = None if _settings().quiet else (lambda t: click.echo(f"bench onnx: {t}",
                                                                     err=True))
-    result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress)
+    result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress,
+                            rounds=rounds)
     result["files"] = save(result, md, out_dir, "onnx")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 

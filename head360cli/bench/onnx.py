@@ -7,8 +7,11 @@
   pitch within +-75 degrees), are rendered by torch in float32 and by onnxruntime from the
   same mesh; the largest absolute difference per image and over all.
 - Speed: milliseconds per frame of one head, with and without hair, for torch float32,
-  torch with bfloat16 networks (where the CPU has them) and onnxruntime, each timed on its
-  own (torch's and onnxruntime's thread pools would slow each other if interleaved).
+  torch with bfloat16 networks (where the CPU has them) and onnxruntime: the median of
+  ``rounds`` blocks of ``repeats`` frames each, the backends' blocks taking turns (frame
+  times on a 2-core machine drift by a third over minutes, which timing one backend after
+  the other took for a difference between them), with a pause between blocks (torch's
+  and onnxruntime's thread pools would slow each other if frames were interleaved).
 
 float16 does not apply on this CPU: onnxruntime's CPU provider has no float16 kernels for
 most of the graph's operators, and torch's CPU half precision is bfloat16 (measured).
@@ -35,26 +38,26 @@ def random_expression(rng: np.random.Generator) -> np.ndarray:
     return w
 
 
-def _median_ms(fn, repeats: int) -> float:
-    fn()  # warm-up
+def _frame_seconds(fn, repeats: int) -> list[float]:
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return round(1000 * float(np.median(times)), 1)
+    return times
 
 
 def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int = 10,
                seed: int = 0, graph: str | Path | None = None,
-               progress: Any = None) -> tuple[dict[str, Any], str]:
+               progress: Any = None, rounds: int = 3) -> tuple[dict[str, Any], str]:
     """Run the benchmark; returns the result and a Markdown summary.
 
     Args:
         heads: Random heads (and as many expressions and cameras) for parity.
         size: Image size of the exported graph.
         samples: Samples per ray of the exported graph.
-        repeats: Timed frames per speed measurement.
+        repeats: Timed frames per block.
+        rounds: Blocks per backend and hair setting, taking turns.
         seed: Seed of heads, expressions and cameras.
         graph: An exported graph to use (its size and samples); default: export one.
         progress: ``progress(text)`` callback.
@@ -109,7 +112,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     say("timing torch and onnxruntime")
     a = sample_heads(1, seed=seed + 1)[0].arrays
     cam, w = view_cameras(20.0, 5.0), np.zeros(52)
-    speed = []
+    runs = {}
     backends = [("torch", "fp32"), ("torch", "bf16"), ("onnxruntime", "fp32")]
     for backend, precision in backends:
         if precision == "bf16" and not fast_bfloat16(torch.device("cpu")):
@@ -119,11 +122,22 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
         if backend == "onnxruntime":
             r.use_runner(runner)
         for hair in (True, False):
+            runs[backend, precision, hair] = (
+                lambda r=r, hair=hair: r.render(cam, k, w, hair=hair), [])
+    for i in range(max(rounds, 1)):
+        for fn, times in runs.values():
             time.sleep(0.5)  # let the other runtime's worker threads go idle
-            ms = _median_ms(lambda r=r, hair=hair: r.render(cam, k, w, hair=hair), repeats)
-            speed.append({"backend": backend, "precision": precision,
-                          "hair": "yes" if hair else "no", "ms_per_frame": ms,
-                          "fps": round(1000 / ms, 2)})
+            if i == 0:
+                fn()  # warm-up
+            times.extend(_frame_seconds(fn, repeats))
+    speed = []
+    for (backend, precision, hair), (_, times) in runs.items():
+        ms = round(1000 * float(np.median(times)), 1)
+        speed.append({"backend": backend, "precision": precision,
+                      "hair": "yes" if hair else "no", "ms_per_frame": ms,
+                      "fps": round(1000 / ms, 2),
+                      "spread_ms": [round(1000 * float(q), 1)
+                                    for q in np.percentile(times, [10, 90])]})
     base = {s["hair"]: s["ms_per_frame"] for s in speed
             if s["backend"] == "torch" and s["precision"] == "fp32"}
     for s in speed:
@@ -132,6 +146,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     diffs = np.array([r["max_abs_diff"] for r in rows])
     result = {
         "machine": machine(), "size": size, "samples": samples, "export_s": export_s,
+        "timing": {"rounds": max(rounds, 1), "frames_per_block": repeats},
         "parity": {"heads": heads, "max_abs_diff": worst,
                    "median_max_abs_diff": float(np.median(diffs)),
                    "images_over_1e-3": int((diffs > 1e-3).sum()),
@@ -144,6 +159,10 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
           f"{samples} samples per ray): largest absolute difference {worst:.2e} "
           f"(median per image {np.median(diffs):.2e}; {result['parity']['images_over_1e-3']}"
           f" images over 1e-3)\n\n"
-          + markdown_table(speed, ["backend", "precision", "hair", "ms_per_frame", "fps",
-                                   "speed_vs_torch_fp32"]))
+          + markdown_table([{**s, "10th-90th_ms": "{} - {}".format(*s["spread_ms"])}
+                            for s in speed],
+                           ["backend", "precision", "hair", "ms_per_frame", "10th-90th_ms",
+                            "fps", "speed_vs_torch_fp32"])
+          + f"\n\nMedian of {max(rounds, 1)} blocks of {repeats} frame(s) per row, the "
+            f"backends taking turns.")
     return result, md

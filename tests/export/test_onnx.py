@@ -179,13 +179,17 @@ def test_bench_onnx_on_the_exported_graph(exported):
     from head360cli.bench.onnx import bench_onnx, random_expression
 
     _, out, _, _ = exported
-    result, md = bench_onnx(heads=2, repeats=1, graph=out)
+    result, md = bench_onnx(heads=2, repeats=1, graph=out, rounds=2)
     assert result["size"] == 48 and result["samples"] == 3
     assert result["parity"]["all_finite"] and len(result["parity"]["rows"]) == 2
     assert 0 <= result["parity"]["max_abs_diff"] <= 1e-3
     backends = {(s["backend"], s["hair"]) for s in result["speed"]}
     assert {("torch", "yes"), ("onnxruntime", "yes"), ("onnxruntime", "no")} <= backends
-    assert "onnxruntime" in md
+    assert result["timing"] == {"rounds": 2, "frames_per_block": 1}
+    for s in result["speed"]:  # the median of two blocks lies between their frame times
+        lo, hi = s["spread_ms"]
+        assert 0 < lo <= s["ms_per_frame"] <= hi
+    assert "onnxruntime" in md and "2 blocks of 1 frame(s)" in md
     w = random_expression(np.random.default_rng(0))
     assert w.shape == (52,) and w.min() >= 0 and w.max() <= 1
 
