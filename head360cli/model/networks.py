@@ -168,7 +168,13 @@ class RefineNet(nn.Module):
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         """Features ``(B, Cf, h, w)``, coverage ``(B, 1, h, w)`` and the composited colour
         ``(B, 3, h, w)`` -> ``(rgb (B, 3, H, W), alpha (B, 1, H, W))``."""
-        res = self.net(torch.cat([features, alpha], 1))
+        x = torch.cat([features, alpha], 1)
+        if x.device.type == "cpu" and not _exporting():
+            # oneDNN's CPU convolutions run faster on channels-last input (this network at
+            # 128 -> 256 px: 41 -> 31 ms on 2 cores); the same function, rounded apart
+            # by 2e-5 at most
+            x = x.contiguous(memory_format=torch.channels_last)
+        res = self.net(x).contiguous()
         up = F.interpolate(torch.cat([rgb, alpha], 1), scale_factor=self.scale,
                            mode="bilinear", align_corners=False)
         out = up + res

@@ -34,3 +34,31 @@ def test_decoder_with_betas_folded_equals_the_decoder():
                                 torch.nn.Softplus(), dec.net[4])
     with torch.no_grad():
         assert (plain(x) - ref).abs().max() > 1e-2
+
+
+def test_refinenet_on_cpu_runs_channels_last_and_returns_the_same_images():
+    from head360cli.model.networks import RefineNet
+
+    torch.manual_seed(0)
+    cfg = GeneratorConfig(render_res=16, image_res=32, refine_width=16)
+    net = RefineNet(cfg)
+    for p in net.parameters():  # the last layer starts at zero: give it weights
+        p.data.normal_(0.0, 0.2)
+    feats = torch.randn(2, cfg.feature_channels, 16, 16)
+    alpha, rgb = torch.rand(2, 1, 16, 16), torch.rand(2, 3, 16, 16)
+    seen = []
+    hook = net.net[0].register_forward_pre_hook(lambda m, args: seen.append(args[0]))
+    with torch.no_grad():
+        got_rgb, got_alpha = net(feats, alpha, rgb)
+        res = net.net(torch.cat([feats, alpha], 1))  # plain NCHW
+    hook.remove()
+    assert seen[0].is_contiguous(memory_format=torch.channels_last)
+    assert not seen[1].is_contiguous(memory_format=torch.channels_last)
+    up = F.interpolate(torch.cat([rgb, alpha], 1), scale_factor=2, mode="bilinear",
+                       align_corners=False)
+    torch.testing.assert_close(got_rgb, (up + res)[:, :3], atol=1e-4, rtol=0)
+    torch.testing.assert_close(got_alpha, (up + res)[:, 3:].clamp(0, 1), atol=1e-4, rtol=0)
+    # the layout callers had before (a channel slice of a contiguous NCHW tensor)
+    assert got_rgb.stride() == (up + res)[:, :3].stride()
+    assert got_alpha.shape == (2, 1, 32, 32)
+    assert got_rgb.abs().mean() > 0.1  # the residual is not zero: a real comparison
