@@ -498,7 +498,8 @@ def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -
 @click.option("--rounds", default=3, show_default=True,
               help="Timed blocks per row, the backends taking turns.")
 @click.option("--onnx", "graph", default=None, type=click.Path(dir_okay=False),
-              help="Use this exported graph (default: export one, about 90 s).")
+              help="Use this exported graph (default: export one, about 3 minutes on "
+                   "2 CPU cores).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
