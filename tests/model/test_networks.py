@@ -62,3 +62,8 @@ def test_refinenet_on_cpu_runs_channels_last_and_returns_the_same_images():
     assert got_rgb.stride() == (up + res)[:, :3].stride()
     assert got_alpha.shape == (2, 1, 32, 32)
     assert got_rgb.abs().mean() > 0.1  # the residual is not zero: a real comparison
+    seen.clear()
+    hook = net.net[0].register_forward_pre_hook(lambda m, args: seen.append(args[0]))
+    net(feats, alpha, rgb)  # with gradients (fitting): the plain layout
+    hook.remove()
+    assert not seen[0].is_contiguous(memory_format=torch.channels_last)
