@@ -73,6 +73,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     from head360cli.model.train import load_generator
 
     say = progress or (lambda text: None)
+    rounds = max(int(rounds), 1)
     gen, _ = load_generator()
     tmp = tempfile.TemporaryDirectory()
     export_s = None
@@ -124,7 +125,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
         for hair in (True, False):
             runs[backend, precision, hair] = (
                 lambda r=r, hair=hair: r.render(cam, k, w, hair=hair), [])
-    for i in range(max(rounds, 1)):
+    for i in range(rounds):
         for fn, times in runs.values():
             time.sleep(0.5)  # let the other runtime's worker threads go idle
             if i == 0:
@@ -146,7 +147,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     diffs = np.array([r["max_abs_diff"] for r in rows])
     result = {
         "machine": machine(), "size": size, "samples": samples, "export_s": export_s,
-        "timing": {"rounds": max(rounds, 1), "frames_per_block": repeats},
+        "timing": {"rounds": rounds, "frames_per_block": repeats},
         "parity": {"heads": heads, "max_abs_diff": worst,
                    "median_max_abs_diff": float(np.median(diffs)),
                    "images_over_1e-3": int((diffs > 1e-3).sum()),
@@ -163,6 +164,6 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
                             for s in speed],
                            ["backend", "precision", "hair", "ms_per_frame", "10th-90th_ms",
                             "fps", "speed_vs_torch_fp32"])
-          + f"\n\nMedian of {max(rounds, 1)} blocks of {repeats} frame(s) per row, the "
+          + f"\n\nMedian of {rounds} blocks of {repeats} frame(s) per row, the "
             f"backends taking turns.")
     return result, md
