@@ -105,14 +105,20 @@ def test_inversion_lowers_the_photometric_loss(scene):
     assert gen.cfg.samples == 12  # the generator's own setting is restored
 
 
+def _pitched(c2w: torch.Tensor, degrees: float) -> torch.Tensor:
+    """The camera ``c2w (4, 4)`` turned ``degrees`` about the head's x axis: a pitch
+    error of the kind the landmark fit leaves."""
+    a = np.radians(degrees)
+    tilt = torch.eye(4)
+    tilt[1:3, 1:3] = torch.tensor([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return tilt @ c2w
+
+
 def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene):
     gen, codes, batch = scene
     torch.manual_seed(0)
     truth = batch.c2w[0]
-    a = np.radians(6.0)  # the camera turned 6 degrees about the head, as a pitch error
-    tilt = torch.eye(4)
-    tilt[1:3, 1:3] = torch.tensor([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    start = tilt @ truth
+    start = _pitched(truth, 6.0)
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4)
     inv = invert_texture(gen, batch.verts[0], start, batch.intrinsics, batch.rgb[0],
                          batch.alpha[0], codes.mean(0), cfg)
@@ -121,7 +127,9 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
         return float(torch.rad2deg(torch.arccos(torch.clamp(
             c2w[:3, 2] @ truth[:3, 2], -1.0, 1.0))))
 
-    assert angle(inv.c2w) < 0.6 * angle(start)  # measured: 5.8 -> 2.2 degrees
+    # measured: 5.8 -> 2.2 degrees. Fragile: the refinement's end point turns on rounding
+    # (inputs 1e-6 away ended 5.4-5.8 degrees off; channels-last convolutions, 6.1)
+    assert angle(inv.c2w) < 0.6 * angle(start)
     # The refinement shifts the camera across its line of sight only (metres).
     assert abs(float(inv.c2w[:3, 3].norm() - start[:3, 3].norm())) < 0.005
 
@@ -134,10 +142,7 @@ def test_landmarks_hold_the_refinement_where_they_were_seen(scene):
     from head360cli.mesh.bilinear import load_bilinear
 
     gen, codes, batch = scene
-    a = np.radians(6.0)
-    tilt = torch.eye(4)
-    tilt[1:3, 1:3] = torch.tensor([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    start = tilt @ batch.c2w[0]
+    start = _pitched(batch.c2w[0], 6.0)
     points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
     seen, _ = project(points[None], start[None], batch.intrinsics[None])
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4)
