@@ -9,7 +9,10 @@
 - Synthetic fit (the paper's Table 1 protocol): a held-out head rendered from the front
   with its hair is fitted by ``head360 fit``; PSNR and SSIM of the fitted head against the
   ground truth over all 72 rig views (cameras carried into the fitted head's frame by the
-  fitted pose), and at the input view.
+  fitted pose), and at the input view. Beside it, the same heads with their true mesh,
+  camera and hair, only the neural texture inverted (same preset, same face pixels):
+  what the texture inversion alone reaches, so the gap between the two is what the
+  shape, pose and hair estimates cost.
 - Real photos: face-region PSNR at the input view (the fitted head with its hair, inside
   the parsed face), dlib face-descriptor distance between the photo and renders of the
   fitted head (its fitted expression) from the rig's cameras at 0 and +-30 degrees yaw,
@@ -217,6 +220,69 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
                                "seconds")}}
 
 
+def _known_geometry(identities: int, preset: str, every: int = 1) -> dict[str, Any]:
+    """The synthetic fit's heads with their true mesh, camera and hair: only the neural
+    texture is inverted from the frontal render (preset ``preset``, no camera refinement,
+    the photo's face pixels: the head's bald coverage less its hair), then PSNR over the 72
+    rig views (every ``every``-th) and at the input view, at the generator's own samples
+    per ray."""
+    import torch
+
+    from head360cli.bench.generator import psnr
+    from head360cli.fitting.texture import PRESETS, invert_texture
+    from head360cli.geometry.cameras import (
+        RIG_DISTANCE,
+        RIG_FOV_DEG,
+        camera_on_sphere,
+        intrinsics_from_fov,
+        rig72,
+    )
+    from head360cli.model.data import Views
+    from head360cli.model.train import load_generator
+
+    gen, codes = load_generator()
+    res = gen.cfg.image_res
+    views = Views(identities, split="test", size=res)
+    k = intrinsics_from_fov(RIG_FOV_DEG, res, res)
+    rig, _, _ = rig72()
+    cam_in = camera_on_sphere(torch.tensor([0.0]), torch.tensor([0.0]), RIG_DISTANCE)
+    cfg = dataclasses.replace(PRESETS[preset], pose=False)
+    zero = np.zeros(52, np.float32)
+
+    def render(batch, texture):
+        hair = None
+        if batch.hair.meshes[0] is not None:
+            one = dataclasses.replace(batch.hair, meshes=batch.hair.meshes[:1],
+                                      style=batch.hair.style[:1],
+                                      colour=batch.hair.colour[:1])
+            hair = gen.prepare_hair(one).repeat(len(batch.c2w))
+        n = len(batch.c2w)
+        return gen(batch.verts, batch.c2w, k, texture=texture[None].expand(n, -1, -1, -1),
+                   hair=hair)["rgb"].clamp(0, 1)
+
+    rows = []
+    for i in range(identities):
+        photo = views.render(i, zero, cam_in, with_hair=True)
+        bald = views.render(i, zero, cam_in, with_hair=False)
+        face = bald.alpha[0] * (1.0 - photo.hair_alpha[0])
+        torch.manual_seed(0)
+        inv = invert_texture(gen, photo.verts[0], cam_in[0], k, photo.rgb[0], face,
+                             codes.mean(0), cfg)
+        scores = []
+        with torch.no_grad():
+            cams = rig[::every]
+            for j in range(0, len(cams), 8):
+                truth = views.render(i, zero, cams[j:j + 8], with_hair=True)
+                pred = render(truth, inv.texture)
+                scores += [psnr(pred[b], truth.rgb[b]) for b in range(len(pred))]
+            at_input = psnr(render(photo, inv.texture)[0], photo.rgb[0])
+        rows.append({"identity": i, "psnr_all_views": round(float(np.mean(scores)), 3),
+                     "psnr_input_view": round(at_input, 3),
+                     "invert_s": round(inv.seconds, 2)})
+    return {"rows": rows, "mean": {key: round(float(np.mean([r[key] for r in rows])), 3)
+                                   for key in ("psnr_all_views", "psnr_input_view")}}
+
+
 def _descriptor(rgb: np.ndarray):
     """dlib's 128-d face descriptor of the largest face, or ``None``."""
     import dlib
@@ -332,6 +398,9 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
         for preset in presets:
             say(f"synthetic fit, {preset}")
             result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work)
+            say(f"synthetic heads, true mesh, camera and hair, {preset}")
+            result["synthetic_fit"][preset]["known_geometry"] = _known_geometry(
+                identities, preset)
         if data is not None:
             photos = [data / "faces" / "astronaut.png",
                       data / "faces" / "Tom_Cruise_avp_2014_4.jpg",
@@ -375,12 +444,16 @@ def _markdown(r: dict[str, Any]) -> str:
                   "to fit).", ""]
     lines += ["## Synthetic fit (one frontal render -> 72 views; the render's focal and "
               "camera distance given to the fit)", "",
-              "| preset | PSNR all views | SSIM all views | PSNR input view | s per fit |",
-              "|---|---|---|---|---|"]
+              "| preset | PSNR all views | SSIM all views | PSNR input view | s per fit "
+              "| known mesh, camera, hair: PSNR all views | input view |",
+              "|---|---|---|---|---|---|---|"]
     for p, v in r["synthetic_fit"].items():
         m = v["mean"]
+        known = v.get("known_geometry", {}).get("mean")
+        tail = ("- | - |" if known is None else
+                f"{known['psnr_all_views']:.2f} | {known['psnr_input_view']:.2f} |")
         lines.append(f"| {p} | {m['psnr_all_views']:.2f} | {m['ssim_all_views']:.3f} | "
-                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} |")
+                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} | {tail}")
     if "real" in r:
         lines += ["", "## Real photos", "",
                   "| preset | face PSNR | same, bald | descriptor distance 0 deg | at +-30 deg "
