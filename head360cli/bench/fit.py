@@ -249,20 +249,17 @@ def _known_geometry(identities: int, preset: str, every: int = 1) -> dict[str, A
     cfg = dataclasses.replace(PRESETS[preset], pose=False)
     zero = np.zeros(52, np.float32)
 
-    def render(batch, texture):
-        hair = None
-        if batch.hair.meshes[0] is not None:
-            one = dataclasses.replace(batch.hair, meshes=batch.hair.meshes[:1],
-                                      style=batch.hair.style[:1],
-                                      colour=batch.hair.colour[:1])
-            hair = gen.prepare_hair(one).repeat(len(batch.c2w))
+    def render(batch, texture, hair):
         n = len(batch.c2w)
         return gen(batch.verts, batch.c2w, k, texture=texture[None].expand(n, -1, -1, -1),
-                   hair=hair)["rgb"].clamp(0, 1)
+                   hair=None if hair is None else hair.repeat(n))["rgb"].clamp(0, 1)
 
     rows = []
     for i in range(identities):
         photo = views.render(i, zero, cam_in, with_hair=True)
+        with torch.no_grad():  # the head's hair planes, made once for all its views
+            hair = (None if photo.hair.meshes[0] is None
+                    else gen.prepare_hair(photo.hair))
         bald = views.render(i, zero, cam_in, with_hair=False)
         face = bald.alpha[0] * (1.0 - photo.hair_alpha[0])
         torch.manual_seed(0)
@@ -273,9 +270,9 @@ def _known_geometry(identities: int, preset: str, every: int = 1) -> dict[str, A
             cams = rig[::every]
             for j in range(0, len(cams), 8):
                 truth = views.render(i, zero, cams[j:j + 8], with_hair=True)
-                pred = render(truth, inv.texture)
+                pred = render(truth, inv.texture, hair)
                 scores += [psnr(pred[b], truth.rgb[b]) for b in range(len(pred))]
-            at_input = psnr(render(photo, inv.texture)[0], photo.rgb[0])
+            at_input = psnr(render(photo, inv.texture, hair)[0], photo.rgb[0])
         rows.append({"identity": i, "psnr_all_views": round(float(np.mean(scores)), 3),
                      "psnr_input_view": round(at_input, 3),
                      "invert_s": round(inv.seconds, 2)})
