@@ -9,10 +9,11 @@ seeded from what the 68 landmarks say about where hair can and cannot be:
 - pixels whose colour matches the face's own skin (a Gaussian in Lab, estimated on the
   cheeks) probably are not.
 
-Without landmarks (a back view, a hair close-up), the photo is taken to be about the hair:
-GrabCut separates the foreground (the centre of the image and what has its colours are
-probably in it; an edge of the frame is not, unless it has those colours too, as in a
-close-up where the hair runs off the frame) and that foreground is the hair.
+Without landmarks (a back view, a profile, a hair close-up), the photo is taken to be about
+the hair: GrabCut separates the foreground (the centre of the image and what has its colours
+are probably in it; an edge of the frame is not, unless it has those colours too, as in a
+close-up where the hair runs off the frame; smooth regions and skin colours probably are
+not) and that foreground is the hair.
 
 Everything runs at a working resolution of at most ``work_size`` pixels and is scaled back
 to the input's size.
@@ -86,6 +87,23 @@ def _colour_distance(lab: np.ndarray, samples: np.ndarray, trims: int = 2) -> np
             break
         mean, cov = inside.mean(0), np.cov(inside.T) + floor
     return _mahalanobis(lab.reshape(-1, 3), mean, cov).reshape(lab.shape[:2])
+
+
+def _skin_box(bgr: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: pixels in a fixed skin-colour box in YCrCb (Cr 138-173, Cb 77-127).
+
+    The box is the classic one of Chai and Ngan (1999) with its red floor raised from 133
+    to 138: at 133 the lighter strands of brown hair (Cr about 135) fall in it; on
+    held-out synthetic back views and close-ups (``head360 bench fit``'s no-face rows)
+    138 scored IoU 0.905 / 0.927 against 0.906 / 0.913 at 133. Skin-box pixels are only
+    seeded as probable background: GrabCut's colour models have the last word, so hair
+    strands inside the box are not cut out one by one.
+    """
+    import cv2
+
+    ycc = cv2.cvtColor(bgr, cv2.COLOR_BGR2YCrCb)
+    cr, cb = ycc[..., 1], ycc[..., 2]
+    return (cr >= 138) & (cr <= 173) & (cb >= 77) & (cb <= 127)
 
 
 def _texture_energy(lightness: np.ndarray, window: int) -> np.ndarray:
@@ -225,6 +243,16 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         like_core = _colour_distance(lab, lab[core]) < 3.0
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[centre | like_core] = cv2.GC_PR_FGD
+        # Hair is textured; a plain wall or a defocused backdrop is not (the face path's
+        # rule, measured against the core's texture).
+        energy = _texture_energy(lab[..., 0], max(3, round(0.02 * size)) | 1)
+        m[(energy < 0.25 * np.median(energy[core])) & ~core] = cv2.GC_PR_BGD
+        # The neck, ears and face of a back or profile view are not hair: without a face
+        # there is no cheek to learn the skin from, so a fixed skin box is used, unless
+        # the core's own colours fall in it (blond or red hair).
+        skin = _skin_box(bgr)
+        if skin[core].mean() < 0.5:
+            m[skin & ~core] = cv2.GC_PR_BGD
         for edge in (np.s_[:band], np.s_[-band:], np.s_[:, :band], np.s_[:, -band:]):
             if like_core[edge].mean() < 0.3:
                 m[edge] = cv2.GC_BGD

@@ -86,6 +86,37 @@ def test_unseeded_back_view_keeps_the_wall_out():
     assert mask_iou(r.hair, head) > 0.85
 
 
+def test_unseeded_profile_leaves_the_skin_out():
+    """A profile the detector missed: hair over a skin-coloured face that reaches into
+    the centre of the frame (so the core's colours include skin), on a plain wall. The
+    face is not hair (before the skin box it was)."""
+    rng = np.random.default_rng(2)
+    yy, xx = np.mgrid[0:160, 0:160]
+    head = ((xx - 80) / 45) ** 2 + ((yy - 75) / 55) ** 2 <= 1
+    face = head & (yy > 82) & (xx < 100)
+    hair = head & ~face
+    img = np.full((160, 160, 3), (150, 160, 170), np.float64) + rng.normal(0, 3, (160, 160, 3))
+    img[hair] = _strands(rng, (160, 160))[hair]
+    img[face] = np.array([215.0, 160.0, 130.0]) + rng.normal(0, 6, (int(face.sum()), 3))
+    r = parse_hair(np.clip(img, 0, 255).astype(np.uint8), None)
+    assert r.hair[face].mean() < 0.2
+    assert mask_iou(r.hair, hair) > 0.8
+
+
+def test_unseeded_close_up_leaves_a_plain_wall_out():
+    """Hair on the right, a plain red wall on the left that reaches into the centre of
+    the frame (so the core's colours include the wall): the smooth wall is not hair
+    (before the texture rule it was)."""
+    rng = np.random.default_rng(3)
+    xx = np.mgrid[0:160, 0:160][1]
+    hair = xx >= 75
+    img = np.full((160, 160, 3), (190, 50, 45), np.float64) + rng.normal(0, 2, (160, 160, 3))
+    img[hair] = _strands(rng, (160, 160))[hair]
+    r = parse_hair(np.clip(img, 0, 255).astype(np.uint8), None)
+    assert r.hair[~hair].mean() < 0.2
+    assert mask_iou(r.hair, hair) > 0.8
+
+
 @pytest.mark.shared_data
 def test_real_masks_mean_iou_floor(shared_data):
     """A regression floor on the real masks (measured 0.64 on CelebAMask); the goal of
