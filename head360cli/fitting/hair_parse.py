@@ -114,6 +114,15 @@ def _texture_energy(lightness: np.ndarray, window: int) -> np.ndarray:
     return cv2.blur(lap, (window, window))
 
 
+def _smooth(lab: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: pixels with less than a quarter of the median texture energy of
+    the ``reference`` pixels (known hair): hair is textured, a plain wall or a defocused
+    backdrop is not. The energy is taken over a window of 2% of the image."""
+    window = max(3, round(0.02 * max(lab.shape[:2]))) | 1
+    energy = _texture_energy(lab[..., 0], window)
+    return energy < 0.25 * np.median(energy[reference])
+
+
 def _poly(shape: tuple[int, int], points: np.ndarray) -> np.ndarray:
     """Boolean ``shape`` mask of a filled polygon ``(N, 2)`` in pixels."""
     import cv2
@@ -221,10 +230,9 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         m[head] = cv2.GC_PR_FGD
         m[head & skin] = cv2.GC_PR_BGD
         # Hair is textured; a smooth (defocused or plain) backdrop is not.
-        energy = _texture_energy(lab[..., 0], max(3, round(0.02 * size)) | 1)
         seeds = cap & ~skin & person
         if seeds.sum() >= 20:
-            m[head & (energy < 0.25 * np.median(energy[seeds]))] = cv2.GC_PR_BGD
+            m[head & _smooth(lab, seeds)] = cv2.GC_PR_BGD
         m[cap & ~skin & person] = cv2.GC_FGD
         m[~person] = cv2.GC_BGD
         m[never | neck] = cv2.GC_BGD
@@ -243,10 +251,8 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         like_core = _colour_distance(lab, lab[core]) < 3.0
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[centre | like_core] = cv2.GC_PR_FGD
-        # Hair is textured; a plain wall or a defocused backdrop is not (the face path's
-        # rule, measured against the core's texture).
-        energy = _texture_energy(lab[..., 0], max(3, round(0.02 * size)) | 1)
-        m[(energy < 0.25 * np.median(energy[core])) & ~core] = cv2.GC_PR_BGD
+        # Smooth regions, measured against the core's texture, are probably not hair.
+        m[_smooth(lab, core) & ~core] = cv2.GC_PR_BGD
         # The neck, ears and face of a back or profile view are not hair: without a face
         # there is no cheek to learn the skin from, so a fixed skin box is used, unless
         # the core's own colours fall in it (blond or red hair).
