@@ -237,11 +237,14 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # a bald scalp lit unlike the cheeks can fall just outside the skin model, so a
         # seed must lie further from it than a pixel that is merely not skin.
         cap_hair = cap & (skin_distance >= SEED_DEVIATIONS)
-        # Stage 1: the person, their hair included, against the background.
+        # Stage 1: the person, their hair included, against the background. Only the
+        # cap's hair unlike the frame's edge seeds the person: above a bald head the cap
+        # reaches into the backdrop.
+        edge_like = _colour_distance(lab, lab[border]) < SKIN_DEVIATIONS
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[head] = cv2.GC_PR_FGD
         m[border & ~head] = cv2.GC_BGD
-        m[never | neck | cap_hair] = cv2.GC_FGD
+        m[never | neck | (cap_hair & ~edge_like)] = cv2.GC_FGD
         person = _grabcut(bgr, m, iterations)
         # Stage 2: hair against skin and clothes, inside the person.
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)

@@ -156,7 +156,8 @@ def test_skin_model_ignores_dark_outliers_in_the_cheek_samples():
 def _corpus_portrait(index: int):
     """Held-out corpus head ``index`` of corpus seed 1 (the parse's development heads,
     not the bench's) seen as the bench sees them (yaw 10, pitch 5, 256 px, white
-    backdrop): the photo, its 68 landmarks and the true hair mask."""
+    backdrop): the photo, its 68 landmarks, the true hair mask and the head's
+    silhouette."""
     import torch
 
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
@@ -169,14 +170,15 @@ def _corpus_portrait(index: int):
     batch = views.render(index, np.zeros(52, np.float32), c2w, with_hair=True)
     px, _ = project(batch.verts[:1], c2w, views.intrinsics[None])
     lm = px[0].numpy()[load_bilinear().landmarks]
-    return to_uint8(batch.rgb)[0], lm, batch.hair_alpha[0, 0].numpy() > 0.5
+    return (to_uint8(batch.rgb)[0], lm, batch.hair_alpha[0, 0].numpy() > 0.5,
+            batch.alpha[0, 0].numpy() > 0.5)
 
 
 def test_seeded_parse_keeps_light_hair_that_falls_past_the_face():
     """Blond shoulder-length hair on a white backdrop: when only the face and neck
     seeded the person, GrabCut gave the hair to the backdrop and the parse was empty
     (IoU 0.0); with the cap's hair among the person's seeds it is found."""
-    img, lm, truth = _corpus_portrait(14)
+    img, lm, truth, _ = _corpus_portrait(14)
     assert truth.mean() > 0.1  # the style covers a tenth of the frame
     assert mask_iou(parse_hair(img, lm).hair, truth) > 0.85  # measured 0.988
 
@@ -184,7 +186,16 @@ def test_seeded_parse_keeps_light_hair_that_falls_past_the_face():
 def test_seeded_parse_leaves_a_receding_scalp_out():
     """A receding hairline: the scalp above the brows, lit brighter than the cheeks, is
     just outside the skin model; seeded as hair it was parsed as a pixie cut (IoU 0.28)."""
-    img, lm, truth = _corpus_portrait(26)
+    img, lm, truth, _ = _corpus_portrait(26)
     hair = parse_hair(img, lm).hair
     assert hair.sum() < 1.5 * truth.sum()  # 3.5 times with the scalp as hair
     assert mask_iou(hair, truth) > 0.75  # measured 0.885
+
+
+def test_seeded_parse_of_a_bald_head_leaves_the_backdrop_out():
+    """Above a bald head the cap reaches into the white backdrop, which is far from the
+    skin colour: seeded as the person's hair, a strip of backdrop became a buzz cut."""
+    img, lm, truth, head = _corpus_portrait(0)
+    assert not truth.any()  # style 0: bald
+    hair = parse_hair(img, lm).hair
+    assert not (hair & ~head).any()
