@@ -5,9 +5,10 @@ seeded from what the 68 landmarks say about where hair can and cannot be:
 
 - the inner face (eyes, brows, nose, mouth, jaw line) is never hair;
 - the neck column under the chin is never hair;
-- a cap above the brows is, where its colour is clearly not skin (these pixels seed the
-  person against the background as well as the hair against the face: light hair on a
-  light backdrop was otherwise given to the backdrop);
+- a cap above the brows is, where its colour is clearly not skin; these pixels seed the
+  hair against the face, and, where they are also unlike the frame's edge (above a bald
+  head the cap reaches into the backdrop), the person against the background: light hair
+  on a light backdrop was otherwise given to the backdrop;
 - a head ellipse around the face probably is;
 - pixels whose colour matches the face's own skin (a Gaussian in Lab, estimated on the
   cheeks) probably are not.
