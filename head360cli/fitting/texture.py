@@ -242,13 +242,21 @@ def _deterministic():
     Same photo, same fit: with several CPU threads some backward passes accumulate in a
     varying order, and 20 steps of camera refinement grew those last bits into fits
     0.2 dB apart. Deterministic kernels cost nothing measurable here (2 threads).
+
+    The flag is set through ``torch._C`` where it exists: the public
+    ``torch.use_deterministic_algorithms`` also sets the flag of the inductor compiler,
+    which we never use, and importing it took 1.0-1.5 s of a 15 s fast fit.
     """
-    before = torch.are_deterministic_algorithms_enabled()
-    torch.use_deterministic_algorithms(True, warn_only=True)
+    before = (torch.are_deterministic_algorithms_enabled(),
+              torch.is_deterministic_algorithms_warn_only_enabled())
+    setter = getattr(torch._C, "_set_deterministic_algorithms", None)
+    if setter is None:  # a torch without the private setter
+        setter = torch.use_deterministic_algorithms
+    setter(True, warn_only=True)
     try:
         yield
     finally:
-        torch.use_deterministic_algorithms(before)
+        setter(before[0], warn_only=before[1])
 
 
 def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
@@ -275,6 +283,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
     Returns:
         The fitted texture and code.
     """
+    from head360cli.fitting.adam import Adam
     from head360cli.geometry.cameras import project
 
     if landmarks is not None:
@@ -331,7 +340,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
         if cfg.pose:
             groups += [{"params": [rot], "lr": cfg.lr_rotation},
                        {"params": [shift], "lr": cfg.lr_translation}]
-        opt = torch.optim.Adam(groups)
+        opt = Adam(groups)
         for step in range(cfg.code_steps):
             cam = pose(rot, shift)
             out = gen(v, cam, k, code=code)
@@ -350,7 +359,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
             start = gen.texture(code.detach())
             cam = pose(rot, shift)
         texture = start.clone().requires_grad_(True)
-        opt = torch.optim.Adam([texture], lr=cfg.lr_texture)
+        opt = Adam([texture], lr=cfg.lr_texture)
         best, since = float("inf"), 0
         for step in range(cfg.steps):
             loss = photometric(gen(v, cam, k, texture=texture))

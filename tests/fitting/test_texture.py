@@ -172,6 +172,15 @@ def test_inversion_is_deterministic_and_restores_the_torch_setting(scene):
             for _ in range(2)]
     assert runs[0] == runs[1]
     assert torch.are_deterministic_algorithms_enabled() == before
+    torch.use_deterministic_algorithms(True)  # strict, not warn-only: kept so
+    try:
+        invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
+                       batch.alpha[0], codes.mean(0), dataclasses.replace(cfg, code_steps=1,
+                                                                          steps=0))
+        assert torch.are_deterministic_algorithms_enabled()
+        assert not torch.is_deterministic_algorithms_warn_only_enabled()
+    finally:
+        torch.use_deterministic_algorithms(before)
 
 
 def test_landmarks_of_the_wrong_shape_are_refused(scene):
@@ -180,3 +189,34 @@ def test_landmarks_of_the_wrong_shape_are_refused(scene):
         invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
                        batch.alpha[0], codes.mean(0),
                        landmarks=(torch.zeros(51, 3), torch.zeros(50, 2)))
+
+
+_NO_COMPILER = """
+import sys, dataclasses, torch
+from head360cli.fitting.texture import PRESETS, invert_texture
+from head360cli.model.train import load_generator
+gen, codes = load_generator()
+res = gen.cfg.image_res
+cam = torch.eye(4)
+cam[2, 3] = 1.2
+k = torch.tensor([[2.0 * res, 0, res / 2], [0, 2.0 * res, res / 2], [0, 0, 1]])
+from head360cli.mesh.bilinear import load_bilinear
+m = load_bilinear()
+import numpy as np
+verts = torch.tensor(m.vertices(np.zeros(m.rank), np.zeros(52)), dtype=torch.float32)
+cfg = dataclasses.replace(PRESETS["fast"], code_steps=1, steps=1, samples=2)
+invert_texture(gen, verts, cam, k, torch.rand(3, res, res), torch.ones(1, res, res),
+               codes.mean(0), cfg)
+print(sorted(m for m in ("torch._dynamo", "torch._inductor") if m in sys.modules))
+"""
+
+
+def test_inversion_does_not_import_the_compiler():
+    """torch.optim and torch.use_deterministic_algorithms import torch's compiler on first
+    use (1.0-1.5 s of a 15 s fast fit on a 2-core CPU); the inversion avoids both."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _NO_COMPILER], capture_output=True,
+                         text=True, check=True, timeout=300)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
