@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-from head360cli.bench.fit import _hair_parse_no_face, _hair_style, _known_geometry, _markdown
+from head360cli.bench.fit import (
+    _cold_fit,
+    _hair_parse_no_face,
+    _hair_style,
+    _known_geometry,
+    _markdown,
+)
 
 
 def test_hairstyle_accuracy_on_three_heads():
@@ -49,12 +55,24 @@ def test_markdown_lists_every_part():
                                                                 "psnr_input_view": 26.0}}}},
          "real": {"fast": {"mean": {"psnr_face": 22.0, "psnr_face_bald": 25.0,
                                     "distance_0": None,
-                                    "distance_30": 0.7, "seconds": 13.0}}},
+                                    "distance_30": 0.7, "seconds": 13.0},
+                           "cold": {"photo": "a.png", "wall_s": 16.0, "total_s": 13.5}}},
          "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}]}
     md = _markdown(r)
     for text in ("| figaro | 2 | 0 | 0.500 |", "| true | 90.00% | 100.00% |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 | 27.00 | 26.00 |",
-                 "| fast | 22.00 | 25.00 | - | 0.700 | 13.0 |",
+                 "| fast | 22.00 | 25.00 | - | 0.700 | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",
                  "yaw 10 degrees 0.900; no face, back views 0.800, close-ups 0.700 (29 heads)"):
         assert text in md
+
+
+def test_cold_fit_reports_the_commands_error(tmp_path):
+    """A photo the command refuses gives a row with its one-line error, not a crash."""
+    from PIL import Image
+
+    photo = tmp_path / "blank.png"
+    Image.new("RGB", (64, 64), (200, 200, 200)).save(photo)
+    row = _cold_fit(photo, "fast", tmp_path)
+    assert row["photo"] == "blank.png"
+    assert "no face found" in row["error"]
