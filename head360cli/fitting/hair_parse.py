@@ -9,6 +9,8 @@ seeded from what the 68 landmarks say about where hair can and cannot be:
   hair against the face, and, where they are also unlike the frame's edge (above a bald
   head the cap reaches into the backdrop), the person against the background: light hair
   on a light backdrop was otherwise given to the backdrop;
+- the frame's edge is backdrop, except at the bottom where it has those seeds' colours
+  (long hair running off the frame);
 - a head ellipse around the face probably is;
 - pixels whose colour matches the face's own skin (a Gaussian in Lab, estimated on the
   cheeks) probably are not.
@@ -244,10 +246,17 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # cap's hair unlike the frame's edge seeds the person: above a bald head the cap
         # reaches into the backdrop.
         edge_like = _colour_distance(lab, lab[border]) < LIKE_DEVIATIONS
+        hair_seeds = cap_hair & ~edge_like
+        # The frame's edge is backdrop, except where long hair runs off its bottom: there
+        # the edge has the seeds' colours (clothes there stay backdrop).
+        backdrop = border & ~head
+        if hair_seeds.sum() >= 20:
+            backdrop[-band:] &= (_colour_distance(lab[-band:], lab[hair_seeds])
+                                 >= LIKE_DEVIATIONS)
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[head] = cv2.GC_PR_FGD
-        m[border & ~head] = cv2.GC_BGD
-        m[never | neck | (cap_hair & ~edge_like)] = cv2.GC_FGD
+        m[backdrop] = cv2.GC_BGD
+        m[never | neck | hair_seeds] = cv2.GC_FGD
         person = _grabcut(bgr, m, iterations)
         # Stage 2: hair against skin and clothes, inside the person.
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
