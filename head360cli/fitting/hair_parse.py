@@ -31,7 +31,12 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["HairParse", "mask_iou", "parse_hair"]
+__all__ = ["MIN_SIDE", "HairParse", "mask_iou", "parse_hair"]
+
+MIN_SIDE = 16
+"""Photos with a side shorter than this many pixels are refused: a 2-pixel frame band on
+each side leaves GrabCut no interior to separate, and below about 5 pixels its colour
+models have too few samples to be estimated at all."""
 
 
 @dataclasses.dataclass
@@ -196,10 +201,23 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
 
     Returns:
         The masks at the photo's size.
+
+    Raises:
+        BadInputError: ``rgb`` is not an ``(H, W, 3)`` uint8 image with sides of at least
+            :data:`MIN_SIDE` pixels.
     """
     import cv2
 
+    from head360cli.errors import BadInputError
+
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise BadInputError(f"expected an (H, W, 3) uint8 RGB photo to parse, found shape "
+                            f"{tuple(rgb.shape)} of {rgb.dtype}")
     h, w = rgb.shape[:2]
+    if min(h, w) < MIN_SIDE:
+        raise BadInputError(f"expected a photo at least {MIN_SIDE}x{MIN_SIDE} pixels to parse "
+                            f"hair, found {w}x{h}")
     scale = min(1.0, work_size / max(h, w))
     sw, sh = max(1, round(w * scale)), max(1, round(h * scale))
     small = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA) if scale < 1 else rgb

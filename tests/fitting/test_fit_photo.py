@@ -84,6 +84,10 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     np.testing.assert_allclose(c["hair_color"], HAIR_COLOURS[c["hair_color_name"]], atol=1e-4)
     assert len(c["hair_color_estimate"]) == 3
     assert run_cli("classify-hair", astronaut, "--top", "0").code == 3
+    speck = tmp_path / "speck.png"
+    Image.fromarray(np.zeros((3, 3, 3), np.uint8)).save(speck)
+    r = run_cli("parse-hair", speck, "-o", tmp_path / "speck")
+    assert r.code == 3 and "found 3x3" in r.err and not (tmp_path / "speck").exists()
 
 
 def test_demo_writes_a_turntable(run_cli, tmp_path):

@@ -56,6 +56,29 @@ def test_unseeded_parse_runs_and_scales_back():
     assert not r.face.any()
 
 
+def test_parse_refuses_photos_too_small_or_not_rgb():
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.hair_parse import MIN_SIDE
+
+    rng = np.random.default_rng(0)
+    with pytest.raises(BadInputError, match=r"at least 16x16 pixels.*found 40x5"):
+        parse_hair(rng.integers(0, 256, (5, 40, 3), dtype=np.uint8), None)
+    with pytest.raises(BadInputError, match="uint8 RGB"):
+        parse_hair(rng.random((40, 40, 3)), None)
+    with pytest.raises(BadInputError, match=r"found shape \(40, 40\)"):
+        parse_hair(np.zeros((40, 40), np.uint8), None)
+    # The smallest accepted size, and a thin strip, parse without numpy warnings (a 5-px
+    # photo had divided by empty colour samples).
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for shape in [(MIN_SIDE, MIN_SIDE, 3), (MIN_SIDE, 400, 3)]:
+            r = parse_hair(rng.integers(0, 256, shape, dtype=np.uint8), None)
+            assert r.hair.shape == shape[:2]
+            assert (r.background == ~(r.hair | r.face)).all()
+
+
 def _strands(rng, shape):
     """Hair-like texture: dark brown with lighter vertical strands and noise."""
     h, w = shape
