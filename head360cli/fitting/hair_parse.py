@@ -75,6 +75,9 @@ def _face_outline(lm: np.ndarray, forehead: float) -> np.ndarray:
     return np.concatenate([jaw, top]).astype(np.float32)
 
 
+MIN_SAMPLES = 20
+"""Fewest pixels a colour model (:func:`_colour_distance`) or a seed set is fitted from."""
+
 LIKE_DEVIATIONS = 3.0
 """Pixels within this Mahalanobis distance of a colour model (:func:`_colour_distance`)
 have its colour: the cheeks' (skin), the frame's edge, or a no-face photo's centre."""
@@ -106,7 +109,7 @@ def _colour_distance(lab: np.ndarray, samples: np.ndarray, trims: int = 2) -> np
     mean, cov = samples.mean(0), np.cov(samples.T) + floor
     for _ in range(trims):
         inside = samples[_mahalanobis(samples, mean, cov) < 2.5]
-        if len(inside) < 20:
+        if len(inside) < MIN_SAMPLES:
             break
         mean, cov = inside.mean(0), np.cov(inside.T) + floor
     return _mahalanobis(lab.reshape(-1, 3), mean, cov).reshape(lab.shape[:2])
@@ -243,11 +246,12 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # Skin model from the cheeks (below the eyes, beside the nose).
         cheeks = _poly((sh, sw), cv2.convexHull(lm[[1, 2, 3, 31, 39, 40, 41, 36]])[:, 0])
         cheeks |= _poly((sh, sw), cv2.convexHull(lm[[15, 14, 13, 35, 42, 47, 46, 45]])[:, 0])
-        samples = lab[cheeks] if cheeks.sum() >= 20 else lab[jaw_in]
+        samples = lab[cheeks] if cheeks.sum() >= MIN_SAMPLES else lab[jaw_in]
         # A greyscale photo has no skin colour: brightness alone would call blond or
         # grey hair skin, so no pixel is skin by colour there.
         grey = np.ptp(small.astype(np.int16), axis=2).max() <= 2
-        skin_distance = (_colour_distance(lab, samples) if len(samples) >= 20 and not grey
+        modelled = len(samples) >= MIN_SAMPLES and not grey
+        skin_distance = (_colour_distance(lab, samples) if modelled
                          else np.full(face.shape, np.inf))
         skin = skin_distance < LIKE_DEVIATIONS
         neck = ((np.abs(xx - lm[8, 0]) < 0.3 * width) & (yy > lm[8, 1] + 0.05 * height)
@@ -268,7 +272,7 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # The frame's edge is backdrop, except where long hair runs off its bottom: there
         # the edge has the seeds' colours (clothes there stay backdrop).
         backdrop = border & ~head
-        if hair_seeds.sum() >= 20:
+        if hair_seeds.sum() >= MIN_SAMPLES:
             backdrop[-band:] &= (_colour_distance(lab[-band:], lab[hair_seeds])
                                  >= LIKE_DEVIATIONS)
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
@@ -282,7 +286,7 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         m[head & skin] = cv2.GC_PR_BGD
         # Hair is textured; a smooth (defocused or plain) backdrop is not.
         seeds = cap_hair & person
-        if seeds.sum() >= 20:
+        if seeds.sum() >= MIN_SAMPLES:
             m[head & _smooth(lab, seeds)] = cv2.GC_PR_BGD
         m[seeds] = cv2.GC_FGD
         m[~person] = cv2.GC_BGD
