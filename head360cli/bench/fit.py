@@ -353,7 +353,8 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
         "seconds": mean([r["seconds"] for r in ok])}}
 
 
-def _cold_fit(photo: Path, preset: str, work: Path) -> dict[str, Any]:
+def _cold_fit(photo: Path, preset: str, work: Path, timeout: float = 1800.0
+              ) -> dict[str, Any]:
     """``head360 fit`` in a new process, as a user runs it: wall time from the command to
     its exit (Python, imports and model loads included), and the fit's own total.
 
@@ -364,9 +365,12 @@ def _cold_fit(photo: Path, preset: str, work: Path) -> dict[str, Any]:
     import sys
 
     t0 = time.perf_counter()
-    run = subprocess.run([sys.executable, "-m", "head360cli", "fit", str(photo), "-o",
-                          str(work / f"cold_{preset}.h360"), "--preset", preset, "--json"],
-                         capture_output=True, text=True, timeout=1800)
+    try:
+        run = subprocess.run([sys.executable, "-m", "head360cli", "fit", str(photo), "-o",
+                              str(work / f"cold_{preset}.h360"), "--preset", preset, "--json"],
+                             capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"photo": photo.name, "error": f"no result within {timeout:.0f} s"}
     wall = time.perf_counter() - t0
     if run.returncode != 0:
         lines = run.stderr.strip().splitlines()

@@ -76,3 +76,5 @@ def test_cold_fit_reports_the_commands_error(tmp_path):
     row = _cold_fit(photo, "fast", tmp_path)
     assert row["photo"] == "blank.png"
     assert "no face found" in row["error"]
+    slow = _cold_fit(photo, "fast", tmp_path, timeout=0.01)  # not even Python starts
+    assert slow == {"photo": "blank.png", "error": "no result within 0 s"}
