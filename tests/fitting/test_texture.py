@@ -192,22 +192,22 @@ def test_landmarks_of_the_wrong_shape_are_refused(scene):
 
 
 _NO_COMPILER = """
-import sys, dataclasses, torch
+import dataclasses, sys
+import numpy as np, torch
 from head360cli.fitting.texture import PRESETS, invert_texture
+from head360cli.mesh.bilinear import load_bilinear
 from head360cli.model.train import load_generator
 gen, codes = load_generator()
+model = load_bilinear()
+verts = torch.tensor(model.vertices(np.zeros(model.rank), np.zeros(52)), dtype=torch.float32)
 res = gen.cfg.image_res
 cam = torch.eye(4)
 cam[2, 3] = 1.2
 k = torch.tensor([[2.0 * res, 0, res / 2], [0, 2.0 * res, res / 2], [0, 0, 1]])
-from head360cli.mesh.bilinear import load_bilinear
-m = load_bilinear()
-import numpy as np
-verts = torch.tensor(m.vertices(np.zeros(m.rank), np.zeros(52)), dtype=torch.float32)
 cfg = dataclasses.replace(PRESETS["fast"], code_steps=1, steps=1, samples=2)
 invert_texture(gen, verts, cam, k, torch.rand(3, res, res), torch.ones(1, res, res),
                codes.mean(0), cfg)
-print(sorted(m for m in ("torch._dynamo", "torch._inductor") if m in sys.modules))
+print(sorted(name for name in ("torch._dynamo", "torch._inductor") if name in sys.modules))
 """
 
 
