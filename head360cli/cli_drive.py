@@ -202,17 +202,24 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="hold",
               show_default=True, help="Bad cells in the stream: stop, drop the row, or "
               "hold the last good value.")
+@click.option("--exact", is_flag=True,
+              help="Decode every point of every frame. By default, with a still camera "
+              "(no --head-pose), points whose inputs moved by at most 1e-3 since the "
+              "last frame keep their colour: frames within 1e-3 of exact, about 1.7x "
+              "faster on CPU.")
 @_quality_options
 @_backend_options
 @common_options
 def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
             yaw: float, pitch: float, on_bad: str, samples: int | None, size: int | None,
-            precision: str, no_hair: bool, backend: str, onnx_path: str) -> None:
+            exact: bool, precision: str, no_hair: bool, backend: str, onnx_path: str
+            ) -> None:
     """Drive a head with an ARKit-52 blendshape stream.
 
-    Only the mesh is recomputed per frame; frames stream to the encoder, so memory does
-    not grow with the length of the take.
+    Only the mesh is recomputed per frame, and with a still camera only the parts of the
+    head it moved are decoded again; frames stream to the encoder, so memory does not grow
+    with the length of the take.
 
     \b
     Examples:
@@ -241,6 +248,8 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     r = _backend_renderer(head, backend, onnx_path,
                           samples or (None if backend == "onnx" else ANIMATE_SAMPLES), size,
                           precision)
+    if exact:
+        r.reuse = None
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
                         yaw=yaw, pitch=pitch, hair=not no_hair)
     res = run(r, stream, out, cfg, mesh_dir=mesh_dir, progress=_progress_printer())

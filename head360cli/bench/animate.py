@@ -4,6 +4,8 @@ The head is the astronaut photo that ships with scikit-image, fitted with the fa
 (what ``head360 demo`` makes), driven by the real Live Link Face captures in
 ``../shared/data/arkit`` when they are there (else by a synthetic stream).
 
+- Reuse: with a still camera, frames decode only the points whose inputs changed since
+  the last frame; frames per second with and without, and the difference in the frames.
 - Throughput: frames per second of 256 x 256 frames from the stream's weights, for samples
   per ray and float32/bfloat16 networks (bfloat16 where the CPU has it), with the PSNR of
   each against a 32-sample float32 render of the same frames (the converged answer), and
@@ -113,7 +115,8 @@ def _speed(head: Path, weights: np.ndarray) -> list[dict[str, Any]]:
     from head360cli.fitting.pipeline import load_head_renderer
 
     pick = weights[np.linspace(0, len(weights) - 1, 8).astype(int)]
-    ref = _render(load_head_renderer(head, samples=32, precision="fp32"), pick, 256)
+    ref = _render(load_head_renderer(head, samples=32, precision="fp32", reuse=None), pick,
+                  256)
     rows = []
     precisions = ("fp32", "bf16") if fast_bfloat16("cpu") else ("fp32",)
     for samples in (6, 8, 12):
@@ -142,8 +145,8 @@ def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
 
     pick = weights[np.linspace(0, len(weights) - 1, 4).astype(int)]
     top = max(sizes)
-    refs = {size: _render(load_head_renderer(head, samples=32, size=size, precision="fp32"),
-                          pick, size) for size in sizes}
+    refs = {size: _render(load_head_renderer(head, samples=32, size=size, precision="fp32",
+                                             reuse=None), pick, size) for size in sizes}
     rows = []
     for size in sizes:
         r = load_head_renderer(head, samples=samples, size=size)
@@ -154,6 +157,27 @@ def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
                      "psnr_vs_32_samples_same_size": round(_psnr(got, refs[size]), 2),
                      f"psnr_vs_32_samples_{top}px": round(_psnr(up, refs[top]), 2)})
     return rows
+
+
+def _reuse(head: Path, weights: np.ndarray, samples: int = 8, size: int = 256
+           ) -> dict[str, Any]:
+    """Frame-to-frame reuse of decoded points (a still camera, consecutive frames): its
+    frame rate against decoding every point, the share of points decoded, and how far its
+    frames are from the exact ones."""
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.model.head_render import REUSE_TOL
+
+    on = load_head_renderer(head, samples=samples, size=size)
+    off = load_head_renderer(head, samples=samples, size=size, reuse=None)
+    timed_on, timed_off = _timed(on, weights, size), _timed(off, weights, size)
+    got, exact = _render(on, weights, size), _render(off, weights, size)
+    psnr = [_psnr(a, b) for a, b in zip(got, exact, strict=True)]
+    return {"tol": REUSE_TOL, "samples": samples, "size": size, "frames": len(weights),
+            "fps": timed_on["fps"], "ms_per_frame": timed_on["ms_per_frame"],
+            "fps_exact": timed_off["fps"], "ms_per_frame_exact": timed_off["ms_per_frame"],
+            "decoded_share": round(on.last_reuse.decoded / on.last_reuse.points, 3),
+            "psnr_vs_exact_min": round(min(psnr), 2),
+            "max_abs_vs_exact": float(f"{float((got - exact).abs().max()):.2e}")}
 
 
 def _run_cli(args: list[str]) -> dict[str, Any]:
@@ -316,6 +340,8 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         head = work / "astronaut.h360"
         say("throughput against samples and precision")
         result["speed"] = _speed(head, stream.weights[:frames])
+        say("reuse of decoded points between frames")
+        result["reuse"] = _reuse(head, stream.weights[:frames])
         say("throughput and error against image size")
         result["resolution"] = _resolution(head, stream.weights[:frames])
         say("expression fidelity (dlib landmarks on frames)")
@@ -338,6 +364,18 @@ def _markdown(r: dict[str, Any]) -> str:
     lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
               f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples']:.2f} |"
               for s in r["speed"]]
+    if "reuse" in r:
+        u = r["reuse"]
+        lines += ["", f"## Reuse of decoded points between frames ({u['size']} px, "
+                  f"{u['samples']} samples, {u['frames']} consecutive frames, tol "
+                  f"{u['tol']:g})", "",
+                  "| | frames/s | ms/frame |", "|---|---|---|",
+                  f"| reuse (default) | {u['fps']:.1f} | {u['ms_per_frame']:.0f} |",
+                  f"| every point decoded (--exact) | {u['fps_exact']:.1f} | "
+                  f"{u['ms_per_frame_exact']:.0f} |", "",
+                  f"{100 * u['decoded_share']:.0f} % of the points decoded; frames within "
+                  f"{u['max_abs_vs_exact']:.1e} of the exact ones (lowest PSNR "
+                  f"{u['psnr_vs_exact_min']:.1f} dB)."]
     if "resolution" in r:
         top = max(s["size"] for s in r["resolution"])
         lines += ["", "## Throughput and error against image size (render only)", "",

@@ -45,8 +45,9 @@ class AnimateConfig:
     """Camera yaw in degrees (0: the canonical frontal view)."""
     pitch: float = 0.0
     """Camera pitch in degrees."""
-    batch: int = 4
-    """Frames rendered per generator call."""
+    batch: int | None = None
+    """Frames rendered per generator call (``None``: the renderer's choice, one on CPU,
+    where decoded points are then reused from frame to frame, eight on a GPU)."""
     hair: bool = True
     """Render the hair (False: the bald head)."""
 

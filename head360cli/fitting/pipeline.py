@@ -548,10 +548,11 @@ def generator_hash() -> str:
 
 
 def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | None = None,
-                       size: int | None = None, precision: str = "auto"):
+                       size: int | None = None, precision: str = "auto",
+                       reuse: float | str | None = "default"):
     """A :class:`~head360cli.model.head_render.HeadRenderer` for a head file made with the
     installed generator (``samples`` per ray and image ``size``: default the generator's;
-    ``precision`` as the renderer's).
+    ``precision`` and ``reuse`` as the renderer's, ``"default"``: its default).
 
     Raises:
         ModelMismatchError: The file was made with another generator.
@@ -559,7 +560,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     import torch
 
     from head360cli.io.headfile import read_head
-    from head360cli.model.head_render import HeadRenderer
+    from head360cli.model.head_render import REUSE_TOL, HeadRenderer
     from head360cli.model.train import load_generator
 
     head = read_head(path, expected_model_hash=generator_hash())
@@ -567,7 +568,8 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     a = head.arrays
     return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),
                         a["hair_color"], a["expression"], samples=samples, size=size,
-                        precision=precision)
+                        precision=precision,
+                        reuse=REUSE_TOL if isinstance(reuse, str) else reuse)
 
 
 def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,

@@ -30,6 +30,7 @@ from head360cli.model.config import GeneratorConfig
 from head360cli.model.networks import Decoder, HairTextureGenerator, RefineNet, TextureGenerator
 from head360cli.model.planes import PLANE_SETS, rasterize_planes, sample_planes
 from head360cli.model.render import EMPTY, composite, samples_around, screen_depth
+from head360cli.model.reuse import DecodeReuse
 
 __all__ = ["HAIR_MARGIN", "Generator", "Hair", "hair_for", "near_rays"]
 
@@ -221,7 +222,8 @@ class Generator(nn.Module):
 
     def forward(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, *,
                 code: torch.Tensor | None = None, texture: torch.Tensor | None = None,
-                hair: Hair | None = None, jitter: bool = False) -> dict[str, Any]:
+                hair: Hair | None = None, jitter: bool = False,
+                reuse: DecodeReuse | None = None) -> dict[str, Any]:
         """Render heads.
 
         Args:
@@ -232,6 +234,9 @@ class Generator(nn.Module):
             texture: ``(B, C, R, R)`` neural textures (inversion optimises these).
             hair: The items' hair; ``None`` renders bald heads.
             jitter: Stratified random sample positions (training).
+            reuse: Decoded points kept from the previous frame of an animation (a
+                one-item batch, no gradients): the decoders run only on points whose
+                input changed (see :class:`~head360cli.model.reuse.DecodeReuse`).
 
         Returns:
             ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
@@ -247,6 +252,10 @@ class Generator(nn.Module):
             raise ValueError("expected no hair: this generator was built without a hair "
                              "branch")
         b = verts.shape[0]
+        if reuse is not None and (b != 1 or jitter or torch.is_grad_enabled()):
+            raise ValueError(f"expected one item, no jitter and no gradients to reuse "
+                             f"decoded points, found {b} items, jitter {jitter}, gradients "
+                             f"{torch.is_grad_enabled()}")
         k = intrinsics.expand(b, 3, 3).clone()
         k[:, :2] *= c.render_res / c.image_res
         depth = screen_depth(verts, self.faces, c2w, k, c.render_res)
@@ -258,7 +267,13 @@ class Generator(nn.Module):
             depth = depth.clone()
             for i in hair_items:
                 hv, hf, _ = hair.meshes[i]
-                hd = screen_depth(hv[None], hf, c2w[i:i + 1], k[i:i + 1], c.render_res)
+
+                def hair_depth(hv=hv, hf=hf, i=i):
+                    return screen_depth(hv[None], hf, c2w[i:i + 1], k[i:i + 1],
+                                        c.render_res)
+                # the hair does not move with the expression: a still camera sees the same
+                hd = (hair_depth() if reuse is None else
+                      reuse.kept("hair_depth", (hv, hf, c2w[i], k[i]), hair_depth))
                 depth[i] = torch.minimum(depth[i], hd[0])
                 if self.hair_rays_only:  # rays within HAIR_MARGIN pixels of the hair mesh
                     m = (hd < EMPTY).to(hd.dtype)[None]
@@ -278,7 +293,17 @@ class Generator(nn.Module):
         points = points.reshape(b, -1, 3)
         feats = sample_planes(points, self.planes(verts, texture), self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
-        density, colour = self._net(self.decoder, feats)
+        keys = slots = None
+        if reuse is None:
+            density, colour = self._net(self.decoder, feats)
+        else:  # sample slot of each point: ray index x samples + sample
+            slots = rays * c.samples
+            ray_ids = order[0] if self.cull_rays else torch.arange(rays, device=verts.device)
+            keys = (ray_ids[:, None] * c.samples
+                    + torch.arange(c.samples, device=verts.device)).reshape(-1)
+            density, colour = reuse.decode("head", lambda f: self._net(self.decoder, f),
+                                           feats[0], keys, slots)
+            density, colour = density[None], colour[None]
         hair_part = torch.zeros_like(density)
         if hair_items:
             idx = torch.tensor(hair_items, device=verts.device)
@@ -296,8 +321,13 @@ class Generator(nn.Module):
                 f = sample_planes(pts[None], hair.planes[i], self.plane_names,
                                   c.hair_plane_centre, c.hair_plane_half_size,
                                   c.surface_tau)
-                dh, ch = self._net(self.hair_decoder, f)
-                dh, ch = dh[0], ch[0]
+                if reuse is None:
+                    dh, ch = self._net(self.hair_decoder, f)
+                    dh, ch = dh[0], ch[0]
+                else:
+                    dh, ch = reuse.decode(
+                        "hair", lambda x: self._net(self.hair_decoder, x), f[0],
+                        keys.index_select(0, sel) if i in hair_near else keys, slots)
                 if i in hair_near:
                     dh = torch.zeros_like(density[i]).index_copy(0, sel, dh)
                     ch = torch.zeros_like(colour[i]).index_copy(0, sel, ch)
@@ -333,7 +363,11 @@ class Generator(nn.Module):
         alpha = alpha.view(b, 1, *shape[1:])
         rgb_low = image[:, :3] + (1.0 - alpha)  # on white
         scale = c.image_res / c.render_res
-        if self.refine is not None:
+        if self.refine is not None and reuse is not None:
+            rgb, alpha_hi = reuse.refine(lambda *a: self._net(self.refine, *a), image,
+                                         alpha, rgb_low, self.refine.scale,
+                                         self.refine.reach)
+        elif self.refine is not None:
             rgb, alpha_hi = self._net(self.refine, image, alpha, rgb_low)
         else:
             rgb = F.interpolate(rgb_low, scale_factor=scale, mode="bilinear",

@@ -163,6 +163,12 @@ class RefineNet(nn.Module):
         nn.init.zeros_(layers[-1].weight)
         nn.init.zeros_(layers[-1].bias)
         self.scale = 2 ** steps
+        # how far (input pixels) an input pixel reaches into the output: the first
+        # convolution 1 pixel; step i's bilinear upsampling 1 of its input pixels (1 / 2^i
+        # of ours) and its convolution 1 of its output pixels (1 / 2^(i+1)); the last
+        # convolution 1 / 2^steps (the skip's upsampling reaches 1, less than all that)
+        self.reach = math.ceil(1 + sum(1.5 / 2 ** i for i in range(steps)) + 1 / 2 ** steps)
+        """Input pixels around a change within which the output can change."""
 
     def forward(self, features: torch.Tensor, alpha: torch.Tensor, rgb: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:

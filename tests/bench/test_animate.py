@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from head360cli.bench.animate import _resolution, mesh_openings
+from head360cli.bench.animate import _markdown, _resolution, _reuse, mesh_openings
 
 
 def test_resolution_sweep_scores_each_size_twice(head_file):
@@ -20,6 +20,24 @@ def test_resolution_sweep_scores_each_size_twice(head_file):
     assert rows[1]["psnr_vs_32_samples_64px"] == rows[1]["psnr_vs_32_samples_same_size"]
     # 32 pixels upsampled lose detail the 64-pixel render keeps
     assert rows[0]["psnr_vs_32_samples_64px"] < rows[1]["psnr_vs_32_samples_64px"]
+
+
+def test_reuse_row_compares_with_decoding_every_point(head_file):
+    weights = np.zeros((5, 52), np.float32)
+    weights[:, 24] = np.linspace(0.0, 0.8, 5)  # jawOpen
+    u = _reuse(head_file, weights, samples=4, size=64)
+    assert u["frames"] == 5 and u["fps"] > 0 and u["fps_exact"] > 0
+    assert 0.0 < u["decoded_share"] < 1.0
+    assert u["max_abs_vs_exact"] < 2e-3 and u["psnr_vs_exact_min"] > 50.0
+    md = _markdown({"stream": "s", "stream_frames": 5, "threads": 2, "speed": [],
+                    "reuse": u, "fidelity": {"faces_found": 0, "frames": 0, "stride": 1,
+                                             **dict.fromkeys((
+                                                 "jaw_open_vs_mouth_opening",
+                                                 "blink_right_vs_left_image_eye_opening",
+                                                 "blink_left_vs_right_image_eye_opening"))},
+                    "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
+                             "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0}})
+    assert "| every point decoded (--exact) |" in md
 
 
 def test_mesh_openings_follow_jaw_and_blinks(head_file):
