@@ -475,9 +475,9 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -> None:
-    """Animation: frames per second against samples and precision (with PSNR), peak memory
-    over a whole capture, expression fidelity by dlib landmarks, face PSNR across hair
-    swaps.
+    """Animation: frames per second with and without reuse of decoded points between
+    frames, against samples and precision (with PSNR), peak memory over a whole capture,
+    expression fidelity by dlib landmarks, face PSNR across hair swaps.
 
     \b
     Examples:
