@@ -23,7 +23,7 @@ from collections.abc import Iterator
 
 import torch
 
-__all__ = ["Fragments", "interpolate", "interpolate_face_corners", "rasterize",
+__all__ = ["Fragments", "ZBuffer", "interpolate", "interpolate_face_corners", "rasterize",
            "static_windows"]
 
 
@@ -55,16 +55,38 @@ class Fragments:
         bary: ``(B, H, W, 3)`` barycentric coordinates in that triangle (perspective-
             correct if asked), zero where none.
         depth: ``(B, H, W)`` depth of the visible surface, zero where none.
+        zbuffer: The depth test's state (see :class:`ZBuffer`); ``None`` where the
+            fragments were made with static windows.
     """
 
     face_id: torch.Tensor
     bary: torch.Tensor
     depth: torch.Tensor
+    zbuffer: ZBuffer | None = None
 
     @property
     def mask(self) -> torch.Tensor:
         """``(B, H, W)`` bool: a triangle covers the pixel."""
         return self.face_id >= 0
+
+
+@dataclasses.dataclass
+class ZBuffer:
+    """The depth test's state after drawing some triangles: what :func:`rasterize` with
+    ``draw`` returns in ``Fragments.zbuffer`` and takes back as ``under``, so that
+    triangles that never move are drawn once and the others drawn over them each frame
+    (the same fragments as drawing all of them together).
+
+    Attributes:
+        key: ``(B * H * W,)`` nearest depth key per pixel (``1/depth`` for perspective,
+            ``-depth`` for orthographic rasterization; larger is nearer), ``-inf`` where
+            no triangle was drawn.
+        face_id: ``(B * H * W,)`` int64 triangle with that key (ties: the larger id), -1
+            where none.
+    """
+
+    key: torch.Tensor
+    face_id: torch.Tensor
 
 
 def _barycentric(tri: torch.Tensor, px: torch.Tensor, py: torch.Tensor, area: torch.Tensor
@@ -80,7 +102,8 @@ def _barycentric(tri: torch.Tensor, px: torch.Tensor, py: torch.Tensor, area: to
 
 def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, height: int,
               width: int, *, perspective_correct: bool = True, near: float = 1e-4,
-              eps: float = 1e-6, cull_backfaces: bool = False) -> Fragments:
+              eps: float = 1e-6, cull_backfaces: bool = False,
+              draw: torch.Tensor | None = None, under: ZBuffer | None = None) -> Fragments:
     """Rasterize triangles given in screen space.
 
     Args:
@@ -99,6 +122,10 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
             cracks).
         cull_backfaces: Drop triangles seen from behind (counter-clockwise in the world,
             seen from outside, is front). Only for closed, outward-facing meshes.
+        draw: Optional ``(F,)`` bool: draw only these triangles.
+        under: Optional :class:`ZBuffer` of the other triangles drawn at the same
+            positions before (``Fragments.zbuffer`` of a call with ``draw`` their mask):
+            the result is that of drawing both sets at once.
 
     Returns:
         The visible triangle, barycentrics and depth at every pixel.
@@ -123,6 +150,8 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         # With image y pointing down, a triangle that is counter-clockwise seen from the
         # camera has negative screen area.
         valid &= area < 0
+    if draw is not None:
+        valid &= draw[None]
 
     bi, fi = torch.nonzero(valid, as_tuple=True)
     # Gathers here are index_select on a flat index: tensor indexing exports as ONNX
@@ -189,19 +218,27 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
             face_all.append(hit_ids[:, 1])
         lower = k
 
-    face_id = torch.full((b * hw,), -1, dtype=torch.long, device=device)
+    if under is None:
+        face_id = torch.full((b * hw,), -1, dtype=torch.long, device=device)
+        zbuf = torch.full((b * hw,), float("-inf"), dtype=dtype, device=device)
+    else:
+        face_id, zbuf = under.face_id, under.key
     if pix_all:
         pix = torch.cat(pix_all)
         key = torch.cat(key_all).detach()
         face = torch.cat(face_all)
-        zbuf = torch.full((b * hw,), float("-inf"), dtype=dtype, device=device)
-        zbuf = zbuf.scatter_reduce(0, pix, key, reduce="amax", include_self=True)
+        nearest = zbuf.scatter_reduce(0, pix, key, reduce="amax", include_self=True)
+        if under is not None:  # the earlier triangles keep the pixels they still win
+            face_id = torch.where(zbuf >= nearest, face_id, torch.full_like(face_id, -1))
+        zbuf = nearest
         win = torch.nonzero(key >= zbuf.index_select(0, pix)).squeeze(1)
         face_id = face_id.scatter_reduce(0, pix.index_select(0, win),
                                          face.index_select(0, win), reduce="amax",
                                          include_self=True)
 
     if static:  # every pixel, then masked: no data-dependent (possibly empty) index sets
+        if draw is not None or under is not None:
+            raise ValueError("expected no draw or under with static windows (export)")
         return _dense_fragments(face_id, tri, tri_z, area, b, height, width,
                                 perspective_correct)
     fg = torch.nonzero(face_id >= 0, as_tuple=True)[0]
@@ -216,6 +253,7 @@ def rasterize(screen: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
         face_id=face_id.view(b, height, width),
         bary=bary.view(b, height, width, 3),
         depth=zout.view(b, height, width),
+        zbuffer=ZBuffer(zbuf, face_id),
     )
 
 

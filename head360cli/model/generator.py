@@ -28,7 +28,12 @@ from torch import nn
 
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.networks import Decoder, HairTextureGenerator, RefineNet, TextureGenerator
-from head360cli.model.planes import PLANE_SETS, rasterize_planes, sample_planes
+from head360cli.model.planes import (
+    PLANE_SETS,
+    plane_zbuffer,
+    rasterize_planes,
+    sample_planes,
+)
 from head360cli.model.render import EMPTY, composite, samples_around, screen_depth
 from head360cli.model.reuse import DecodeReuse
 
@@ -208,6 +213,44 @@ class Generator(nn.Module):
         return rasterize_planes(verts[None], faces, uv, faces, texture, self.plane_names,
                                 c.plane_res, c.hair_plane_centre, c.hair_plane_half_size)
 
+    def _still(self, verts: torch.Tensor, reuse: DecodeReuse | None
+               ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(triangles no expression moves (F,), their vertices' positions)`` when
+        ``reuse`` knows the still vertices, else ``None``."""
+        if reuse is None or reuse.still_vertices is None:
+            return None
+        faces = reuse.still_vertices[self.faces].all(1)
+        return faces, verts[0].index_select(0, torch.nonzero(reuse.still_vertices)[:, 0])
+
+    def _head_depth(self, verts: torch.Tensor, c2w: torch.Tensor, k: torch.Tensor,
+                    reuse: DecodeReuse | None) -> torch.Tensor:
+        """The head's screen depth; with ``reuse``, the triangles no expression moves are
+        drawn once per camera and the others over them each frame (the same depth)."""
+        res = self.cfg.render_res
+        still = self._still(verts, reuse)
+        if still is None:
+            return screen_depth(verts, self.faces, c2w, k, res)
+        faces, pos = still
+        under = reuse.kept("head_depth_under", (pos, c2w[0], k[0]), lambda: screen_depth(
+            verts, self.faces, c2w, k, res, draw=faces, zbuffer=True)[1])
+        return screen_depth(verts, self.faces, c2w, k, res, draw=~faces, under=under)
+
+    def _head_planes(self, verts: torch.Tensor, texture: torch.Tensor,
+                     reuse: DecodeReuse | None) -> torch.Tensor:
+        """:meth:`planes`; with ``reuse``, the still triangles drawn once (as
+        :meth:`_head_depth`)."""
+        still = self._still(verts, reuse)
+        if still is None:
+            return self.planes(verts, texture)
+        faces, pos = still
+        c = self.cfg
+        under = reuse.kept("planes_under", (pos,), lambda: plane_zbuffer(
+            verts, self.faces, self.plane_names, c.plane_res, c.plane_centre,
+            c.plane_half_size, draw=faces))
+        return rasterize_planes(verts, self.faces, self.uv, self.faces_uv, texture,
+                                self.plane_names, c.plane_res, c.plane_centre,
+                                c.plane_half_size, draw=~faces, under=under)
+
     def prepare_hair(self, hair: Hair) -> Hair:
         """The same hair with its planes made now, so that renders of many frames or views
         reuse them (they depend on the hairstyle and colour only)."""
@@ -258,7 +301,7 @@ class Generator(nn.Module):
                              f"{torch.is_grad_enabled()}")
         k = intrinsics.expand(b, 3, 3).clone()
         k[:, :2] *= c.render_res / c.image_res
-        depth = screen_depth(verts, self.faces, c2w, k, c.render_res)
+        depth = self._head_depth(verts, c2w, k, reuse)
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
                                                if m is not None]
         hair_near: dict[int, torch.Tensor] = {}
@@ -291,7 +334,8 @@ class Generator(nn.Module):
                 -1, -1, c.samples, 3))
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
-        feats = sample_planes(points, self.planes(verts, texture), self.plane_names,
+        feats = sample_planes(points, self._head_planes(verts, texture, reuse),
+                              self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
         keys = slots = None
         if reuse is None:

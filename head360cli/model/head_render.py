@@ -84,6 +84,8 @@ class HeadRenderer:
         self._base = torch.tensor(self.neutral, dtype=torch.float32, device=self.device)
         self._deltas = torch.tensor(deltas.reshape(52, -1), dtype=torch.float32,
                                     device=self.device)
+        self._still_vertices = torch.as_tensor(~np.any(deltas != 0, axis=(0, 2)),
+                                               device=self.device)
         self.texture = texture.to(self.device)[None]
         self.last_reuse = None
         """The :class:`~head360cli.model.reuse.DecodeReuse` of the latest :meth:`frames`
@@ -196,8 +198,8 @@ class HeadRenderer:
         from head360cli.model.reuse import DecodeReuse
 
         still = len(c2w) > 1 and bool((c2w == c2w[:1]).all())
-        reuse = (DecodeReuse(self.reuse) if self.reuse is not None and batch == 1 and still
-                 else None)
+        reuse = (DecodeReuse(self.reuse, self._still_vertices)
+                 if self.reuse is not None and batch == 1 and still else None)
         self.last_reuse = reuse
         for i in range(0, len(c2w), batch):
             cams = c2w[i:i + batch].to(self.device)

@@ -15,9 +15,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+from head360cli.geometry.rasterize import ZBuffer, interpolate_face_corners, rasterize
 
-__all__ = ["PLANES", "PLANE_SETS", "plane_coordinates", "rasterize_planes", "sample_planes"]
+__all__ = ["PLANES", "PLANE_SETS", "plane_coordinates", "plane_zbuffer", "rasterize_planes",
+           "sample_planes"]
 
 # name: (u axis, u sign, v axis, v sign, height axis, height sign). Model axes: +x the
 # subject's left, +y up, +z the way the face looks. Height grows towards the viewer.
@@ -60,9 +61,30 @@ def plane_coordinates(points: torch.Tensor, names: tuple[str, ...],
     return coords[..., :2] / half, coords[..., 2]
 
 
+def _plane_screen(verts: torch.Tensor, names: tuple[str, ...], res: int,
+                  centre: tuple[float, float, float], half: float
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Vertices on each plane's raster: ``(B P, V, 2)`` pixels and ``(B P, V)`` depth
+    (smaller is nearer that plane's viewer)."""
+    b, p = verts.shape[0], len(names)
+    coords, height = plane_coordinates(verts, names, centre, half)  # (B, P, V, 2), (B,P,V)
+    return ((coords + 1.0) * 0.5 * res).reshape(b * p, -1, 2), -height.reshape(b * p, -1)
+
+
+def plane_zbuffer(verts: torch.Tensor, faces: torch.Tensor, names: tuple[str, ...],
+                  res: int, centre: tuple[float, float, float], half: float,
+                  draw: torch.Tensor) -> ZBuffer:
+    """The planes' depth test after drawing only the triangles ``draw (F,)``: give it to
+    :func:`rasterize_planes` as ``under`` with the other triangles as ``draw`` (for
+    triangles that never move, drawn once for many frames)."""
+    return rasterize(*_plane_screen(verts, names, res, centre, half), faces, res, res,
+                     perspective_correct=False, near=float("-inf"), draw=draw).zbuffer
+
+
 def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
                      faces_uv: torch.Tensor, texture: torch.Tensor, names: tuple[str, ...],
-                     res: int, centre: tuple[float, float, float], half: float
+                     res: int, centre: tuple[float, float, float], half: float,
+                     draw: torch.Tensor | None = None, under: ZBuffer | None = None
                      ) -> torch.Tensor:
     """Rasterize the textured mesh onto the planes.
 
@@ -75,16 +97,17 @@ def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
         names: Plane names (``P``).
         res: Plane resolution.
         centre, half: The planes' cube.
+        draw, under: Draw only triangles ``draw (F,)`` over the others' depth test
+            ``under`` (see :func:`plane_zbuffer` and :func:`~head360cli.geometry.
+            rasterize.rasterize`).
 
     Returns:
         ``(B, P, C + 2, res, res)``: texture features, surface height (metres towards the
         viewer) and coverage.
     """
     b, p = verts.shape[0], len(names)
-    coords, height = plane_coordinates(verts, names, centre, half)  # (B, P, V, 2), (B,P,V)
-    screen = ((coords + 1.0) * 0.5 * res).reshape(b * p, -1, 2)
-    frags = rasterize(screen, -height.reshape(b * p, -1), faces, res, res,
-                      perspective_correct=False, near=float("-inf"))
+    frags = rasterize(*_plane_screen(verts, names, res, centre, half), faces, res, res,
+                      perspective_correct=False, near=float("-inf"), draw=draw, under=under)
     corner_uv = uv[faces_uv]  # (F, 3, 2)
     uvs = interpolate_face_corners(corner_uv, frags)  # (BP, res, res, 2)
     # One texture read by all P planes at once: the grids stacked into one tall grid

@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 
 from head360cli.geometry.cameras import project
-from head360cli.geometry.rasterize import rasterize
+from head360cli.geometry.rasterize import ZBuffer, rasterize
 
 __all__ = ["EMPTY", "composite", "samples_around", "screen_depth", "surface_samples"]
 
@@ -26,7 +26,9 @@ EMPTY = 1e3
 
 
 def screen_depth(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
-                 intrinsics: torch.Tensor, res: int) -> torch.Tensor:
+                 intrinsics: torch.Tensor, res: int, draw: torch.Tensor | None = None,
+                 under: ZBuffer | None = None, zbuffer: bool = False
+                 ) -> torch.Tensor | tuple[torch.Tensor, ZBuffer]:
     """Depth of the nearest front-facing surface per pixel.
 
     Args:
@@ -35,14 +37,20 @@ def screen_depth(verts: torch.Tensor, faces: torch.Tensor, c2w: torch.Tensor,
         c2w: ``(B, 4, 4)``.
         intrinsics: ``(B, 3, 3)`` for a ``res x res`` image.
         res: Image resolution.
+        draw, under: Draw only triangles ``draw (F,)`` over the depth test ``under`` of
+            the others (see :func:`~head360cli.geometry.rasterize.rasterize`).
+        zbuffer: Also return the depth test's state (to pass as ``under`` later).
 
     Returns:
-        ``(B, res, res)`` depth, :data:`EMPTY` where no surface covers the pixel. The depth
-        of several meshes seen together is the minimum of theirs.
+        ``(B, res, res)`` depth, :data:`EMPTY` where no surface covers the pixel (and the
+        :class:`ZBuffer` with ``zbuffer``). The depth of several meshes seen together is
+        the minimum of theirs.
     """
     pix, depth = project(verts, c2w, intrinsics)
-    frags = rasterize(pix, depth, faces, res, res, cull_backfaces=True)
-    return torch.where(frags.mask, frags.depth, torch.full_like(frags.depth, EMPTY))
+    frags = rasterize(pix, depth, faces, res, res, cull_backfaces=True, draw=draw,
+                      under=under)
+    out = torch.where(frags.mask, frags.depth, torch.full_like(frags.depth, EMPTY))
+    return (out, frags.zbuffer) if zbuffer else out
 
 
 def _filled(depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -17,6 +17,7 @@ Holds tensors, no parameters; the generator consults it when one is passed to
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import torch
 
@@ -40,18 +41,23 @@ class DecodeReuse:
     Args:
         tol: Largest change of any input feature (absolute) for which a point keeps its
             previous output; 0 reuses only inputs equal to the last decoded ones.
+        still_vertices: Optional ``(V,)`` bool, the vertices no expression moves.
 
     Attributes:
         points: Points asked for so far.
         decoded: Of those, how many were decoded (the rest were reused).
     """
 
-    def __init__(self, tol: float = 0.0) -> None:
+    def __init__(self, tol: float = 0.0, still_vertices: torch.Tensor | None = None
+                 ) -> None:
         if not tol >= 0.0:
             raise ValueError(f"expected a tolerance >= 0, found {tol}")
         self.tol = float(tol)
+        self.still_vertices = still_vertices
+        """``(V,)`` bool: the head's vertices that no expression moves (their triangles
+        are rasterized once, the others drawn over them each frame), or ``None``."""
         self._slots: dict[str, _Slot] = {}
-        self._kept: dict[str, tuple[tuple[torch.Tensor, ...], torch.Tensor]] = {}
+        self._kept: dict[str, tuple[tuple[torch.Tensor, ...], Any]] = {}
         self._refined: tuple[torch.Tensor, ...] | None = None
         self.refined_pixels = 0
         """Input pixels the RefineNet was run on by :meth:`refine` after its first frame."""
@@ -64,8 +70,8 @@ class DecodeReuse:
         self._kept.clear()
         self._refined = None
 
-    def kept(self, name: str, inputs: tuple[torch.Tensor, ...],
-             make: Callable[[], torch.Tensor]) -> torch.Tensor:
+    def kept(self, name: str, inputs: tuple[torch.Tensor, ...], make: Callable[[], Any]
+             ) -> Any:
         """``make()``, or what it returned last time for equal ``inputs`` (the tensors
         it depends on), such as the screen depth of hair that does not move."""
         last = self._kept.get(name)

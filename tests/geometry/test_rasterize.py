@@ -217,3 +217,29 @@ def test_static_windows_are_finite_where_the_first_triangle_is_not():
     assert torch.equal(a.face_id, b.face_id)
     torch.testing.assert_close(a.bary, b.bary, atol=1e-6, rtol=0)
     assert (b.bary[~b.mask] == 0).all() and (b.depth[~b.mask] == 0).all()
+
+
+@pytest.mark.parametrize("perspective", [True, False])
+def test_drawing_over_a_kept_zbuffer_equals_drawing_everything(perspective):
+    """Triangles that never move drawn once, the others drawn over their depth test each
+    frame: the same fragments as drawing all at once, ties (coplanar duplicates) included."""
+    g = torch.Generator().manual_seed(5)
+    screen = torch.rand(2, 60, 2, generator=g) * 40
+    depth = torch.rand(2, 60, generator=g) + 1
+    faces = torch.randint(0, 60, (80, 3), generator=g)
+    faces = torch.cat([faces, faces[:10]])  # exact ties between a still and a moving one
+    still = torch.rand(90, generator=g) < 0.5
+    still[:10], still[80:] = True, False
+    kw = {} if perspective else {"perspective_correct": False, "near": float("-inf")}
+    full = rasterize(screen, depth, faces, 40, 40, **kw)
+    under = rasterize(screen, depth, faces, 40, 40, draw=still, **kw).zbuffer
+    over = rasterize(screen, depth, faces, 40, 40, draw=~still, under=under, **kw)
+    assert torch.equal(over.face_id, full.face_id)
+    assert torch.equal(over.bary, full.bary) and torch.equal(over.depth, full.depth)
+    assert (full.face_id >= 80).any()  # the tie rule (larger id) was exercised
+    # drawing nothing new over it gives the kept triangles' own fragments
+    alone = rasterize(screen, depth, faces, 40, 40, draw=still, **kw)
+    none = rasterize(screen, depth, faces, 40, 40, draw=torch.zeros_like(still),
+                     under=under, **kw)
+    assert torch.equal(none.face_id, alone.face_id)
+    assert (alone.face_id >= 0).sum() < (full.face_id >= 0).sum()

@@ -182,8 +182,8 @@ def test_reuse_decodes_fewer_points_and_only_for_a_still_camera(renderer, monkey
     made = []
     real = reuse_mod.DecodeReuse
 
-    def spy(tol):
-        made.append(real(tol))
+    def spy(*args):
+        made.append(real(*args))
         return made[-1]
 
     monkeypatch.setattr(reuse_mod, "DecodeReuse", spy)
@@ -204,3 +204,31 @@ def test_generator_refuses_reuse_for_batches_and_training(renderer):
     with torch.no_grad(), gen.image_size(64), pytest.raises(ValueError, match="one item"):
         gen(verts, cams, view_intrinsics(64), texture=renderer.texture.expand(2, -1, -1, -1),
             reuse=DecodeReuse())
+
+
+def test_still_triangles_drawn_once_give_the_same_planes_and_depth(renderer):
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.model.render import screen_depth
+
+    gen = renderer.gen
+    still = renderer._still_vertices
+    reuse = DecodeReuse(0.0, still)
+    assert 0.2 < float(still[gen.faces].all(1).float().mean()) < 0.8
+    cam = view_cameras(30.0, 10.0)
+    k = view_intrinsics(64).clone()[None]
+    k[:, :2] *= gen.cfg.render_res / gen.cfg.image_res
+    made = []
+    real = reuse.kept
+
+    def spy(name, inputs, make):
+        return real(name, inputs, lambda: made.append(name) or make())
+
+    reuse.kept = spy
+    with torch.no_grad():
+        for w in _weights(3):
+            v = renderer.vertices(w[None])
+            assert torch.equal(gen._head_planes(v, renderer.texture, reuse),
+                               gen.planes(v, renderer.texture))
+            assert torch.equal(gen._head_depth(v, cam, k, reuse),
+                               screen_depth(v, gen.faces, cam, k, gen.cfg.render_res))
+    assert sorted(made) == ["head_depth_under", "planes_under"]  # drawn once, kept
