@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 
@@ -81,7 +82,10 @@ def test_two_process_data_parallel_on_cpu(tmp_path):
     torchrun = shutil.which("torchrun") or os.path.join(os.path.dirname(sys.executable),
                                                         "torchrun")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [torchrun, "--nproc_per_node", "2", "--master_port", "29517", "-m", "head360cli",
+    with socket.socket() as s:  # a free port: a fixed one failed once, still held
+        s.bind(("127.0.0.1", 0))
+        port = str(s.getsockname()[1])
+    cmd = [torchrun, "--nproc_per_node", "2", "--master_port", port, "-m", "head360cli",
            "train", str(tmp_path / "ddp"), "--preset", "tiny", "--steps", "3", "-n", "2",
            "--batch", "1", "-q", "--export", str(tmp_path / "ddp.pt")]
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
