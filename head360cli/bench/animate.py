@@ -181,12 +181,22 @@ def _reuse(head: Path, weights: np.ndarray, samples: int = 8, size: int = 256
 
 
 def _run_cli(args: list[str]) -> dict[str, Any]:
-    """Run ``head360 ARGS --json`` in a new process; its JSON plus its peak RSS."""
+    """Run ``head360 ARGS --json`` in a new process; its JSON plus its peak RSS.
+
+    The peak is the process's own high-water mark (``VmHWM``). Linux's ``ru_maxrss``
+    starts a child from its parent's resident size at the fork, so a bench process that
+    had grown to 1.5 GB reported 1.5 GB for every command it ran, whatever they used."""
     code = ("import json, resource, sys\n"
             "from head360cli.cli import main\n"
             "rc = main(sys.argv[1:])\n"
-            "print(json.dumps({'rc': rc, 'peak_rss_mib': resource.getrusage("
-            "resource.RUSAGE_SELF).ru_maxrss / 1024}), file=sys.stderr)\n")
+            "peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
+            "try:\n"
+            "    with open('/proc/self/status') as f:\n"
+            "        peak = next(int(line.split()[1]) / 1024 for line in f\n"
+            "                    if line.startswith('VmHWM:'))\n"
+            "except (OSError, StopIteration):\n"
+            "    pass\n"
+            "print(json.dumps({'rc': rc, 'peak_rss_mib': peak}), file=sys.stderr)\n")
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", code, *args, "--json", "--quiet"],
                        capture_output=True, text=True, check=False)

@@ -55,3 +55,14 @@ def test_mesh_openings_follow_jaw_and_blinks(head_file):
     assert (np.diff(o[4:, 1]) < 0).all() and (np.diff(o[4:, 2]) < 0).all()  # lids close
     assert o[7, 1] < 0.5 * o[4, 1] and o[7, 2] < 0.5 * o[4, 2]
     assert np.allclose(o[:4, 1:], o[0, 1:], atol=0.02)  # the jaw leaves the eyes alone
+
+
+def test_run_cli_reports_the_child_s_own_peak_memory():
+    """A parent holding 600 MB does not lend its size to the command it runs (Linux's
+    ru_maxrss would: it carries the parent's resident size across fork and exec)."""
+    from head360cli.bench.animate import _run_cli
+
+    big = np.ones(600 * 2**20 // 8)  # touched: resident
+    out = _run_cli(["info"])
+    assert big.sum() > 0
+    assert 20 < out["peak_rss_mib"] < 500
