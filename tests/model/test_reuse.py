@@ -102,18 +102,18 @@ def test_refine_on_a_crop_equals_the_whole_image(where):
     from head360cli.model.networks import RefineNet
 
     torch.manual_seed(0)
-    net = RefineNet(GeneratorConfig(render_res=32, image_res=128, refine_width=16,
+    net = RefineNet(GeneratorConfig(render_res=64, image_res=256, refine_width=16,
                                     feature_channels=6))
     for p in net.parameters():  # the last layer starts at zero: give it weights
         torch.nn.init.normal_(p, std=0.3)
-    h = 32
+    h = 64
     feats, alpha, rgb = torch.rand(1, 6, h, h), torch.rand(1, 1, h, h), torch.rand(1, 3, h, h)
     reuse = DecodeReuse()
     with torch.no_grad():
         reuse.refine(net, feats, alpha, rgb, net.scale, net.reach)
         f2 = feats.clone()
         if where == "middle":
-            f2[..., 14:17, 12:14] += 1.0
+            f2[..., 30:33, 40:42] += 1.0
         elif where == "corner":
             f2[..., 0, h - 1] -= 1.0
         got = reuse.refine(net, f2, alpha, rgb, net.scale, net.reach)
@@ -123,8 +123,9 @@ def test_refine_on_a_crop_equals_the_whole_image(where):
         assert g.shape == r.shape
         torch.testing.assert_close(g, r, atol=2e-5, rtol=0)
     if where == "middle":
-        # the crop is the change grown by twice the reach, not the whole image
-        assert reuse.refined_pixels == (3 + 4 * net.reach) * (2 + 4 * net.reach)
+        # the crop: the change grown by twice the reach (rows 22-40, columns 32-49), out
+        # to the 16-pixel grid (rows 16-47, columns 32-63), not the whole image
+        assert reuse.refined_pixels == 32 * 32
     # an output does not change under the caller: later frames write into copies
     again = reuse.refine(net, feats, alpha, rgb, net.scale, net.reach)
     torch.testing.assert_close(got[0], ref[0], atol=2e-5, rtol=0)
