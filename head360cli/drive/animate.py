@@ -2,6 +2,8 @@
 
 Per frame only the mesh changes (``HeadRenderer.frames`` recomputes the mesh, its
 hex-planes and the volume render; the neural texture and the hair planes are made once).
+With a still camera, frames also reuse the previous frame's work where the expression
+left it unchanged (:class:`~head360cli.model.reuse.DecodeReuse`).
 The stream's head rotation, when asked for, moves the camera instead of the head: the same
 image on a white background, and the hair planes stay valid. Frames go to the encoder as
 they are made, so memory does not grow with the length of the take.
