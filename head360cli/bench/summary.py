@@ -66,6 +66,13 @@ def collect(results: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
             rows.append(_row("render (animation)", f"{s['samples']} samples, {s['precision']}",
                              s["ms_per_frame"], "PSNR dB vs 32 samples",
                              s["psnr_vs_32_samples"], "higher"))
+        u = r.get("reuse")
+        if u:  # reuse between frames: its time against how far it is from decoding all
+            rows.append(_row("reuse between frames", f"tol {u['tol']:g}, {u['samples']} "
+                             f"samples", u["ms_per_frame"], "lowest frame PSNR dB vs exact",
+                             u["psnr_vs_exact_min"], "higher"))
+            rows.append(_row("reuse between frames", f"exact, {u['samples']} samples",
+                             u["ms_per_frame_exact"], "(the reference)", None, ""))
         sweep = r.get("resolution", [])
         top = max((s["size"] for s in sweep), default=0)
         for s in sweep:

@@ -48,6 +48,15 @@ def test_collect_reads_the_image_size_sweep():
     assert rows[0]["metric"] == "PSNR dB vs 32 samples at 512 px"
 
 
+def test_collect_reads_reuse_between_frames():
+    reuse = {"tol": 1e-3, "samples": 8, "ms_per_frame": 76.0, "ms_per_frame_exact": 131.0,
+             "psnr_vs_exact_min": 94.2}
+    rows = collect({"animate": {"speed": [], "reuse": reuse}})
+    assert [(r["setting"], r["ms"], r["value"]) for r in rows] == [
+        ("tol 0.001, 8 samples", 76.0, 94.2), ("exact, 8 samples", 131.0, None)]
+    assert {r["stage"] for r in rows} == {"reuse between frames"}
+
+
 def test_summarize_writes_table_and_plot(tmp_path):
     from PIL import Image
 
