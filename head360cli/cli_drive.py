@@ -257,6 +257,8 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
             f"{res['fps']:.2f} fps)")
     if "render_fps" in res:
         text += f", rendered at {res['render_fps']:.1f} frames/s"
+    if "decoded_share" in res:
+        text += f" ({100 * res['decoded_share']:.0f} % of the points decoded, the rest kept)"
     _emit(res, text + "".join(f"\n  wrote {p}" for p in res["files"].values()))
 
 

@@ -121,7 +121,8 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
         progress: ``progress(stage, done, total)`` callback.
 
     Returns:
-        A summary: frames, duration, fps, render seconds and frames per second, paths.
+        A summary: frames, duration, fps, render seconds and frames per second, the share
+        of points decoded when frames reused the previous ones (``decoded_share``), paths.
     """
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.io.video import VideoWriter
@@ -158,5 +159,8 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
                     progress("animate", done, n)
         seconds = time.perf_counter() - t0
         result.update(render_seconds=seconds, render_fps=n / seconds)
+        reuse = getattr(renderer, "last_reuse", None)
+        if reuse is not None and reuse.points:  # the share of points decoded afresh
+            result["decoded_share"] = round(reuse.decoded / reuse.points, 4)
         result["files"]["video"] = str(out)
     return result

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 
 import numpy as np
 import pytest
@@ -141,8 +142,10 @@ def test_cli_animate_exact_decodes_every_point_and_agrees(run_cli, head_file, tm
     got = {}
     for name, extra in (("reuse", ()), ("exact", ("--exact",))):
         r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
-                    tmp_path / name, "--size", "64", "--samples", "4", *extra)
+                    tmp_path / name, "--size", "64", "--samples", "4", "--json", *extra)
         assert r.code == 0, r.err
+        share = json.loads(r.out).get("decoded_share")
+        assert (share is None) if name == "exact" else (0 < share < 1)
         got[name] = np.stack([iio.imread(p) for p in sorted((tmp_path / name).iterdir())])
     assert got["reuse"].shape == got["exact"].shape == (6, 64, 64, 3)
     assert np.abs(got["reuse"].astype(int) - got["exact"]).max() <= 2
