@@ -197,6 +197,9 @@ class VideoWriter:
             gen = imageio_ffmpeg.write_frames(
                 str(self._tmp), (width, height), fps=self.fps, codec="gif",
                 pix_fmt_out="pal8", quality=None, macro_block_size=1,
+                # palettegen warns "Duped color" for every frame of a skin-toned head,
+                # dozens of lines past --quiet; errors still show
+                ffmpeg_log_level="error",
                 output_params=[
                     "-filter_complex",
                     "split[a][b];[a]palettegen=stats_mode=single[p];[b][p]paletteuse=new=1",
