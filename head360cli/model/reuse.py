@@ -1,4 +1,4 @@
-"""Reuse of decoded points from one frame of an animation to the next.
+"""Reuse of one frame's work in the next frame of an animation seen by a still camera.
 
 With a still camera, most of a head does not change between frames of an expression
 stream: the back of the head, the hair, much of the face. The points there reach the
@@ -9,6 +9,12 @@ there and its output, and decodes only the points whose input moved by more than
 since. The cached output always belongs to the input it is compared with, so small
 changes cannot pile up over frames: every point's input is within ``tol`` of the one its
 output was decoded from.
+
+It also keeps, for the same camera, the RefineNet's last output (recomputed on a crop
+around the pixels whose input changed, :meth:`DecodeReuse.refine`), results that depend
+only on still inputs such as the hair's screen depth (:meth:`DecodeReuse.kept`), and the
+depth tests of the triangles no expression moves (drawn once, the others drawn over
+them each frame).
 
 Holds tensors, no parameters; the generator consults it when one is passed to
 :meth:`~head360cli.model.generator.Generator.forward`.
@@ -40,7 +46,7 @@ class _Slot:
 
 
 class DecodeReuse:
-    """Decoder outputs kept between consecutive frames of one head seen by one camera.
+    """What a frame leaves for the next frame of one head seen by one camera.
 
     Args:
         tol: Largest change of any input feature (absolute) for which a point keeps its
