@@ -205,8 +205,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @click.option("--exact", is_flag=True,
               help="Decode every point of every frame. By default, with a still camera "
               "(no --head-pose), points whose inputs moved by at most 1e-3 since the "
-              "last frame keep their colour: frames within 1e-3 of exact, about 1.7x "
-              "faster on CPU.")
+              "last frame keep their colour: on a real capture, frames within 5e-4 of "
+              "exact and about 1.7x faster on CPU.")
 @_quality_options
 @_backend_options
 @common_options

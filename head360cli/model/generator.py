@@ -220,14 +220,15 @@ class Generator(nn.Module):
         if reuse is None or reuse.still_vertices is None:
             return None
         faces = reuse.still_vertices[self.faces].all(1)
-        return faces, verts[0].index_select(0, torch.nonzero(reuse.still_vertices)[:, 0])
+        return faces, verts[0].index_select(0, reuse.still_index)
 
     def _head_depth(self, verts: torch.Tensor, c2w: torch.Tensor, k: torch.Tensor,
-                    reuse: DecodeReuse | None) -> torch.Tensor:
-        """The head's screen depth; with ``reuse``, the triangles no expression moves are
-        drawn once per camera and the others over them each frame (the same depth)."""
+                    reuse: DecodeReuse | None,
+                    still: tuple[torch.Tensor, torch.Tensor] | None) -> torch.Tensor:
+        """The head's screen depth; with ``still`` (from :meth:`_still`), the triangles no
+        expression moves are drawn once per camera and the others over them each frame
+        (the same depth)."""
         res = self.cfg.render_res
-        still = self._still(verts, reuse)
         if still is None:
             return screen_depth(verts, self.faces, c2w, k, res)
         faces, pos = still
@@ -236,10 +237,10 @@ class Generator(nn.Module):
         return screen_depth(verts, self.faces, c2w, k, res, draw=~faces, under=under)
 
     def _head_planes(self, verts: torch.Tensor, texture: torch.Tensor,
-                     reuse: DecodeReuse | None) -> torch.Tensor:
-        """:meth:`planes`; with ``reuse``, the still triangles drawn once (as
+                     reuse: DecodeReuse | None,
+                     still: tuple[torch.Tensor, torch.Tensor] | None) -> torch.Tensor:
+        """:meth:`planes`; with ``still``, the still triangles drawn once (as
         :meth:`_head_depth`)."""
-        still = self._still(verts, reuse)
         if still is None:
             return self.planes(verts, texture)
         faces, pos = still
@@ -301,7 +302,8 @@ class Generator(nn.Module):
                              f"{torch.is_grad_enabled()}")
         k = intrinsics.expand(b, 3, 3).clone()
         k[:, :2] *= c.render_res / c.image_res
-        depth = self._head_depth(verts, c2w, k, reuse)
+        still = self._still(verts, reuse)  # once a frame, for the depth and the planes
+        depth = self._head_depth(verts, c2w, k, reuse, still)
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
                                                if m is not None]
         hair_near: dict[int, torch.Tensor] = {}
@@ -334,7 +336,7 @@ class Generator(nn.Module):
                 -1, -1, c.samples, 3))
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
-        feats = sample_planes(points, self._head_planes(verts, texture, reuse),
+        feats = sample_planes(points, self._head_planes(verts, texture, reuse, still),
                               self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
         keys = slots = None

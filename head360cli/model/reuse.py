@@ -66,6 +66,9 @@ class DecodeReuse:
         self.still_vertices = still_vertices
         """``(V,)`` bool: the head's vertices that no expression moves (their triangles
         are rasterized once, the others drawn over them each frame), or ``None``."""
+        self.still_index = (None if still_vertices is None
+                            else torch.nonzero(still_vertices)[:, 0])
+        """Their indices (made once, not every frame)."""
         self._slots: dict[str, _Slot] = {}
         self._kept: dict[str, tuple[tuple[torch.Tensor, ...], Any]] = {}
         self._refined: tuple[torch.Tensor, ...] | None = None

@@ -228,8 +228,9 @@ def test_still_triangles_drawn_once_give_the_same_planes_and_depth(renderer):
     with torch.no_grad():
         for w in _weights(3):
             v = renderer.vertices(w[None])
-            assert torch.equal(gen._head_planes(v, renderer.texture, reuse),
+            still = gen._still(v, reuse)
+            assert torch.equal(gen._head_planes(v, renderer.texture, reuse, still),
                                gen.planes(v, renderer.texture))
-            assert torch.equal(gen._head_depth(v, cam, k, reuse),
+            assert torch.equal(gen._head_depth(v, cam, k, reuse, still),
                                screen_depth(v, gen.faces, cam, k, gen.cfg.render_res))
     assert sorted(made) == ["head_depth_under", "planes_under"]  # drawn once, kept
