@@ -584,6 +584,9 @@ PRESETS = {
               help="Views per head in a batch, rendered together (faster data).")
 @click.option("--workers", default=1, show_default=True,
               help="Processes that build the corpus heads before training.")
+@click.option("--featured-share", default=0.25, show_default=True,
+              help="Share of expressions with a blink or jawOpen at 0.7-1 on top (random "
+                   "expressions rarely close the eyes).")
 @click.option("--export", "export", type=click.Path(dir_okay=False), default=None,
               help="Also write the shippable weights here (e.g. models/generator.pt).")
 @click.option("--init", "init", type=click.Path(dir_okay=False, exists=True), default=None,
@@ -592,8 +595,8 @@ PRESETS = {
 @common_options
 def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
           identities: int, seed: int, planes: str, no_refine: bool, no_detach: bool,
-          no_hair: bool, lr: float, group: int, workers: int, export: str | None,
-          init: str | None) -> None:
+          no_hair: bool, lr: float, group: int, workers: int, featured_share: float,
+          export: str | None, init: str | None) -> None:
     """Train the generator on SynHead-P (resumes a run folder that has a checkpoint).
 
     \b
@@ -612,12 +615,14 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
     if steps < 1 or batch < 1 or identities < 1:
         raise BadInputError(f"expected --steps, --batch and --identities >= 1, found "
                             f"{steps}, {batch} and {identities}")
+    if not 0.0 <= featured_share <= 1.0:
+        raise BadInputError(f"expected --featured-share in [0, 1], found {featured_share}")
     device = str(resolve_device(_settings().device))
     gen_cfg = GeneratorConfig(**PRESETS[preset], planes=planes, refine=not no_refine,
                               hair=not no_hair)
     cfg = TrainConfig(identities=identities, seed=seed, steps=steps, minutes=minutes,
                       batch=batch, lr=lr, detach=not no_detach, group=group,
-                      workers=workers, init=init or "")
+                      workers=workers, featured_share=featured_share, init=init or "")
     last = run_training(run_dir, cfg, gen_cfg, device=device, progress=not _settings().quiet)
     result: dict[str, Any] = {"run": run_dir, "last": last}
     if export and int(os.environ.get("RANK", "0")) == 0:

@@ -67,6 +67,9 @@ class TrainConfig:
     """Hair detachment: render a share of the views bald (see ``bald_share``)."""
     bald_share: float = 0.5
     """With detachment, the probability that a view is rendered bald."""
+    featured_share: float = 0.25
+    """Share of expressions with a blink, both blinks or ``jawOpen`` pushed to 0.7-1 on top
+    (``data.FEATURED``): uniform random expressions rarely close the eyes."""
     warmup: int = 100
     """Steps of linear learning-rate warm-up."""
     final_lr: float = 0.1
@@ -218,7 +221,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
                        enabled=progress and rank == 0)
     step = start
     for step in bar:
-        batch = views.sample(rng, cfg.batch, bald_share, cfg.group).to(device)
+        batch = views.sample(rng, cfg.batch, bald_share, cfg.group, cfg.featured_share).to(device)
         scale = learning_rate_scale(step, cfg, time.perf_counter() - t0)
         for group, lr in zip(opt.param_groups, base_lrs, strict=True):
             group["lr"] = lr * scale

@@ -27,3 +27,21 @@ def test_views_mix_bald_and_hair_renders():
     assert int(swapped.hair.style[0]) == 17
     assert torch.allclose(swapped.hair.colour[0], torch.tensor([0.55, 0.20, 0.07]))
     assert swapped.hair_alpha.sum() > one.hair_alpha.sum()  # long hair covers more
+
+
+def test_sample_expression_featured_share():
+    import numpy as np
+
+    from head360cli.model.data import sample_expression
+
+    rng = np.random.default_rng(0)
+    base = np.stack([sample_expression(rng) for _ in range(4000)])
+    rng = np.random.default_rng(0)
+    more = np.stack([sample_expression(rng, featured=0.25) for _ in range(4000)])
+    closed = lambda w: float((w[:, 0] >= 0.7).mean())  # noqa: E731  eyeBlinkLeft
+    assert closed(base) < 0.02
+    assert 0.10 < closed(more) < 0.16  # 1/4 featured, half the groups close the left eye
+    assert 0.04 < float((more[:, 17] >= 0.7).mean()) < 0.09  # jawOpen: 1/16 plus chance
+    everyone = np.stack([sample_expression(rng, featured=1.0) for _ in range(200)])
+    assert ((everyone[:, [0, 7, 17]] >= 0.7).any(axis=1)).all()
+    assert everyone.max() <= 1.0 and everyone.min() >= 0.0
