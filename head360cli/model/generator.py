@@ -91,6 +91,16 @@ def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray) -> Hai
                 torch.as_tensor(np.asarray(colours, dtype=np.float32)).reshape(-1, 3))
 
 
+def _hair_groups(hair: Hair | None, items: list[int]) -> list[list[int]]:
+    """``items`` grouped by the hair they wear: the same mesh and planes objects (frames
+    or views of one head, ``Hair.repeat``), so that a group is drawn and decoded in one
+    call rather than item by item."""
+    groups: dict[tuple[int, int], list[int]] = {}
+    for i in items:
+        groups.setdefault((id(hair.meshes[i]), id(hair.planes[i])), []).append(i)
+    return list(groups.values())
+
+
 def near_rays(near: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The rays worth decoding.
 
@@ -306,24 +316,29 @@ class Generator(nn.Module):
         depth = self._head_depth(verts, c2w, k, reuse, still)
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
                                                if m is not None]
-        hair_near: dict[int, torch.Tensor] = {}
+        if hair_items and hair.planes is None:
+            hair = self.prepare_hair(hair)
+        groups = _hair_groups(hair, hair_items)
+        hair_near: dict[int, torch.Tensor] = {}  # first item of a group -> (m, rays)
         head_depth = depth
         if hair_items:
             depth = depth.clone()
-            for i in hair_items:
-                hv, hf, _ = hair.meshes[i]
+            for g in groups:
+                hv, hf, _ = hair.meshes[g[0]]
+                gi = torch.tensor(g, device=verts.device)
 
-                def hair_depth(hv=hv, hf=hf, i=i):
-                    return screen_depth(hv[None], hf, c2w[i:i + 1], k[i:i + 1],
-                                        c.render_res)
+                def hair_depth(hv=hv, hf=hf, gi=gi):
+                    return screen_depth(hv[None].expand(len(gi), -1, -1), hf, c2w[gi],
+                                        k[gi], c.render_res)
                 # the hair does not move with the expression: a still camera sees the same
                 hd = (hair_depth() if reuse is None else
-                      reuse.kept("hair_depth", (hv, hf, c2w[i], k[i]), hair_depth))
-                depth[i] = torch.minimum(depth[i], hd[0])
+                      reuse.kept("hair_depth", (hv, hf, c2w[0], k[0]), hair_depth))
+                depth[gi] = torch.minimum(depth[gi], hd)
                 if self.hair_rays_only:  # rays within HAIR_MARGIN pixels of the hair mesh
-                    m = (hd < EMPTY).to(hd.dtype)[None]
-                    hair_near[i] = F.max_pool2d(m, 2 * HAIR_MARGIN + 1, stride=1,
-                                                padding=HAIR_MARGIN).reshape(-1) > 0
+                    m = (hd < EMPTY).to(hd.dtype)[:, None]
+                    hair_near[g[0]] = F.max_pool2d(
+                        m, 2 * HAIR_MARGIN + 1, stride=1,
+                        padding=HAIR_MARGIN).reshape(len(g), -1) > 0
         rays = c.render_res * c.render_res
         noise = (torch.rand(b, rays, c.samples, dtype=verts.dtype, device=verts.device)
                  if jitter else None)
@@ -352,36 +367,39 @@ class Generator(nn.Module):
             density, colour = density[None], colour[None]
         hair_part = torch.zeros_like(density)
         if hair_items:
-            idx = torch.tensor(hair_items, device=verts.device)
-            if hair.planes is None:
-                hair = self.prepare_hair(hair)
-            d_hair, c_hair = [], []
-            for i in hair_items:
-                pts = points[i]
-                if i in hair_near:  # decode only the points of rays near the hair
-                    ray = order[i] if self.cull_rays else torch.arange(
-                        rays, device=verts.device)
-                    sel = torch.nonzero(hair_near[i][ray].repeat_interleave(c.samples)
+            per_item = density.shape[1]  # points per item: kept rays x samples
+            at, d_hair, c_hair = [], [], []
+            for g in groups:
+                gi = torch.tensor(g, device=verts.device)
+                if g[0] in hair_near:  # decode only the points of rays near the hair
+                    ray = order[gi] if self.cull_rays else torch.arange(
+                        rays, device=verts.device).expand(len(g), -1)
+                    sel = torch.nonzero(torch.gather(hair_near[g[0]], 1, ray)
+                                        .repeat_interleave(c.samples, 1).reshape(-1)
                                         ).squeeze(1)
-                    pts = pts.index_select(0, sel)
-                f = sample_planes(pts[None], hair.planes[i], self.plane_names,
+                else:
+                    sel = torch.arange(len(g) * per_item, device=verts.device)
+                pts = points[gi].reshape(-1, 3).index_select(0, sel)
+                f = sample_planes(pts[None], hair.planes[g[0]], self.plane_names,
                                   c.hair_plane_centre, c.hair_plane_half_size,
                                   c.surface_tau)
                 if reuse is None:
                     dh, ch = self._net(self.hair_decoder, f)
                     dh, ch = dh[0], ch[0]
-                else:
+                else:  # one item: its flat positions are its point indices
                     dh, ch = reuse.decode(
                         "hair", lambda x: self._net(self.hair_decoder, x), f[0],
-                        keys.index_select(0, sel) if i in hair_near else keys, slots)
-                if i in hair_near:
-                    dh = torch.zeros_like(density[i]).index_copy(0, sel, dh)
-                    ch = torch.zeros_like(colour[i]).index_copy(0, sel, ch)
+                        keys.index_select(0, sel), slots)
+                # positions in the flat (B x points) batch: item g[j] owns j's block
+                block = torch.arange(per_item, device=verts.device)
+                at.append((gi[:, None] * per_item + block).reshape(-1).index_select(0, sel))
                 d_hair.append(dh)
                 c_hair.append(ch)
-            dh, ch = torch.stack(d_hair), torch.stack(c_hair)
-            dh_full = torch.zeros_like(density).index_copy(0, idx, dh)
-            ch_full = torch.zeros_like(colour).index_copy(0, idx, ch)
+            at_all = torch.cat(at)
+            dh_full = torch.zeros_like(density).reshape(-1).index_copy(
+                0, at_all, torch.cat(d_hair)).view_as(density)
+            ch_full = torch.zeros_like(colour).reshape(-1, colour.shape[-1]).index_copy(
+                0, at_all, torch.cat(c_hair)).view_as(colour)
             total = density + dh_full
             share = dh_full / (total + 1e-6)
             colour = colour * (1.0 - share[..., None]) + ch_full * share[..., None]

@@ -165,6 +165,49 @@ def test_culling_far_rays_changes_nothing(parts, hair):
     torch.testing.assert_close(one[True], one[False], atol=1e-6, rtol=0)
 
 
+@pytest.mark.parametrize("cull", [True, False])
+def test_items_sharing_hair_render_as_one_by_one(parts, hair, cull):
+    """Frames of one head share its hair (``Hair.repeat``): they are drawn and decoded
+    together, and each comes out as when rendered alone; with two hairs and a bald item
+    in one batch as well."""
+    from head360cli.model.generator import Hair, _hair_groups
+
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv)
+    gen.cull_rays = gen.hair_rays_only = cull
+    one = gen.prepare_hair(Hair(hair.meshes[:1], hair.style[:1], hair.colour[:1]))
+    # the same mesh with other planes (an untrained hair texture barely shows a colour)
+    other = dataclasses.replace(one, planes=[one.planes[0] * 2.0 + 0.5])
+    cams = torch.cat([c2w, c2w[:1]])  # three views
+    v3 = torch.cat([verts, verts[:1]])
+    code = torch.linspace(-1, 1, 3 * TINY.code_dim).view(3, -1)
+    mixed = Hair([one.meshes[0], None, other.meshes[0], one.meshes[0]],
+                 torch.tensor([17, 0, 17, 17]), torch.zeros(4, 3),
+                 [one.planes[0], None, other.planes[0], one.planes[0]])
+    assert _hair_groups(one.repeat(3), [0, 1, 2]) == [[0, 1, 2]]
+    assert _hair_groups(mixed, [0, 2, 3]) == [[0, 3], [2]]
+    with torch.no_grad():
+        together = gen(v3, cams, k, code=code, hair=one.repeat(3))
+        alone = [gen(v3[i:i + 1], cams[i:i + 1], k, code=code[i:i + 1], hair=one)
+                 for i in range(3)]
+        assert together["hair_alpha"][:2].amax() > 0.3  # the hair is there
+        for key in ("rgb", "hair_alpha", "depth_low"):
+            torch.testing.assert_close(together[key], torch.cat([a[key] for a in alone]),
+                                       atol=1e-5, rtol=0)
+        v4, c4 = torch.cat([v3, verts[:1]]), torch.cat([cams, c2w[:1]])
+        code4 = torch.cat([code, code[:1]])
+        out = gen(v4, c4, k, code=code4, hair=mixed)
+        bald = gen(v4[1:2], c4[1:2], k, code=code4[1:2])
+        last = gen(v4[2:3], c4[2:3], k, code=code4[2:3], hair=other)
+        torch.testing.assert_close(out["rgb"][0], alone[0]["rgb"][0], atol=1e-5, rtol=0)
+        torch.testing.assert_close(out["rgb"][3], alone[0]["rgb"][0], atol=1e-5, rtol=0)
+        torch.testing.assert_close(out["rgb"][1], bald["rgb"][0], atol=1e-5, rtol=0)
+        torch.testing.assert_close(out["rgb"][2], last["rgb"][0], atol=1e-5, rtol=0)
+        wrong = gen(v4[2:3], c4[2:3], k, code=code4[2:3], hair=one)  # the first planes'
+        assert (out["rgb"][2] - wrong["rgb"][0]).abs().max() > 1e-3
+
+
 def test_samples_per_ray_is_scoped(parts):
     model = parts[0]
     gen = Generator(TINY, model.faces, model.uv, model.faces_uv)
