@@ -522,6 +522,7 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
     Examples:
       head360 bench onnx
       head360 bench onnx --heads 10 --size 128 --samples 4
+      head360 bench onnx --device cuda --onnx generator.onnx   torch timed on the GPU
     """
     from head360cli.bench.onnx import bench_onnx
     from head360cli.bench.report import save
@@ -536,8 +537,10 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
         raise BadInputError(f"ONNX graph {graph!r} does not exist")
     progress = None if _settings().quiet else (lambda t: click.echo(f"bench onnx: {t}",
                                                                     err=True))
+    from head360cli.devices import resolve_device
+
     result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress,
-                            rounds=rounds)
+                            rounds=rounds, device=str(resolve_device(_settings().device)))
     result["files"] = save(result, md, out_dir, "onnx")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
 

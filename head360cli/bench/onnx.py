@@ -49,7 +49,8 @@ def _frame_seconds(fn, repeats: int) -> list[float]:
 
 def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int = 10,
                seed: int = 0, graph: str | Path | None = None,
-               progress: Any = None, rounds: int = 3) -> tuple[dict[str, Any], str]:
+               progress: Any = None, rounds: int = 3, device: str = "cpu"
+               ) -> tuple[dict[str, Any], str]:
     """Run the benchmark; returns the result and a Markdown summary.
 
     Args:
@@ -61,6 +62,8 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
         seed: Seed of heads, expressions and cameras.
         graph: An exported graph to use (its size and samples); default: export one.
         progress: ``progress(text)`` callback.
+        device: Torch device of the timed torch rows (parity is always on the CPU);
+            onnxruntime then runs on CUDA too where its build has that provider.
     """
     import torch
 
@@ -84,7 +87,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
         say(f"exporting the generator ({size} px, {samples} samples per ray)")
         graph = Path(tmp.name) / "generator.onnx"
         export_s = round(export_onnx(r, graph)["seconds"], 1)
-    runner = OnnxFrameRunner(graph)
+    runner = OnnxFrameRunner(graph)  # parity: the CPU's, against torch on the CPU
     size, samples = runner.size, int(runner.meta["samples"])
     k = view_intrinsics(size)
     rng = np.random.default_rng(seed)
@@ -111,17 +114,24 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
             say(f"parity: {i + 1}/{heads} heads, largest difference so far {worst:.2e}")
 
     say("timing torch and onnxruntime")
+    dev = torch.device(device)
+    timed_gen = gen if dev.type == "cpu" else load_generator(device=str(dev))[0]
+    timed_runner = (runner if dev.type != "cuda" else
+                    OnnxFrameRunner(graph, providers=["CUDAExecutionProvider"]))
     a = sample_heads(1, seed=seed + 1)[0].arrays
     cam, w = view_cameras(20.0, 5.0), np.zeros(52)
-    runs = {}
+    runs, where = {}, {}
     backends = [("torch", "fp32"), ("torch", "bf16"), ("onnxruntime", "fp32")]
     for backend, precision in backends:
-        if precision == "bf16" and not fast_bfloat16(torch.device("cpu")):
+        if precision == "bf16" and not fast_bfloat16(dev):
             continue
-        r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), 11,
-                         a["hair_color"], samples=samples, size=size, precision=precision)
+        r = HeadRenderer(timed_gen, a["shape"], torch.as_tensor(a["texture"], device=dev),
+                         11, a["hair_color"], samples=samples, size=size,
+                         precision=precision)
+        where[backend] = str(dev)
         if backend == "onnxruntime":
-            r.use_runner(runner)
+            r.use_runner(timed_runner)
+            where[backend] = timed_runner.provider.replace("ExecutionProvider", "")
         for hair in (True, False):
             runs[backend, precision, hair] = (
                 lambda r=r, hair=hair: r.render(cam, k, w, hair=hair), [])
@@ -134,7 +144,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     speed = []
     for (backend, precision, hair), (_, times) in runs.items():
         ms = round(1000 * float(np.median(times)), 1)
-        speed.append({"backend": backend, "precision": precision,
+        speed.append({"backend": backend, "on": where[backend], "precision": precision,
                       "hair": "yes" if hair else "no", "ms_per_frame": ms,
                       "fps": round(1000 / ms, 2),
                       "spread_ms": [round(1000 * float(q), 1)
@@ -153,8 +163,8 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
                    "images_over_1e-3": int((diffs > 1e-3).sum()),
                    "all_finite": all(r["finite"] for r in rows), "rows": rows},
         "speed": speed,
-        "fp16": "not applicable on CPU (onnxruntime's CPU provider lacks float16 kernels; "
-                "torch's CPU half precision is bfloat16, measured above)",
+        "fp16": "no float16 graph: onnxruntime's CPU provider lacks float16 kernels; "
+                "torch's half precision row is bfloat16, where the device runs it fast",
     }
     md = (f"ONNX parity over {heads} random heads, expressions and cameras ({size} px, "
           f"{samples} samples per ray): largest absolute difference {worst:.2e} "
@@ -162,7 +172,8 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
           f" images over 1e-3)\n\n"
           + markdown_table([{**s, "10th-90th_ms": "{} - {}".format(*s["spread_ms"])}
                             for s in speed],
-                           ["backend", "precision", "hair", "ms_per_frame", "10th-90th_ms",
+                           ["backend", "on", "precision", "hair", "ms_per_frame",
+                            "10th-90th_ms",
                             "fps", "speed_vs_torch_fp32"])
           + f"\n\nMedian of {rounds} blocks of {repeats} frame(s) per row, the "
             f"backends taking turns.")

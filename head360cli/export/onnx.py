@@ -197,9 +197,12 @@ class OnnxFrameRunner:
     Args:
         path: The ``.onnx`` file with hair (its ``_bald.onnx`` sibling is found by name).
         threads: Intra-op threads (default: onnxruntime's choice).
+        providers: onnxruntime execution providers, best first (default: the CPU's);
+            those this onnxruntime build lacks are left out (``provider`` says which ran).
     """
 
-    def __init__(self, path: str | Path, threads: int | None = None) -> None:
+    def __init__(self, path: str | Path, threads: int | None = None,
+                 providers: list[str] | None = None) -> None:
         import onnxruntime as ort
 
         from head360cli.errors import FileFormatError
@@ -208,11 +211,13 @@ class OnnxFrameRunner:
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)
+        have = set(ort.get_available_providers())
+        chosen = [p for p in (providers or []) if p in have] or ["CPUExecutionProvider"]
         self.sessions = {}
         for hair, p in ((True, path), (False, path.with_name(f"{path.stem}_bald.onnx"))):
             try:
                 self.sessions[hair] = ort.InferenceSession(
-                    str(p), opts, providers=["CPUExecutionProvider"])
+                    str(p), opts, providers=chosen)
             except Exception as exc:
                 raise FileFormatError(f"{p}: expected an exported head360 generator "
                                       f"({exc})") from None
@@ -221,6 +226,8 @@ class OnnxFrameRunner:
             raise FileFormatError(f"{path}: expected head360 export metadata, found none")
         self.meta = json.loads(meta)
         self.size = int(self.meta["size"])
+        self.provider = self.sessions[True].get_providers()[0]
+        """The execution provider that runs the graph."""
 
     def __call__(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
                  intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,

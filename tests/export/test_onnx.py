@@ -31,6 +31,8 @@ def exported(head_file, tmp_path_factory):
 
 @pytest.mark.slow
 def test_onnx_matches_torch_with_and_without_hair(exported):
+    import onnxruntime as ort
+
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.export.onnx import OnnxFrameRunner, head_inputs
 
@@ -38,6 +40,10 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     assert code == 0
     assert [p.split("/")[-1] for p in res["files"]][:2] == ["gen.onnx", "gen_bald.onnx"]
     runner = OnnxFrameRunner(out)
+    assert runner.provider == "CPUExecutionProvider"
+    if "CUDAExecutionProvider" not in ort.get_available_providers():  # asked, not there
+        assert OnnxFrameRunner(out, providers=["CUDAExecutionProvider"]).provider == \
+            "CPUExecutionProvider"
     assert runner.size == 48 and runner.meta["samples"] == 3
     inputs = head_inputs(r)
     rng = np.random.default_rng(0)
@@ -190,6 +196,8 @@ def test_bench_onnx_on_the_exported_graph(exported):
         lo, hi = s["spread_ms"]
         assert 0 < lo <= s["ms_per_frame"] <= hi
     assert "onnxruntime" in md and "2 blocks of 1 frame(s)" in md
+    assert {(s["backend"], s["on"]) for s in result["speed"]} >= {
+        ("torch", "cpu"), ("onnxruntime", "CPU")}
     w = random_expression(np.random.default_rng(0))
     assert w.shape == (52,) and w.min() >= 0 and w.max() <= 1
 
