@@ -105,33 +105,49 @@ def test_inversion_lowers_the_photometric_loss(scene):
     assert gen.cfg.samples == 12  # the generator's own setting is restored
 
 
-def _pitched(c2w: torch.Tensor, degrees: float) -> torch.Tensor:
-    """The camera ``c2w (4, 4)`` turned ``degrees`` about the head's x axis: a pitch
-    error of the kind the landmark fit leaves."""
+def _turned(c2w: torch.Tensor, degrees: float, axis: str) -> torch.Tensor:
+    """``c2w`` turned ``degrees`` about the head's x (pitch) or y (yaw) axis."""
     a = np.radians(degrees)
-    tilt = torch.eye(4)
-    tilt[1:3, 1:3] = torch.tensor([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    return tilt @ c2w
+    i, j = (1, 2) if axis == "x" else (0, 2)
+    turn = torch.eye(4)
+    turn[i, i], turn[i, j], turn[j, i], turn[j, j] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a)
+    return turn @ c2w
 
 
 def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene):
+    """Started 6 degrees off in pitch or yaw, and held by the inner-face landmarks where
+    the true camera sees them (what a detector reports), the refinement ends nearer the
+    truth, and it shifts the camera across its line of sight only.
+
+    Measured with the shipped weights (start 5.8 / 6.0 degrees): +-pitch 2.7 / 3.1,
+    +-yaw 1.7 / 1.2. Without the landmarks the end point turns on rounding and on the
+    weights: over 12 such starts (3 rig views) 5.5 -> 5.0 degrees on average with these
+    weights, 4.5 with the earlier ones; one view ended 7.1 degrees off. So the photo alone
+    is not asked to find the camera, here or in ``fit``."""
+    from head360cli.geometry.cameras import project
+    from head360cli.mesh.bilinear import load_bilinear
+
     gen, codes, batch = scene
-    torch.manual_seed(0)
     truth = batch.c2w[0]
-    start = _pitched(truth, 6.0)
+    points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
+    seen, _ = project(points[None], truth[None], batch.intrinsics[None])
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4)
-    inv = invert_texture(gen, batch.verts[0], start, batch.intrinsics, batch.rgb[0],
-                         batch.alpha[0], codes.mean(0), cfg)
 
     def angle(c2w):  # degrees between the line of sight and the true one
         return float(torch.rad2deg(torch.arccos(torch.clamp(
             c2w[:3, 2] @ truth[:3, 2], -1.0, 1.0))))
 
-    # measured: 5.8 -> 2.2 degrees. Fragile: the refinement's end point turns on rounding
-    # (inputs 1e-6 away ended 5.4-5.8 degrees off; channels-last convolutions, 6.1)
-    assert angle(inv.c2w) < 0.6 * angle(start)
-    # The refinement shifts the camera across its line of sight only (metres).
-    assert abs(float(inv.c2w[:3, 3].norm() - start[:3, 3].norm())) < 0.005
+    ratios = []
+    for degrees, axis in ((6.0, "x"), (-6.0, "x"), (6.0, "y"), (-6.0, "y")):
+        torch.manual_seed(0)
+        start = _turned(truth, degrees, axis)
+        inv = invert_texture(gen, batch.verts[0], start, batch.intrinsics, batch.rgb[0],
+                             batch.alpha[0], codes.mean(0), cfg,
+                             landmarks=(points, seen[0]))
+        ratios.append(angle(inv.c2w) / angle(start))
+        assert abs(float(inv.c2w[:3, 3].norm() - start[:3, 3].norm())) < 0.005  # metres
+    # measured 0.47, 0.53, 0.28, 0.20 (the earlier weights: 0.31, 0.43, 0.23, 0.43)
+    assert max(ratios) < 0.65 and sum(ratios) / 4 < 0.5, ratios
 
 
 def test_landmarks_hold_the_refinement_where_they_were_seen(scene):
@@ -142,7 +158,7 @@ def test_landmarks_hold_the_refinement_where_they_were_seen(scene):
     from head360cli.mesh.bilinear import load_bilinear
 
     gen, codes, batch = scene
-    start = _pitched(batch.c2w[0], 6.0)
+    start = _turned(batch.c2w[0], 6.0, "x")
     points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
     seen, _ = project(points[None], start[None], batch.intrinsics[None])
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4)
