@@ -91,6 +91,14 @@ def _warn(message: str) -> None:
         click.echo(f"head360: warning: {message}", err=True)
 
 
+def _cpu_only(command: str) -> None:
+    """Warn that ``command`` measures on the CPU when --device names another device (every
+    command takes --device; these benches would otherwise ignore it silently)."""
+    device = _settings().device
+    if device and device.lower() != "cpu":
+        _warn(f"{command} measures on the CPU; --device {device} is not used")
+
+
 @click.group(
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
     epilog=EPILOG_EXIT_CODES,
@@ -656,6 +664,8 @@ def bench_synth_cmd(identities: int, out_dir: str) -> None:
     from head360cli.bench.report import save
     from head360cli.bench.synth import bench_synth
 
+    _cpu_only("bench synth")
+
     if identities < 1:
         from head360cli.errors import BadInputError
 
@@ -676,6 +686,8 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
     and the fitted landmarks on the real photos in ../shared/data, and fit time."""
     from head360cli.bench.fit_shape import bench_fit_shape
     from head360cli.bench.report import save
+
+    _cpu_only("bench fit-shape")
 
     result, md = bench_fit_shape(trials=trials)
     result["files"] = save(result, md, out_dir, "fit_shape")
@@ -704,6 +716,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
     from head360cli.bench.fit import bench_fit
     from head360cli.bench.report import save
 
+    _cpu_only("bench fit")
     if identities < 1:
         raise BadInputError(f"expected --identities >= 1, found {identities}")
     result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),

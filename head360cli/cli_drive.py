@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from head360cli.cli import (
+    _cpu_only,
     _emit,
     _progress_printer,
     _settings,
@@ -489,6 +490,7 @@ def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -
     from head360cli.bench.animate import bench_animate
     from head360cli.bench.report import save
 
+    _cpu_only("bench animate")
     if frames < 8 or stride < 1:
         raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
                             f"{stride}")

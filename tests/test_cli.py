@@ -213,3 +213,16 @@ def test_console_script_exit_code_in_a_real_process(tmp_path):
     assert p.returncode == 3
     assert p.stdout == ""
     assert p.stderr.startswith("head360: error: ") and p.stderr.count("\n") == 1
+
+
+def test_cpu_benches_say_that_device_is_not_used(run_cli):
+    """Every command takes --device; the benches that measure on the CPU say so rather
+    than ignore it (bench onnx and bench generator use it)."""
+    r = run_cli("bench", "fit", "--device", "cuda", "--identities", "0")
+    assert r.code == 3 and "bench fit measures on the CPU; --device cuda is not used" in r.err
+    r = run_cli("bench", "animate", "--device", "cuda:1", "--frames", "2")
+    assert r.code == 3 and "--device cuda:1 is not used" in r.err
+    r = run_cli("bench", "fit", "--device", "cpu", "--identities", "0")
+    assert r.code == 3 and "warning" not in r.err
+    r = run_cli("bench", "fit", "-q", "--device", "cuda", "--identities", "0")
+    assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
