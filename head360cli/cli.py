@@ -665,7 +665,6 @@ def bench_synth_cmd(identities: int, out_dir: str) -> None:
     from head360cli.bench.synth import bench_synth
 
     _cpu_only("bench synth")
-
     if identities < 1:
         from head360cli.errors import BadInputError
 
@@ -688,7 +687,6 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
     from head360cli.bench.report import save
 
     _cpu_only("bench fit-shape")
-
     result, md = bench_fit_shape(trials=trials)
     result["files"] = save(result, md, out_dir, "fit_shape")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")

@@ -528,6 +528,7 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
     """
     from head360cli.bench.onnx import bench_onnx
     from head360cli.bench.report import save
+    from head360cli.devices import resolve_device
 
     if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000 or not 1 <= rounds <= 100:
         raise BadInputError(f"expected --heads in 1..10000, --repeats in 1..1000 and "
@@ -539,8 +540,6 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
         raise BadInputError(f"ONNX graph {graph!r} does not exist")
     progress = None if _settings().quiet else (lambda t: click.echo(f"bench onnx: {t}",
                                                                     err=True))
-    from head360cli.devices import resolve_device
-
     result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress,
                             rounds=rounds, device=str(resolve_device(_settings().device)))
     result["files"] = save(result, md, out_dir, "onnx")

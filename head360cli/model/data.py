@@ -21,6 +21,7 @@ from head360cli.geometry.cameras import (
     intrinsics_from_fov,
     rig72,
 )
+from head360cli.mesh.arkit52 import INDEX
 from head360cli.model.generator import Hair
 
 __all__ = ["FEATURED", "Views", "eval_cameras", "sample_expression"]
@@ -33,7 +34,10 @@ def eval_cameras() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     return camera_on_sphere(yaw, pitch, RIG_DISTANCE), yaw, pitch
 
 
-FEATURED: tuple[tuple[int, ...], ...] = ((0,), (7,), (0, 7), (17,))
+FEATURED: tuple[tuple[int, ...], ...] = tuple(
+    tuple(INDEX[name] for name in group)
+    for group in (("eyeBlinkLeft",), ("eyeBlinkRight",), ("eyeBlinkLeft", "eyeBlinkRight"),
+                  ("jawOpen",)))
 """ARKit index groups that ``sample_expression`` can push to a strong weight: one eye's
 blink, both blinks, ``jawOpen``. Closed eyes and an open mouth show texels an open-eyed,
 closed-mouth view never shows (the lids, the mouth's inside), and random expressions

@@ -319,13 +319,13 @@ class Generator(nn.Module):
         if hair_items and hair.planes is None:
             hair = self.prepare_hair(hair)
         groups = _hair_groups(hair, hair_items)
+        group_idx = [torch.tensor(g, device=verts.device) for g in groups]
         hair_near: dict[int, torch.Tensor] = {}  # first item of a group -> (m, rays)
         head_depth = depth
         if hair_items:
             depth = depth.clone()
-            for g in groups:
+            for g, gi in zip(groups, group_idx, strict=True):
                 hv, hf, _ = hair.meshes[g[0]]
-                gi = torch.tensor(g, device=verts.device)
 
                 def hair_depth(hv=hv, hf=hf, gi=gi):
                     return screen_depth(hv[None].expand(len(gi), -1, -1), hf, c2w[gi],
@@ -368,9 +368,9 @@ class Generator(nn.Module):
         hair_part = torch.zeros_like(density)
         if hair_items:
             per_item = density.shape[1]  # points per item: kept rays x samples
+            block = torch.arange(per_item, device=verts.device)
             at, d_hair, c_hair = [], [], []
-            for g in groups:
-                gi = torch.tensor(g, device=verts.device)
+            for g, gi in zip(groups, group_idx, strict=True):
                 if g[0] in hair_near:  # decode only the points of rays near the hair
                     ray = order[gi] if self.cull_rays else torch.arange(
                         rays, device=verts.device).expand(len(g), -1)
@@ -391,7 +391,6 @@ class Generator(nn.Module):
                         "hair", lambda x: self._net(self.hair_decoder, x), f[0],
                         keys.index_select(0, sel), slots)
                 # positions in the flat (B x points) batch: item g[j] owns j's block
-                block = torch.arange(per_item, device=verts.device)
                 at.append((gi[:, None] * per_item + block).reshape(-1).index_select(0, sel))
                 d_hair.append(dh)
                 c_hair.append(ch)
