@@ -321,11 +321,12 @@ class ShapeFitter:
         return rot, t
 
     @staticmethod
-    def _pose_step(points, uv, f, centre, rot, t):
+    def _pose_step(points, uv, f, centre, rot, t, sw=None):
         """One damped Gauss-Newton step of the pose on the reprojection error: within the
         alternation the pose starts close, and each iteration takes another step.
 
         The update rotates the posed points, ``R <- exp([d]x) R``, and shifts ``t``.
+        ``sw (n,)``: square roots of the points' weights (default all 1).
         """
         import cv2
 
@@ -341,6 +342,9 @@ class ShapeFitter:
         ju = np.stack([-x * ry, rz + x * rx, -ry, one, zero, -x], 1)
         jv = np.stack([-y * ry - rz, y * rx, rx, zero, one, -y], 1)
         jac = np.concatenate([ju, jv]) * np.concatenate([f * iz, f * iz])[:, None]
+        if sw is not None:
+            row = np.concatenate([sw, sw])
+            jac, res = jac * row[:, None], res * row
         jtj = jac.T @ jac
         jtj.flat[::7] *= 1.0 + 1e-6  # Levenberg damping
         step = -np.linalg.solve(jtj, jac.T @ res)
@@ -434,7 +438,7 @@ class ShapeFitter:
             # Pose with the updated landmarks.
             tp = time.perf_counter()
             pts = base + _mv(h, w)
-            rot, t = self._pose_step(pts[used], uv[used], f, centre, rot, t)
+            rot, t = self._pose_step(pts[used], uv[used], f, centre, rot, t, sw[used])
             t = self._at_distance(rot, t, distance)
             timings["pose"] += time.perf_counter() - tp
         fitted, _ = self._project(pts, rot, t, f, centre)

@@ -117,6 +117,28 @@ def test_a_zero_weight_leaves_a_landmark_out(fitter):
             fitter.fit(uv, (W, H), focal=F, weights=bad)
 
 
+def test_weights_hold_in_the_pose_too(fitter):
+    """A tiny weight is nearly a zero weight: the pose steps read the weights as the
+    identity and expression solves do (they once read only which weights were zero, so a
+    jawline at weight 0.01 pulled the pose as hard as at 1)."""
+    uv, _ = synthetic(fitter, np.zeros(fitter.model.rank), np.zeros(52), 10.0, 5.0, 0.5,
+                      np.random.default_rng(6))
+    moved = uv.copy()
+    moved[:17, 1] -= 40.0  # a jawline drawn far too high
+    weights = np.ones(68)
+    weights[:17] = 0.0
+    left_out = fitter.fit(moved, (W, H), focal=F, weights=weights)
+    weights[:17] = 1e-4
+    light = fitter.fit(moved, (W, H), focal=F, weights=weights)
+    full = fitter.fit(moved, (W, H), focal=F)
+
+    def angle(a, b):
+        return np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1) / 2, -1, 1)))
+
+    assert angle(light.rotation, left_out.rotation) < 0.2
+    assert angle(full.rotation, left_out.rotation) > 2.0  # the jawline does pull at 1
+
+
 def test_bounded_solve_meets_the_optimality_conditions():
     rng = np.random.default_rng(5)
     for _ in range(5):
