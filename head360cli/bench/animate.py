@@ -16,7 +16,9 @@ The head is the astronaut photo that ships with scikit-image, fitted with the fa
   capture, against one that renders its first 10 seconds.
 - Expression fidelity: dlib's 68 landmarks on animated frames; the correlation of mouth
   opening (inner lips over the eye distance) with jawOpen and of eye opening (lids over
-  eye width) with eyeBlink, over a capture.
+  eye width) with eyeBlink, over a capture, with a 95 % bootstrap interval over the
+  frames; for the fitted astronaut and for heads sampled from the model (no fit: what
+  the generator itself shows).
 - Hair swap: PSNR of the face (the landmarks' hull, less the pixels either hairstyle
   covers) between the head with its own hair and with each other style; and over the
   whole hull.
@@ -34,7 +36,11 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["bench_animate", "eye_opening", "mouth_opening"]
+__all__ = ["bench_animate", "correlation", "eye_opening", "mouth_opening"]
+
+FIDELITY_SAMPLES = 2
+"""Heads sampled from the model (``head360 sample --seed 0``) whose fidelity is measured
+beside the fitted astronaut's."""
 
 SWAP_STYLES = (0, 2, 7, 9, 12, 17, 22, 28)
 """Hairstyles the swap measurement puts on the head (bald, short, long, voluminous)."""
@@ -159,20 +165,22 @@ def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
     return rows
 
 
-def _reuse(head: Path, weights: np.ndarray, samples: int = 8, size: int = 256
-           ) -> dict[str, Any]:
+def _reuse(head: Path, weights: np.ndarray, samples: int = 8, size: int = 256,
+           precision: str = "auto") -> dict[str, Any]:
     """Frame-to-frame reuse of decoded points (a still camera, consecutive frames): its
     frame rate against decoding every point, the share of points decoded, and how far its
-    frames are from the exact ones."""
+    frames are from the exact ones (both in ``precision``, as the renderer takes it)."""
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.model.head_render import REUSE_TOL
 
-    on = load_head_renderer(head, samples=samples, size=size)
-    off = load_head_renderer(head, samples=samples, size=size, reuse=None)
+    on = load_head_renderer(head, samples=samples, size=size, precision=precision)
+    off = load_head_renderer(head, samples=samples, size=size, reuse=None,
+                             precision=precision)
     timed_on, timed_off = _timed(on, weights, size), _timed(off, weights, size)
     got, exact = _render(on, weights, size), _render(off, weights, size)
     psnr = [_psnr(a, b) for a, b in zip(got, exact, strict=True)]
     return {"tol": REUSE_TOL, "samples": samples, "size": size, "frames": len(weights),
+            "precision": on.precision,
             "fps": timed_on["fps"], "ms_per_frame": timed_on["ms_per_frame"],
             "fps_exact": timed_off["fps"], "ms_per_frame_exact": timed_off["ms_per_frame"],
             "decoded_share": round(on.last_reuse.decoded / on.last_reuse.points, 3),
@@ -235,6 +243,23 @@ def mesh_openings(r, weights: np.ndarray, c2w, intrinsics) -> np.ndarray:
                      for p in px.numpy().astype(np.float64)])
 
 
+def correlation(a, b, rounds: int = 1000, seed: int = 0) -> dict[str, Any] | None:
+    """Pearson correlation of ``a`` and ``b`` ``(N,)`` with its 95 % bootstrap interval
+    (``rounds`` resamples of the N pairs, percentiles 2.5 and 97.5); ``None`` below 3
+    pairs or when either is constant."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if len(a) < 3 or a.std() == 0 or b.std() == 0:
+        return None
+    pick = np.random.default_rng(seed).integers(0, len(a), (rounds, len(a)))
+    x, y = a[pick], b[pick]
+    x, y = x - x.mean(1, keepdims=True), y - y.mean(1, keepdims=True)
+    den = np.sqrt((x * x).sum(1) * (y * y).sum(1))
+    boot = (x * y).sum(1)[den > 0] / den[den > 0]
+    lo, hi = np.percentile(boot, [2.5, 97.5]) if len(boot) else (np.nan, np.nan)
+    return {"r": round(float(np.corrcoef(a, b)[0, 1]), 4),
+            "interval_95": [round(float(lo), 4), round(float(hi), 4)]}
+
+
 def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.errors import NoFaceError
@@ -266,14 +291,17 @@ def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
     blink_r, blink_l = w[found, INDEX["eyeBlinkRight"]], w[found, INDEX["eyeBlinkLeft"]]
 
     def corr(a, b):
-        a, b = np.asarray(a), np.asarray(b)
-        if len(a) < 3 or a.std() == 0 or b.std() == 0:
-            return None
-        return round(float(np.corrcoef(a, b)[0, 1]), 4)
+        c = correlation(a, b)
+        return None if c is None else c["r"]
 
     mesh = mesh_openings(r, w[found], cams[0], view_intrinsics(r.size)) if len(found) \
         else np.zeros((0, 3))
+    intervals = {key: (c or {}).get("interval_95") for key, c in (
+        ("jaw_open_vs_mouth_opening", correlation(jaw, mouth)),
+        ("blink_right_vs_left_image_eye_opening", correlation(blink_r, left)),
+        ("blink_left_vs_right_image_eye_opening", correlation(blink_l, right)))}
     return {"frames": len(idx), "stride": stride, "faces_found": len(found),
+            "interval_95": intervals,
             "jaw_open_vs_mouth_opening": corr(jaw, mouth),
             "blink_right_vs_left_image_eye_opening": corr(blink_r, left),
             "blink_left_vs_right_image_eye_opening": corr(blink_l, right),
@@ -284,6 +312,14 @@ def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
             "mesh": {"jaw_open_vs_mouth_opening": corr(jaw, mesh[:, 0]),
                      "blink_right_vs_left_image_eye_opening": corr(blink_r, mesh[:, 1]),
                      "blink_left_vs_right_image_eye_opening": corr(blink_l, mesh[:, 2])}}
+
+
+def _fidelity_sampled(stream, stride: int, work: Path) -> list[dict[str, Any]]:
+    """:func:`_fidelity` of the heads ``head360 sample --seed 0`` draws first."""
+    from head360cli.drive.sample import sample_heads, write_samples
+
+    paths = write_samples(sample_heads(FIDELITY_SAMPLES, seed=0), work / "sampled")
+    return [{"head": p.name, **_fidelity(p, stream, stride)} for p in paths]
 
 
 def _swap(head: Path) -> dict[str, Any]:
@@ -356,6 +392,8 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         result["resolution"] = _resolution(head, stream.weights[:frames])
         say("expression fidelity (dlib landmarks on frames)")
         result["fidelity"] = _fidelity(head, stream, stride)
+        say(f"expression fidelity of {FIDELITY_SAMPLES} heads sampled from the model")
+        result["fidelity_sampled"] = _fidelity_sampled(stream, stride, work)
         say("hair swap: face before and after")
         result["swap"] = _swap(head)
         if memory and capture is not None:
@@ -377,8 +415,8 @@ def _markdown(r: dict[str, Any]) -> str:
     if "reuse" in r:
         u = r["reuse"]
         lines += ["", f"## Reuse of decoded points between frames ({u['size']} px, "
-                  f"{u['samples']} samples, {u['frames']} consecutive frames, tol "
-                  f"{u['tol']:g})", "",
+                  f"{u['samples']} samples, {u.get('precision', 'fp32')} networks, "
+                  f"{u['frames']} consecutive frames, tol {u['tol']:g})", "",
                   "| | frames/s | ms/frame |", "|---|---|---|",
                   f"| reuse (default) | {u['fps']:.1f} | {u['ms_per_frame']:.0f} |",
                   f"| every point decoded (--exact) | {u['fps_exact']:.1f} | "
@@ -402,10 +440,27 @@ def _markdown(r: dict[str, Any]) -> str:
               "| weight | image measure | correlation, dlib on frames | same, mesh landmarks |",
               "|---|---|---|---|"]
     m = f.get("mesh", {})
-    lines += [f"| {weight} | {measure} | {f[key]} | {m.get(key)} |" for weight, measure, key in (
-        ("jawOpen", "mouth opening", "jaw_open_vs_mouth_opening"),
-        ("eyeBlinkRight", "left image eye opening", "blink_right_vs_left_image_eye_opening"),
-        ("eyeBlinkLeft", "right image eye opening", "blink_left_vs_right_image_eye_opening"))]
+    sampled = r.get("fidelity_sampled", [])
+    if sampled:
+        lines[-2] += "".join(
+            f" sampled head {i}, dlib on frames |" for i in range(len(sampled)))
+        lines[-1] += "---|" * len(sampled)
+
+    def cell(fid, key):
+        ci = fid.get("interval_95", {}).get(key)
+        return f"{fid[key]}" + (f" ({ci[0]:.2f} to {ci[1]:.2f})" if ci else "")
+
+    lines += [f"| {weight} | {measure} | {cell(f, key)} | {m.get(key)} |"
+              + "".join(f" {cell(x, key)} |" for x in sampled)
+              for weight, measure, key in (
+                  ("jawOpen", "mouth opening", "jaw_open_vs_mouth_opening"),
+                  ("eyeBlinkRight", "left image eye opening",
+                   "blink_right_vs_left_image_eye_opening"),
+                  ("eyeBlinkLeft", "right image eye opening",
+                   "blink_left_vs_right_image_eye_opening"))]
+    if sampled:
+        lines += ["", "Brackets: 95 % bootstrap interval over the frames. The sampled "
+                  "heads come from `head360 sample --seed 0` (no fit)."]
     s = r["swap"]
     lines += ["", f"## Hair swap (own style: {s['own_style']}; views at yaw "
               f"{', '.join(f'{y:g}' for y in s['views_yaw'])})", "",

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from head360cli.bench.animate import _markdown, _resolution, _reuse, mesh_openings
+from head360cli.bench.animate import (
+    _fidelity,
+    _markdown,
+    _resolution,
+    _reuse,
+    correlation,
+    mesh_openings,
+)
 
 
 def test_resolution_sweep_scores_each_size_twice(head_file):
@@ -25,8 +32,10 @@ def test_resolution_sweep_scores_each_size_twice(head_file):
 def test_reuse_row_compares_with_decoding_every_point(head_file):
     weights = np.zeros((5, 52), np.float32)
     weights[:, 24] = np.linspace(0.0, 0.8, 5)  # jawOpen
-    u = _reuse(head_file, weights, samples=4, size=64)
-    assert u["frames"] == 5 and u["fps"] > 0 and u["fps_exact"] > 0
+    # float32: bfloat16 networks (the default where the CPU has them) round outputs to
+    # about 4e-3 of their size, reuse or not, which would hide what reuse changes
+    u = _reuse(head_file, weights, samples=4, size=64, precision="fp32")
+    assert u["precision"] == "fp32" and u["frames"] == 5 and u["fps"] > 0 and u["fps_exact"] > 0
     assert 0.0 < u["decoded_share"] < 1.0
     assert u["max_abs_vs_exact"] < 2e-3 and u["psnr_vs_exact_min"] > 50.0
     md = _markdown({"stream": "s", "stream_frames": 5, "threads": 2, "speed": [],
@@ -66,3 +75,44 @@ def test_run_cli_reports_the_child_s_own_peak_memory():
     out = _run_cli(["info"])
     assert big.sum() > 0
     assert 20 < out["peak_rss_mib"] < 500
+
+
+def test_correlation_interval_brackets_the_correlation():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=400)
+    exact = correlation(a, 2 * a + 1)
+    assert exact["r"] == 1.0 and exact["interval_95"] == [1.0, 1.0]
+    wide = correlation(a[:20], a[:20] + rng.normal(size=20))
+    narrow = correlation(a, a + rng.normal(size=400))
+    for c in (wide, narrow):
+        lo, hi = c["interval_95"]
+        assert lo < c["r"] < hi
+    # 0.71 expected (unit signal, unit noise); 20 pairs leave it far less certain
+    assert abs(narrow["r"] - 0.71) < 0.06
+    assert np.diff(narrow["interval_95"])[0] < 0.5 * np.diff(wide["interval_95"])[0]
+    assert correlation(a, np.ones(400)) is None and correlation(a[:2], a[:2]) is None
+
+
+def test_fidelity_reads_every_frame_and_the_markdown_shows_sampled_heads(head_file):
+    from head360cli.io.arkit import ArkitStream
+    from head360cli.mesh.arkit52 import INDEX
+
+    w = np.zeros((8, 52), np.float32)
+    w[:, INDEX["jawOpen"]] = np.linspace(0.0, 1.0, 8)
+    w[:, INDEX["eyeBlinkLeft"]] = w[:, INDEX["eyeBlinkRight"]] = [0, 0, 1, 1, 0, 0, 1, 1]
+    f = _fidelity(head_file, ArkitStream(w, np.arange(8) / 30.0, 30.0), stride=2)
+    assert f["frames"] == 4 and f["faces_found"] == 4
+    # the mesh's own landmarks follow the weights whatever the detector makes of them
+    assert f["mesh"]["jaw_open_vs_mouth_opening"] > 0.9
+    assert f["mesh"]["blink_left_vs_right_image_eye_opening"] < -0.9
+    assert set(f["interval_95"]) == {"jaw_open_vs_mouth_opening",
+                                     "blink_right_vs_left_image_eye_opening",
+                                     "blink_left_vs_right_image_eye_opening"}
+    md = _markdown({"stream": "s", "stream_frames": 8, "threads": 2, "speed": [],
+                    "fidelity": f, "fidelity_sampled": [f, f],
+                    "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
+                             "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0}})
+    header = next(line for line in md.splitlines() if line.startswith("| weight |"))
+    assert header.count("sampled head") == 2
+    jaw = next(line for line in md.splitlines() if line.startswith("| jawOpen |"))
+    assert jaw.count("|") == header.count("|")
