@@ -39,6 +39,12 @@ from head360cli.model.reuse import DecodeReuse
 
 __all__ = ["HAIR_MARGIN", "Generator", "Hair", "hair_for", "near_rays"]
 
+DECODE_BLOCK = 4096
+"""With bfloat16 networks on a CPU, decoder inputs are padded to a multiple of this many
+points: oneDNN keeps a matrix-product primitive per input shape, and an animation's point
+count changes every frame (reuse decodes only what moved), so a bfloat16 animation grew
+from 0.5 to 1.9 GB over 600 frames; padded, it stays flat at the float32 figure."""
+
 HAIR_MARGIN = 2
 """Pixels (at ``render_res``) around the hair mesh's silhouette where the hair branch is
 still decoded when :attr:`Generator.hair_rays_only` is on."""
@@ -203,6 +209,18 @@ class Generator(nn.Module):
             out = net(*args)
         return tuple(o.float() for o in out)
 
+    def _decode(self, net: nn.Module, feats: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``net(feats)`` for a decoder, ``feats (B, N, D)`` -> ``(B, N)`` and
+        ``(B, N, C)``, padded to :data:`DECODE_BLOCK` points under bfloat16 on a CPU."""
+        n = feats.shape[1]
+        if self.network_dtype is None or feats.device.type != "cpu" or \
+                n % DECODE_BLOCK == 0:
+            return self._net(net, feats)
+        pad = feats.new_zeros(feats.shape[0], DECODE_BLOCK - n % DECODE_BLOCK,
+                              feats.shape[2])
+        density, colour = self._net(net, torch.cat([feats, pad], 1))
+        return density[:, :n], colour[:, :n]
+
     def texture(self, code: torch.Tensor) -> torch.Tensor:
         """``(B, code_dim)`` -> neural texture ``(B, C, R, R)``."""
         return self.texture_generator(code)
@@ -356,13 +374,13 @@ class Generator(nn.Module):
                               c.plane_centre, c.plane_half_size, c.surface_tau)
         keys = slots = None
         if reuse is None:
-            density, colour = self._net(self.decoder, feats)
+            density, colour = self._decode(self.decoder, feats)
         else:  # sample slot of each point: ray index x samples + sample
             slots = rays * c.samples
             ray_ids = order[0] if self.cull_rays else torch.arange(rays, device=verts.device)
             keys = (ray_ids[:, None] * c.samples
                     + torch.arange(c.samples, device=verts.device)).reshape(-1)
-            density, colour = reuse.decode("head", lambda f: self._net(self.decoder, f),
+            density, colour = reuse.decode("head", lambda f: self._decode(self.decoder, f),
                                            feats[0], keys, slots)
             density, colour = density[None], colour[None]
         hair_part = torch.zeros_like(density)
@@ -384,11 +402,11 @@ class Generator(nn.Module):
                                   c.hair_plane_centre, c.hair_plane_half_size,
                                   c.surface_tau)
                 if reuse is None:
-                    dh, ch = self._net(self.hair_decoder, f)
+                    dh, ch = self._decode(self.hair_decoder, f)
                     dh, ch = dh[0], ch[0]
                 else:  # one item: its flat positions are its point indices
                     dh, ch = reuse.decode(
-                        "hair", lambda x: self._net(self.hair_decoder, x), f[0],
+                        "hair", lambda x: self._decode(self.hair_decoder, x), f[0],
                         keys.index_select(0, sel), slots)
                 # positions in the flat (B x points) batch: item g[j] owns j's block
                 at.append((gi[:, None] * per_item + block).reshape(-1).index_select(0, sel))

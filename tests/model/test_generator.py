@@ -219,3 +219,32 @@ def test_samples_per_ray_is_scoped(parts):
     assert gen.cfg == TINY
     with gen.samples_per_ray(None):
         assert gen.cfg == TINY
+
+
+def test_bfloat16_decoders_see_whole_blocks_of_points(parts, hair, monkeypatch):
+    """Under bfloat16 on a CPU the decoders get their points padded to DECODE_BLOCK (one
+    oneDNN primitive per shape, so few shapes), and the padding changes no pixel's
+    value beyond bfloat16's rounding."""
+    from head360cli.model import generator as generator_module
+
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv).eval()
+    gen.network_dtype = torch.bfloat16
+    seen = []
+    for net in (gen.decoder, gen.hair_decoder):
+        net.register_forward_pre_hook(lambda _m, args: seen.append(args[0].shape[1]))
+    code = torch.zeros(2, TINY.code_dim)
+    with torch.no_grad():
+        padded = gen(verts, c2w, k, code=code, hair=hair)["rgb"]
+        assert seen and all(n % generator_module.DECODE_BLOCK == 0 for n in seen)
+        monkeypatch.setattr(generator_module, "DECODE_BLOCK", 1)  # no padding
+        seen.clear()
+        plain = gen(verts, c2w, k, code=code, hair=hair)["rgb"]
+    assert any(n % 4096 for n in seen)  # the tiny frames decode fewer points than a block
+    torch.testing.assert_close(padded, plain, atol=2e-2, rtol=0)
+    gen.network_dtype = None  # float32 is never padded
+    seen.clear()
+    with torch.no_grad():
+        gen(verts, c2w, k, code=code, hair=hair)
+    assert any(n % 4096 for n in seen)
