@@ -218,6 +218,17 @@ def test_time_going_backwards_is_an_error(tmp_path):
         read_arkit_csv(write_rows(tmp_path / "t.csv", header, rows))
 
 
+def test_times_too_far_apart_to_tell_frames_apart_are_an_error(tmp_path):
+    """Found by hypothesis: -2**53 s then -1, 0, 1 s increase, but from zero the last
+    three round to one time (float64 has 53 bits), which once divided by zero."""
+    header = ["time", "jawOpen"]
+    rows = [["-9007199254740996.0", "0"], ["-1.0", "0"], ["0.0", "0"], ["1.0", "0"]]
+    with pytest.raises(BadInputError, match="line 4: expected time to increase"):
+        read_arkit_csv(write_rows(tmp_path / "far.csv", header, rows))
+    rows[0][0] = "-3.0"  # the same steps at a sane scale are fine
+    assert read_arkit_csv(write_rows(tmp_path / "near.csv", header, rows)).num_frames == 4
+
+
 def test_structural_errors(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("")
