@@ -168,7 +168,9 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     from head360cli.model.data import Views
     from head360cli.progress import progress_bar
 
+    started = not torch.distributed.is_initialized()
     rank, world = _dist()
+    started = started and world > 1  # this call started the process group: it ends it
     if world > 1 and device.startswith("cuda"):
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     out = Path(out)
@@ -262,6 +264,11 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
             break
     if world > 1:
         torch.distributed.barrier()
+    if started:
+        # left to the interpreter's exit, gloo's threads were sometimes torn down while
+        # busy: "terminate called without an active exception" (SIGABRT) after a run
+        # that had finished and checkpointed, one CI run in many
+        torch.distributed.destroy_process_group()
     return last
 
 
