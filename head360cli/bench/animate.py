@@ -14,6 +14,9 @@ The head is the astronaut photo that ships with scikit-image, fitted with the fa
   render.
 - Peak memory: the resident set of a ``head360 animate`` process that renders a whole
   capture, against one that renders its first 10 seconds.
+- A turning head: ``head360 animate --head-pose`` frames per second on the capture whose
+  head rotation moves most (the camera moves every frame, so every point is decoded),
+  against the same command without ``--head-pose``.
 - Expression fidelity: dlib's 68 landmarks on animated frames; the correlation of mouth
   opening (inner lips over the eye distance) with jawOpen and of eye opening (lids over
   eye width) with eyeBlink, over a capture, with a 95 % bootstrap interval over the
@@ -226,6 +229,30 @@ def _memory(head: Path, capture: Path, work: Path) -> dict[str, Any]:
             "capture": capture.name}
 
 
+def _turning_capture(data: Path) -> tuple[Path, float] | None:
+    """The capture in ``data/arkit`` whose head turns most (range of yaw, pitch or roll,
+    degrees), if one turns at all."""
+    from head360cli.io.arkit import read_arkit_csv
+
+    best = None
+    for path in sorted((data / "arkit").glob("*.csv")):
+        rot = read_arkit_csv(path, on_bad="hold").head_rotation
+        turn = 0.0 if rot is None else float(np.degrees(np.ptp(rot, axis=0).max()))
+        if turn > 1.0 and (best is None or turn > best[1]):
+            best = (path, turn)
+    return best
+
+
+def _head_pose(head: Path, capture: Path, turn: float, work: Path) -> dict[str, Any]:
+    runs = {name: _run_cli(["animate", str(head), "--arkit", str(capture), *extra,
+                            "-o", str(work / f"{name}.mp4")])
+            for name, extra in (("head_pose", ["--head-pose"]), ("still", []))}
+    return {"capture": capture.name, "head_turn_deg": round(turn, 1),
+            "frames": runs["head_pose"]["frames"],
+            "fps_head_pose": round(runs["head_pose"]["render_fps"], 2),
+            "fps_still": round(runs["still"]["render_fps"], 2)}
+
+
 def mesh_openings(r, weights: np.ndarray, c2w, intrinsics) -> np.ndarray:
     """``(N, 3)`` mouth, image-left eye and image-right eye openings of the head's own 68
     landmarks (on the animated mesh, projected with ``c2w (4, 4)``): what a perfect
@@ -399,6 +426,10 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         if memory and capture is not None:
             say(f"peak memory: head360 animate on {capture.name}")
             result["memory"] = _memory(head, capture, work)
+        turning = _turning_capture(data) if data is not None else None
+        if turning is not None:
+            say(f"a turning head: head360 animate --head-pose on {turning[0].name}")
+            result["head_pose"] = _head_pose(head, *turning, work)
     result["seconds"] = round(time.perf_counter() - t0, 1)
     return result, _markdown(result)
 
@@ -476,4 +507,11 @@ def _markdown(r: dict[str, Any]) -> str:
         for name, v in (("first 10 s", m["first_10_s"]), ("whole capture", m["whole"])):
             lines.append(f"| {name} | {v['frames']} | {v['render_fps']:.1f} | "
                          f"{v['peak_rss_mib']:.0f} | {v['wall_s']:.0f} |")
+    if "head_pose" in r:
+        h = r["head_pose"]
+        lines += ["", f"## A turning head: `head360 animate --head-pose` ({h['capture']}, "
+                  f"{h['frames']} frames, the head turns through {h['head_turn_deg']:g} "
+                  "degrees)", "", "| run | frames/s with encoding |", "|---|---|",
+                  f"| `--head-pose` (every point decoded) | {h['fps_head_pose']:.1f} |",
+                  f"| without (a still camera, reuse) | {h['fps_still']:.1f} |"]
     return "\n".join(lines) + "\n"

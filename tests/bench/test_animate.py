@@ -9,6 +9,7 @@ from head360cli.bench.animate import (
     _markdown,
     _resolution,
     _reuse,
+    _turning_capture,
     correlation,
     mesh_openings,
 )
@@ -116,3 +117,30 @@ def test_fidelity_reads_every_frame_and_the_markdown_shows_sampled_heads(head_fi
     assert header.count("sampled head") == 2
     jaw = next(line for line in md.splitlines() if line.startswith("| jawOpen |"))
     assert jaw.count("|") == header.count("|")
+
+
+def test_the_turning_capture_is_the_one_whose_head_turns_most(tmp_path):
+    (tmp_path / "arkit").mkdir()
+
+    def write(name, yaw_deg):
+        rows = ["time,jawOpen,HeadYaw,HeadPitch,HeadRoll"]
+        rows += [f"{i / 30:.4f},0.1,{np.radians(y):.6f},0,0" for i, y in enumerate(yaw_deg)]
+        (tmp_path / "arkit" / name).write_text("\n".join(rows) + "\n")
+
+    write("still.csv", [0.0] * 5)
+    assert _turning_capture(tmp_path) is None  # a head that does not turn is no test
+    write("nod.csv", [0.0, 2.0, 4.0, 2.0, 0.0])
+    write("turn.csv", [-10.0, 0.0, 10.0, 20.0, 5.0])
+    path, turn = _turning_capture(tmp_path)
+    assert path.name == "turn.csv" and abs(turn - 30.0) < 0.01
+    md = _markdown({"stream": "s", "stream_frames": 5, "threads": 2, "speed": [],
+                    "fidelity": {"faces_found": 0, "frames": 0, "stride": 1,
+                                 **dict.fromkeys(("jaw_open_vs_mouth_opening",
+                                                  "blink_right_vs_left_image_eye_opening",
+                                                  "blink_left_vs_right_image_eye_opening"))},
+                    "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
+                             "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0},
+                    "head_pose": {"capture": "turn.csv", "head_turn_deg": 30.0, "frames": 5,
+                                  "fps_head_pose": 12.04, "fps_still": 14.9}})
+    assert "| `--head-pose` (every point decoded) | 12.0 |" in md
+    assert "turns through 30 degrees" in md
