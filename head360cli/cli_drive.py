@@ -480,7 +480,8 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
 def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -> None:
     """Animation: frames per second with and without reuse of decoded points between
     frames, against samples and precision (with PSNR), peak memory over a whole capture,
-    expression fidelity by dlib landmarks, face PSNR across hair swaps.
+    a turning head (--head-pose), expression fidelity by dlib landmarks (fitted and
+    sampled heads, with bootstrap intervals), face PSNR across hair swaps.
 
     \b
     Examples:
