@@ -272,19 +272,21 @@ def mesh_openings(r, weights: np.ndarray, c2w, intrinsics) -> np.ndarray:
 
 def correlation(a, b, rounds: int = 1000, seed: int = 0) -> dict[str, Any] | None:
     """Pearson correlation of ``a`` and ``b`` ``(N,)`` with its 95 % bootstrap interval
-    (``rounds`` resamples of the N pairs, percentiles 2.5 and 97.5); ``None`` below 3
-    pairs or when either is constant."""
+    (``rounds`` resamples of the N pairs, percentiles 2.5 and 97.5; ``rounds=0``: no
+    interval); ``None`` below 3 pairs or when either is constant."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     if len(a) < 3 or a.std() == 0 or b.std() == 0:
         return None
+    r = round(float(np.corrcoef(a, b)[0, 1]), 4)
+    if rounds == 0:
+        return {"r": r, "interval_95": None}
     pick = np.random.default_rng(seed).integers(0, len(a), (rounds, len(a)))
     x, y = a[pick], b[pick]
     x, y = x - x.mean(1, keepdims=True), y - y.mean(1, keepdims=True)
     den = np.sqrt((x * x).sum(1) * (y * y).sum(1))
     boot = (x * y).sum(1)[den > 0] / den[den > 0]
     lo, hi = np.percentile(boot, [2.5, 97.5]) if len(boot) else (np.nan, np.nan)
-    return {"r": round(float(np.corrcoef(a, b)[0, 1]), 4),
-            "interval_95": [round(float(lo), 4), round(float(hi), 4)]}
+    return {"r": r, "interval_95": [round(float(lo), 4), round(float(hi), 4)]}
 
 
 def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
@@ -317,21 +319,20 @@ def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
     # the image's left eye is the subject's right eye
     blink_r, blink_l = w[found, INDEX["eyeBlinkRight"]], w[found, INDEX["eyeBlinkLeft"]]
 
-    def corr(a, b):
-        c = correlation(a, b)
+    def corr(a, b):  # the mesh's columns: exact, no interval needed
+        c = correlation(a, b, rounds=0)
         return None if c is None else c["r"]
 
     mesh = mesh_openings(r, w[found], cams[0], view_intrinsics(r.size)) if len(found) \
         else np.zeros((0, 3))
-    intervals = {key: (c or {}).get("interval_95") for key, c in (
-        ("jaw_open_vs_mouth_opening", correlation(jaw, mouth)),
-        ("blink_right_vs_left_image_eye_opening", correlation(blink_r, left)),
-        ("blink_left_vs_right_image_eye_opening", correlation(blink_l, right)))}
+    image = {key: correlation(weight, measure) or {"r": None, "interval_95": None}
+             for key, weight, measure in (
+                 ("jaw_open_vs_mouth_opening", jaw, mouth),
+                 ("blink_right_vs_left_image_eye_opening", blink_r, left),
+                 ("blink_left_vs_right_image_eye_opening", blink_l, right))}
     return {"frames": len(idx), "stride": stride, "faces_found": len(found),
-            "interval_95": intervals,
-            "jaw_open_vs_mouth_opening": corr(jaw, mouth),
-            "blink_right_vs_left_image_eye_opening": corr(blink_r, left),
-            "blink_left_vs_right_image_eye_opening": corr(blink_l, right),
+            "interval_95": {key: c["interval_95"] for key, c in image.items()},
+            **{key: c["r"] for key, c in image.items()},
             "jaw_open_range": [round(float(jaw.min()), 3), round(float(jaw.max()), 3)]
             if len(found) else None,
             # the same correlations from the mesh's own landmarks: the animation's
@@ -466,16 +467,14 @@ def _markdown(r: dict[str, Any]) -> str:
     f = r["fidelity"]
     lines += ["", "## Expression fidelity (dlib landmarks on frames)", "",
               f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}) with a "
-              "face found. The last column reads the same measures off the mesh's own "
-              "landmarks (no renderer, no detector).", "",
-              "| weight | image measure | correlation, dlib on frames | same, mesh landmarks |",
-              "|---|---|---|---|"]
-    m = f.get("mesh", {})
+              "face found. The mesh column reads the same measures off the mesh's own "
+              "landmarks (no renderer, no detector).", ""]
     sampled = r.get("fidelity_sampled", [])
-    if sampled:
-        lines[-2] += "".join(
-            f" sampled head {i}, dlib on frames |" for i in range(len(sampled)))
-        lines[-1] += "---|" * len(sampled)
+    columns = ["weight", "image measure", "correlation, dlib on frames",
+               "same, mesh landmarks"] + [f"sampled head {i}, dlib on frames"
+                                          for i in range(len(sampled))]
+    lines += ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    m = f.get("mesh", {})
 
     def cell(fid, key):
         ci = fid.get("interval_95", {}).get(key)

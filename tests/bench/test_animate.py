@@ -83,6 +83,7 @@ def test_correlation_interval_brackets_the_correlation():
     a = rng.normal(size=400)
     exact = correlation(a, 2 * a + 1)
     assert exact["r"] == 1.0 and exact["interval_95"] == [1.0, 1.0]
+    assert correlation(a, 2 * a + 1, rounds=0) == {"r": 1.0, "interval_95": None}
     wide = correlation(a[:20], a[:20] + rng.normal(size=20))
     narrow = correlation(a, a + rng.normal(size=400))
     for c in (wide, narrow):
