@@ -361,9 +361,8 @@ def read_arkit_csv(
             warnings.append(f"no time column; assuming {DEFAULT_FPS:g} fps")
         timestamps = np.arange(n, dtype=np.float64) / rate
     else:
-        timestamps = _check_monotonic(times, lines, label)
-        # again from zero: times near 2**53 seconds apart lose their steps to rounding
-        timestamps = _check_monotonic(timestamps - timestamps[0], lines, label)
+        # checked from zero: times near 2**53 seconds apart lose their steps to rounding
+        timestamps = _check_monotonic(times - times[0], lines, label)
     effective = _effective_fps(timestamps, nominal if nominal else (fps or DEFAULT_FPS))
 
     head = layout.gather_rotation(values, 0)
