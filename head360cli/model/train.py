@@ -168,9 +168,8 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     from head360cli.model.data import Views
     from head360cli.progress import progress_bar
 
-    started = not torch.distributed.is_initialized()
+    owned = not torch.distributed.is_initialized()  # a group _dist starts, train ends
     rank, world = _dist()
-    started = started and world > 1  # this call started the process group: it ends it
     if world > 1 and device.startswith("cuda"):
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     out = Path(out)
@@ -264,7 +263,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
             break
     if world > 1:
         torch.distributed.barrier()
-    if started:
+    if world > 1 and owned:
         # left to the interpreter's exit, gloo's threads were sometimes torn down while
         # busy: "terminate called without an active exception" (SIGABRT) after a run
         # that had finished and checkpointed, one CI run in many
