@@ -296,14 +296,10 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         if seeds.sum() >= MIN_SAMPLES:
             m[head & _smooth(lab, seeds)] = cv2.GC_PR_BGD
         m[seeds] = cv2.GC_FGD
-        # What the first pass left out is certain backdrop only outside the head region:
-        # hair it lost there (light hair on a light backdrop) would otherwise teach the
-        # backdrop model the hair's colour, and this pass could not take it back.
-        m[~person & ~head] = cv2.GC_BGD
-        m[~person & head] = cv2.GC_PR_BGD
+        m[~person] = cv2.GC_BGD
         m[never | neck] = cv2.GC_BGD
         m[(yy > lm[8, 1] + 0.8 * height) & (np.abs(xx - cx) < 0.6 * width)] = cv2.GC_BGD
-        hair = _grabcut(bgr, m, iterations) & ~never
+        hair = _grabcut(bgr, m, iterations) & person & ~never
         hair = _clean(hair, cap | head, size)
         if hair.sum() < MIN_HAIR * outline.sum():
             hair[:] = False  # a few lit spots on a bald scalp
