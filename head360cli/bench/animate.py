@@ -45,6 +45,14 @@ FIDELITY_SAMPLES = 2
 """Heads sampled from the model (``head360 sample --seed 0``) whose fidelity is measured
 beside the fitted astronaut's."""
 
+FIDELITY_MEASURES = (
+    ("jaw_open_vs_mouth_opening", "jawOpen", "mouth opening"),
+    ("blink_right_vs_left_image_eye_opening", "eyeBlinkRight", "left image eye opening"),
+    ("blink_left_vs_right_image_eye_opening", "eyeBlinkLeft", "right image eye opening"),
+)
+"""Each fidelity correlation: its result key, the ARKit weight and the image measure, in
+the column order of :func:`mesh_openings` (the image's left eye is the subject's right)."""
+
 SWAP_STYLES = (0, 2, 7, 9, 12, 17, 22, 28)
 """Hairstyles the swap measurement puts on the head (bald, short, long, voluminous)."""
 
@@ -301,45 +309,36 @@ def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
     idx = np.arange(0, stream.num_frames, stride)
     w = stream.weights[idx]
     cams = view_cameras(0.0, 0.0).expand(len(idx), 4, 4)
-    mouth, left, right, found = [], [], [], []
+    seen, found = [], []
     i = 0
     for batch in r.frames(cams, w, view_intrinsics(r.size)):
         for frame in batch:
             try:
                 lm = det.detect_one(frame).landmarks
-                mouth.append(mouth_opening(lm))
-                left.append(eye_opening(lm, "left"))
-                right.append(eye_opening(lm, "right"))
+                seen.append([mouth_opening(lm), eye_opening(lm, "left"),
+                             eye_opening(lm, "right")])
                 found.append(i)
             except NoFaceError:
                 pass
             i += 1
     found = np.asarray(found, int)
-    jaw = w[found, INDEX["jawOpen"]]
-    # the image's left eye is the subject's right eye
-    blink_r, blink_l = w[found, INDEX["eyeBlinkRight"]], w[found, INDEX["eyeBlinkLeft"]]
-
-    def corr(a, b):  # the mesh's columns: exact, no interval needed
-        c = correlation(a, b, rounds=0)
-        return None if c is None else c["r"]
-
+    seen = np.asarray(seen, np.float64).reshape(-1, 3)
+    # the same measures from the mesh's own landmarks: the animation's geometry, without
+    # the renderer and the detector in between (exact, so no interval)
     mesh = mesh_openings(r, w[found], cams[0], view_intrinsics(r.size)) if len(found) \
         else np.zeros((0, 3))
-    image = {key: correlation(weight, measure) or {"r": None, "interval_95": None}
-             for key, weight, measure in (
-                 ("jaw_open_vs_mouth_opening", jaw, mouth),
-                 ("blink_right_vs_left_image_eye_opening", blink_r, left),
-                 ("blink_left_vs_right_image_eye_opening", blink_l, right))}
+    image, exact = {}, {}
+    for col, (key, weight, _) in enumerate(FIDELITY_MEASURES):
+        driven = w[found, INDEX[weight]]
+        image[key] = correlation(driven, seen[:, col]) or {"r": None, "interval_95": None}
+        exact[key] = (correlation(driven, mesh[:, col], rounds=0) or {"r": None})["r"]
+    jaw = w[found, INDEX["jawOpen"]]
     return {"frames": len(idx), "stride": stride, "faces_found": len(found),
             "interval_95": {key: c["interval_95"] for key, c in image.items()},
             **{key: c["r"] for key, c in image.items()},
             "jaw_open_range": [round(float(jaw.min()), 3), round(float(jaw.max()), 3)]
             if len(found) else None,
-            # the same correlations from the mesh's own landmarks: the animation's
-            # geometry, without the renderer and the detector in between
-            "mesh": {"jaw_open_vs_mouth_opening": corr(jaw, mesh[:, 0]),
-                     "blink_right_vs_left_image_eye_opening": corr(blink_r, mesh[:, 1]),
-                     "blink_left_vs_right_image_eye_opening": corr(blink_l, mesh[:, 2])}}
+            "mesh": exact}
 
 
 def _fidelity_sampled(stream, stride: int, work: Path) -> list[dict[str, Any]]:
@@ -482,12 +481,7 @@ def _markdown(r: dict[str, Any]) -> str:
 
     lines += [f"| {weight} | {measure} | {cell(f, key)} | {m.get(key)} |"
               + "".join(f" {cell(x, key)} |" for x in sampled)
-              for weight, measure, key in (
-                  ("jawOpen", "mouth opening", "jaw_open_vs_mouth_opening"),
-                  ("eyeBlinkRight", "left image eye opening",
-                   "blink_right_vs_left_image_eye_opening"),
-                  ("eyeBlinkLeft", "right image eye opening",
-                   "blink_left_vs_right_image_eye_opening"))]
+              for key, weight, measure in FIDELITY_MEASURES]
     if sampled:
         lines += ["", "Brackets: 95 % bootstrap interval over the frames. The sampled "
                   "heads come from `head360 sample --seed 0` (no fit)."]
