@@ -49,6 +49,17 @@ class InvertConfig:
     """Adam learning rate of the code."""
     lr_texture: float = 0.3
     """Adam learning rate of the texture."""
+    texture_stride: int = 3
+    """The texture's change from the generated one is fitted on a grid this many texels
+    apart and upsampled bilinearly. The hex-planes read the texture about once per 4 mm,
+    and a face texel is 2.4-3.1 mm, so fitted texel by texel (stride 1) only the texels
+    the planes read moved: the change came out in stripes, which every other expression
+    (its mesh reads other texels) showed as blotches. Astronaut, fast / quality preset,
+    dlib on a Live Link Face take: mouth opening against jawOpen r = -0.01 / 0.30 at
+    stride 1, 0.81 / 0.81 at 2, 0.86 / 0.79 at 3, 0.86 / 0.80 at 4; stride 3 also kept
+    the blinks' sign (eye opening r -0.20 and -0.54 fast). Held-out synthetic heads of
+    corpus seed 1, true mesh, texture fitted on a smile: PSNR at neutral, jaw open and
+    blink 0.1-0.2 dB above stride 1 with the fast preset, within 0.1 dB with quality."""
     near: float = 0.02
     """Weight of the mean squared distance to the generated texture."""
     symmetry: float = 0.1
@@ -82,6 +93,10 @@ class InvertConfig:
     """Weight of the face pixels the render leaves uncovered (1 - alpha on the mask)."""
     preview_samples: int | None = 6
     """Samples per ray of the fit's preview (``None``: the generator's own)."""
+
+    def __post_init__(self) -> None:
+        if self.texture_stride < 1:
+            raise ValueError(f"expected texture_stride >= 1, found {self.texture_stride}")
 
 
 PRESETS: dict[str, InvertConfig] = {
@@ -358,10 +373,21 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
         with torch.no_grad():
             start = gen.texture(code.detach())
             cam = pose(rot, shift)
-        texture = start.clone().requires_grad_(True)
-        opt = Adam([texture], lr=cfg.lr_texture)
+        side = start.shape[-1]
+        delta = torch.zeros(*start.shape[:2], -(-side // cfg.texture_stride),
+                            -(-side // cfg.texture_stride), dtype=start.dtype,
+                            device=start.device, requires_grad=True)
+
+        def fitted() -> torch.Tensor:
+            if cfg.texture_stride == 1:
+                return start + delta
+            return start + torch.nn.functional.interpolate(
+                delta, size=(side, side), mode="bilinear", align_corners=False)
+
+        opt = Adam([delta], lr=cfg.lr_texture)
         best, since = float("inf"), 0
         for step in range(cfg.steps):
+            texture = fitted()
             loss = photometric(gen(v, cam, k, texture=texture))
             loss = loss + cfg.near * (texture - start).square().mean() \
                 + cfg.symmetry * (texture - _mirror(texture)).abs().mean()
@@ -378,5 +404,6 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
                 since += 1
                 if since >= cfg.patience:
                     break
+        texture = fitted()
     return Inversion(texture.detach()[0], code.detach()[0], cam[0], losses, len(losses),
                      time.perf_counter() - t0)

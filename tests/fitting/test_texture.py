@@ -236,3 +236,37 @@ def test_inversion_does_not_import_the_compiler():
     out = subprocess.run([sys.executable, "-c", _NO_COMPILER], capture_output=True,
                          text=True, check=True, timeout=300)
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def _roughness(delta: torch.Tensor) -> float:
+    """Mean absolute difference of neighbouring texels over the mean absolute value."""
+    steps = (delta[..., 1:, :] - delta[..., :-1, :]).abs().mean() + (
+        delta[..., 1:] - delta[..., :-1]).abs().mean()
+    return float(steps / (2 * delta.abs().mean()))
+
+
+def test_texture_change_is_fitted_on_a_coarser_grid(scene):
+    """The planes read the texture about once per 1.5-3 texels, so a change fitted texel
+    by texel comes out striped (only the texels read move), and other expressions, whose
+    mesh reads other texels, show the stripes. With ``texture_stride`` the change is a
+    bilinear upsampling of a coarser grid: much smoother, whatever the stride."""
+    gen, codes, batch = scene
+    rough = {}
+    for stride in (1, 3, 4):
+        cfg = dataclasses.replace(PRESETS["fast"], code_steps=1, steps=4, samples=4,
+                                  patience=10, texture_stride=stride)
+        torch.manual_seed(0)
+        inv = invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics,
+                             batch.rgb[0], batch.alpha[0], codes.mean(0), cfg)
+        assert inv.texture.shape == (gen.cfg.texture_channels, gen.cfg.texture_res,
+                                     gen.cfg.texture_res)
+        with torch.no_grad():
+            delta = inv.texture - gen.texture(inv.code[None])[0]
+        assert delta.abs().mean() > 1e-3  # the texture was fitted, not left alone
+        rough[stride] = _roughness(delta)
+    assert rough[3] < 0.5 * rough[1] and rough[4] < 0.5 * rough[1], rough
+
+
+def test_texture_stride_below_one_is_refused():
+    with pytest.raises(ValueError, match=r"expected texture_stride >= 1, found 0"):
+        dataclasses.replace(PRESETS["fast"], texture_stride=0)
