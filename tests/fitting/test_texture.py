@@ -249,18 +249,17 @@ def test_texture_change_is_fitted_on_a_coarser_grid(scene):
     """The planes read the texture about once per 1.5-3 texels, so a change fitted texel
     by texel comes out striped (only the texels read move), and other expressions, whose
     mesh reads other texels, show the stripes. The change is now a bilinear upsampling of
-    a coarser grid plus a texel-by-texel layer held smooth: much smoother than before,
-    with either preset's weights."""
+    a coarser grid plus a texel-by-texel layer held smooth by its Laplacian penalty."""
     gen, codes, batch = scene
+    # (a rate at which 4 steps lower the loss in every setting: at the presets' 0.3 the
+    # first steps overshoot, and the start, kept as the best, would have no change)
     base = dataclasses.replace(PRESETS["fast"], code_steps=1, steps=4, samples=4,
-                               patience=10)
+                               patience=10, lr_texture=0.1)
     configs = {"texel by texel": dataclasses.replace(base, texture_stride=1, fine_smooth=0),
-               "fast": base,
-               "quality weights": dataclasses.replace(
-                   base, fine_smooth=PRESETS["quality"].fine_smooth,
-                   lr_fine=PRESETS["quality"].lr_fine),
                "grid of 4, no fine layer": dataclasses.replace(base, texture_stride=4,
-                                                               fine_smooth=0)}
+                                                               fine_smooth=0),
+               "fast": base,
+               "fine layer not held smooth": dataclasses.replace(base, fine_smooth=1e-9)}
     rough = {}
     for name, cfg in configs.items():
         torch.manual_seed(0)
@@ -272,8 +271,24 @@ def test_texture_change_is_fitted_on_a_coarser_grid(scene):
             delta = inv.texture - gen.texture(inv.code[None])[0]
         assert delta.abs().mean() > 1e-3  # the texture was fitted, not left alone
         rough[name] = _roughness(delta)
-    old = rough.pop("texel by texel")
-    assert all(r < 0.6 * old for r in rough.values()), (old, rough)
+    old = rough["texel by texel"]
+    assert rough["grid of 4, no fine layer"] < 0.3 * old, rough
+    assert rough["fast"] < 0.7 * old, rough
+    assert rough["fast"] < 0.9 * rough["fine layer not held smooth"], rough
+
+
+def test_inversion_returns_the_best_texture_it_saw(scene):
+    """Texture steps far too large only make the loss worse: the generated texture it
+    started from (the first one scored) is what comes back, not the last step's."""
+    gen, codes, batch = scene
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=1, steps=3, samples=4,
+                              patience=10, lr_texture=100.0, lr_fine=100.0)
+    inv = invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
+                         batch.alpha[0], codes.mean(0), cfg)
+    assert inv.losses[-1] > inv.losses[1]  # the steps did make it worse
+    with torch.no_grad():
+        start = gen.texture(inv.code[None])[0]
+    torch.testing.assert_close(inv.texture, start, rtol=0, atol=0)
 
 
 def test_texture_stride_below_one_and_negative_smoothness_are_refused():
