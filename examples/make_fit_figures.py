@@ -3,24 +3,69 @@
 - ``examples/figures/fit_astronaut.png``: ``head360 demo``'s preview (photo crop, fitted
   front view, views at -45, 45 and 90 degrees yaw, the back);
 - ``examples/figures/parse_astronaut.png``: ``head360 parse-hair``'s overlay (hair red,
-  face blue), downscaled to 256 pixels.
+  face blue), downscaled to 256 pixels;
+- ``examples/figures/texture_grid.png``: the fitted face at its own expression, neutral,
+  jaw open and eyes closed, with the neural texture fitted texel by texel (top, as before
+  stop 31) and on the coarse grid with a smooth fine layer (bottom, the default).
 
-Run from the repository root (about 20 s on 2 CPU cores):
+Run from the repository root (about 40 s on 2 CPU cores):
 
     python examples/make_fit_figures.py
 """
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 from pathlib import Path
 
+import numpy as np
 from PIL import Image
 from skimage import data
 
-from head360cli.fitting.pipeline import fit_photo, parse_photo
+from head360cli.fitting import texture
+from head360cli.fitting.pipeline import fit_photo, load_head_renderer, parse_photo
 
 FIGURES = Path("examples/figures")
+
+EXPRESSIONS = ({}, {"jawOpen": 0.6}, {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0})
+"""Expressions of the texture figure's columns after the fitted one (neutral first)."""
+
+
+def _faces(head: Path) -> np.ndarray:
+    """The head from the front at its fitted expression and each of :data:`EXPRESSIONS`,
+    cropped to the face, side by side, each pixel doubled."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.mesh.arkit52 import INDEX
+    from head360cli.model.head_render import to_uint8
+
+    r = load_head_renderer(head, precision="fp32")
+    cam, k = view_cameras(0.0, 0.0), view_intrinsics(r.size)
+    tiles = [to_uint8(r.render(cam, k))[0]]
+    for expr in EXPRESSIONS:
+        w = np.zeros(52)
+        for name, value in expr.items():
+            w[INDEX[name]] = value
+        tiles.append(to_uint8(r.render(cam, k, w))[0])
+    face = np.concatenate([t[75:195, 68:188] for t in tiles], 1)
+    return face.repeat(2, 0).repeat(2, 1)  # pixels doubled, so the stripes show
+
+
+def texture_figure(photo: Path, work: Path) -> None:
+    """``texture_grid.png``: the astronaut fitted (fast preset) texel by texel and with
+    the default coarse grid and fine layer."""
+    fast = texture.PRESETS["fast"]
+    rows = []
+    for name, cfg in (("texel", dataclasses.replace(fast, texture_stride=1, fine_smooth=0)),
+                      ("grid", fast)):
+        texture.PRESETS["fast"] = cfg
+        try:
+            fit_photo(photo, work / f"{name}.h360")
+        finally:
+            texture.PRESETS["fast"] = fast
+        rows.append(_faces(work / f"{name}.h360"))
+    Image.fromarray(np.concatenate(rows, 0)).save(FIGURES / "texture_grid.png",
+                                                  optimize=True)
 
 
 def main() -> None:
@@ -33,7 +78,9 @@ def main() -> None:
         parse = parse_photo(photo, tmp)
         Image.open(parse["overlay"]).resize((256, 256), Image.Resampling.LANCZOS).save(
             FIGURES / "parse_astronaut.png", optimize=True)
-    print(f"wrote {FIGURES / 'fit_astronaut.png'} and {FIGURES / 'parse_astronaut.png'}")
+        texture_figure(photo, Path(tmp))
+    print(f"wrote {FIGURES / 'fit_astronaut.png'}, {FIGURES / 'parse_astronaut.png'} and "
+          f"{FIGURES / 'texture_grid.png'}")
 
 
 if __name__ == "__main__":
