@@ -7,7 +7,10 @@ crop in which the head has the size it has in the training rig's views, so the g
 sees the scale it was trained at. :func:`invert_texture` first fits the texture code
 ``t`` (a few steps: a plausible head everywhere), then the neural texture itself, with L1
 on the face region and two regularisers that keep what the photo does not show plausible:
-staying near the generated texture, and left-right symmetry in texture space. While the
+staying near the generated texture, and left-right symmetry in texture space. The
+texture's change from the generated one is a coarse grid, upsampled, plus a fine layer
+held smooth: the feature planes read the texture more sparsely than its texels, and a
+change fitted texel by texel showed as blotches at every other expression. While the
 code is fitted the camera is refined photometrically, held near the detected landmarks.
 """
 
