@@ -403,26 +403,25 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
         delta = torch.zeros(*start.shape[:2], -(-side // cfg.texture_stride),
                             -(-side // cfg.texture_stride), dtype=start.dtype,
                             device=start.device, requires_grad=True)
-
-        fine = torch.zeros_like(start, requires_grad=True)
+        groups = [{"params": [delta], "lr": cfg.lr_texture}]
+        fine = None  # the smooth texel-by-texel layer, when the config has one
+        if cfg.fine_smooth > 0:
+            fine = torch.zeros_like(start, requires_grad=True)
+            groups.append({"params": [fine], "lr": cfg.lr_fine})
+        opt = Adam(groups)
 
         def fitted() -> torch.Tensor:
-            out = start + fine if cfg.fine_smooth > 0 else start
+            out = start if fine is None else start + fine
             if cfg.texture_stride == 1:
                 return out + delta
             return out + torch.nn.functional.interpolate(
                 delta, size=(side, side), mode="bilinear", align_corners=False)
 
-        groups = [{"params": [delta], "lr": cfg.lr_texture}]
-        if cfg.fine_smooth > 0:
-            groups.append({"params": [fine], "lr": cfg.lr_fine})
-        opt = Adam(groups)
-
         def texture_loss(texture: torch.Tensor) -> torch.Tensor:
             loss = photometric(gen(v, cam, k, texture=texture))
             loss = loss + cfg.near * (texture - start).square().mean() \
                 + cfg.symmetry * (texture - _mirror(texture)).abs().mean()
-            if cfg.fine_smooth > 0:
+            if fine is not None:
                 loss = loss + cfg.fine_smooth * _laplacian(fine).square().mean()
             return loss
 
@@ -455,5 +454,5 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
             with torch.no_grad():
                 if float(texture_loss(texture)) > kept_loss:
                     texture = kept
-    return Inversion(texture.detach()[0], code.detach()[0], cam[0], losses, len(losses),
+    return Inversion(texture[0], code.detach()[0], cam[0], losses, len(losses),
                      time.perf_counter() - t0)

@@ -247,4 +247,3 @@ def test_seeded_parse_of_a_bald_head_finds_no_hair(index):
     img, lm, truth, _ = _corpus_portrait(index)
     assert not truth.any()  # style 0: bald
     assert not parse_hair(img, lm).hair.any()
-
