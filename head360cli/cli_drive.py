@@ -472,21 +472,27 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
               help="Frames per throughput measurement.")
 @click.option("--stride", default=3, show_default=True,
               help="Every Nth frame of the capture for expression fidelity.")
+@click.option("--fidelity-size", type=int, default=None,
+              help="Image size of the expression-fidelity frames (default: the "
+                   "generator's, as head360 animate renders them).")
 @click.option("--no-memory", is_flag=True,
               help="Skip the whole-capture peak-memory run (minutes).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
-def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -> None:
+def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None, no_memory: bool,
+                      out_dir: str) -> None:
     """Animation: frames per second with and without reuse of decoded points between
     frames, against samples and precision (with PSNR), peak memory over a whole capture,
     a turning head (--head-pose), expression fidelity by dlib landmarks (fitted and
-    sampled heads, with bootstrap intervals), face PSNR across hair swaps.
+    sampled heads, with bootstrap intervals, beside dlib on ground-truth SynHead-P
+    renders of the same frames), face PSNR across hair swaps.
 
     \b
     Examples:
       head360 bench animate
       head360 bench animate --frames 60 --stride 6 --no-memory
+      head360 bench animate --stride 6 --fidelity-size 512
     """
     from head360cli.bench.animate import bench_animate
     from head360cli.bench.report import save
@@ -495,7 +501,11 @@ def bench_animate_cmd(frames: int, stride: int, no_memory: bool, out_dir: str) -
     if frames < 8 or stride < 1:
         raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
                             f"{stride}")
+    if fidelity_size is not None and not 64 <= fidelity_size <= 1024:
+        raise BadInputError(f"expected --fidelity-size between 64 and 1024, found "
+                            f"{fidelity_size}")
     result, md = bench_animate(frames, stride, memory=not no_memory,
+                               fidelity_size=fidelity_size,
                                progress=None if _settings().quiet else
                                (lambda t: click.echo(f"bench animate: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "animate")

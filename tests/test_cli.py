@@ -226,3 +226,9 @@ def test_cpu_benches_say_that_device_is_not_used(run_cli):
     assert r.code == 3 and "warning" not in r.err
     r = run_cli("bench", "fit", "-q", "--device", "cuda", "--identities", "0")
     assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
+
+
+def test_bench_animate_refuses_a_fidelity_size_out_of_range(run_cli):
+    r = run_cli("bench", "animate", "--fidelity-size", "32")
+    assert r.code == 3
+    assert "expected --fidelity-size between 64 and 1024, found 32" in r.err

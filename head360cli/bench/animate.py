@@ -53,6 +53,11 @@ FIDELITY_MEASURES = (
 """Each fidelity correlation: its result key, the ARKit weight and the image measure, in
 the column order of :func:`mesh_openings` (the image's left eye is the subject's right)."""
 
+FIDELITY_REFERENCE = 2
+"""Held-out SynHead-P heads whose ground-truth renders (the corpus renderer's, no
+generator) dlib reads beside the generator's frames: the ceiling of the fidelity
+columns."""
+
 SWAP_STYLES = (0, 2, 7, 9, 12, 17, 22, 28)
 """Hairstyles the swap measurement puts on the head (bald, short, long, voluminous)."""
 
@@ -297,56 +302,96 @@ def correlation(a, b, rounds: int = 1000, seed: int = 0) -> dict[str, Any] | Non
     return {"r": r, "interval_95": [round(float(lo), 4), round(float(hi), 4)]}
 
 
-def _fidelity(head: Path, stream, stride: int) -> dict[str, Any]:
-    from head360cli.drive.views import view_cameras, view_intrinsics
+def _dlib_openings(frames) -> tuple[np.ndarray, np.ndarray]:
+    """dlib's mouth and eye openings of ``frames`` (an iterable of ``(H, W, 3)`` uint8):
+    ``(indices of the frames with a face (F,), openings (F, 3))``, columns as in
+    :data:`FIDELITY_MEASURES`."""
     from head360cli.errors import NoFaceError
     from head360cli.fitting.landmarks import LandmarkDetector
+
+    det = LandmarkDetector("hog")
+    seen, found = [], []
+    for i, frame in enumerate(frames):
+        try:
+            lm = det.detect_one(frame).landmarks
+        except NoFaceError:
+            continue
+        seen.append([mouth_opening(lm), eye_opening(lm, "left"), eye_opening(lm, "right")])
+        found.append(i)
+    return np.asarray(found, int), np.asarray(seen, np.float64).reshape(-1, 3)
+
+
+def _correlations(w: np.ndarray, found: np.ndarray, seen: np.ndarray, stride: int
+                  ) -> dict[str, Any]:
+    """The fidelity result of frames with weights ``w (N, 52)`` of which ``found`` had a
+    face with openings ``seen``: each correlation, its interval and the jaw's range."""
+    from head360cli.mesh.arkit52 import INDEX
+
+    image = {key: correlation(w[found, INDEX[weight]], seen[:, col])
+             or {"r": None, "interval_95": None}
+             for col, (key, weight, _) in enumerate(FIDELITY_MEASURES)}
+    jaw = w[found, INDEX["jawOpen"]]
+    return {"frames": len(w), "stride": stride, "faces_found": len(found),
+            "interval_95": {key: c["interval_95"] for key, c in image.items()},
+            **{key: c["r"] for key, c in image.items()},
+            "jaw_open_range": [round(float(jaw.min()), 3), round(float(jaw.max()), 3)]
+            if len(found) else None}
+
+
+def _fidelity(head: Path, stream, stride: int, size: int | None = None) -> dict[str, Any]:
+    """dlib's reading of a head file's frames driven by every ``stride``-th frame of
+    ``stream``, at ``size`` pixels (default: the renderer's), with the same measures read
+    off the mesh's own landmarks (``mesh``)."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.mesh.arkit52 import INDEX
 
-    r = load_head_renderer(head, samples=8)
-    det = LandmarkDetector("hog")
-    idx = np.arange(0, stream.num_frames, stride)
-    w = stream.weights[idx]
-    cams = view_cameras(0.0, 0.0).expand(len(idx), 4, 4)
-    seen, found = [], []
-    i = 0
-    for batch in r.frames(cams, w, view_intrinsics(r.size)):
-        for frame in batch:
-            try:
-                lm = det.detect_one(frame).landmarks
-                seen.append([mouth_opening(lm), eye_opening(lm, "left"),
-                             eye_opening(lm, "right")])
-                found.append(i)
-            except NoFaceError:
-                pass
-            i += 1
-    found = np.asarray(found, int)
-    seen = np.asarray(seen, np.float64).reshape(-1, 3)
+    r = load_head_renderer(head, samples=8, size=size)
+    w = stream.weights[np.arange(0, stream.num_frames, stride)]
+    cams = view_cameras(0.0, 0.0).expand(len(w), 4, 4)
+    found, seen = _dlib_openings(
+        frame for batch in r.frames(cams, w, view_intrinsics(r.size)) for frame in batch)
     # the same measures from the mesh's own landmarks: the animation's geometry, without
     # the renderer and the detector in between (exact, so no interval)
     mesh = mesh_openings(r, w[found], cams[0], view_intrinsics(r.size)) if len(found) \
         else np.zeros((0, 3))
-    image, exact = {}, {}
-    for col, (key, weight, _) in enumerate(FIDELITY_MEASURES):
-        driven = w[found, INDEX[weight]]
-        image[key] = correlation(driven, seen[:, col]) or {"r": None, "interval_95": None}
-        exact[key] = (correlation(driven, mesh[:, col], rounds=0) or {"r": None})["r"]
-    jaw = w[found, INDEX["jawOpen"]]
-    return {"frames": len(idx), "stride": stride, "faces_found": len(found),
-            "interval_95": {key: c["interval_95"] for key, c in image.items()},
-            **{key: c["r"] for key, c in image.items()},
-            "jaw_open_range": [round(float(jaw.min()), 3), round(float(jaw.max()), 3)]
-            if len(found) else None,
-            "mesh": exact}
+    exact = {key: (correlation(w[found, INDEX[weight]], mesh[:, col], rounds=0)
+                   or {"r": None})["r"]
+             for col, (key, weight, _) in enumerate(FIDELITY_MEASURES)}
+    return {**_correlations(w, found, seen, stride), "size": r.size, "mesh": exact}
 
 
-def _fidelity_sampled(stream, stride: int, work: Path) -> list[dict[str, Any]]:
+def _fidelity_reference(stream, stride: int, size: int,
+                        heads: int = FIDELITY_REFERENCE) -> list[dict[str, Any]]:
+    """dlib's reading of the same frames rendered by the corpus renderer itself: held-out
+    SynHead-P heads (test split, corpus seed 0, bald), ground truth with no generator and
+    no fit in between. What dlib makes of faces that are exactly right bounds what it
+    can read off the generator's frames."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.model.head_render import to_uint8
+    from head360cli.synth.scene import make_head, prepare_render, render_head
+
+    w = stream.weights[np.arange(0, stream.num_frames, stride)]
+    cam, k = view_cameras(0.0, 0.0), view_intrinsics(size)
+    out = []
+    for i in range(heads):
+        head = make_head(i, "test", 0)
+        prepare_render(head, "cpu")
+        found, seen = _dlib_openings(
+            to_uint8(render_head(head, wj, cam, k, size, with_hair=False).rgb)[0]
+            for wj in w)
+        out.append({"head": f"SynHead-P test {i}", "size": size,
+                    **_correlations(w, found, seen, stride)})
+    return out
+
+
+def _fidelity_sampled(stream, stride: int, work: Path, size: int | None = None
+                      ) -> list[dict[str, Any]]:
     """:func:`_fidelity` of the heads ``head360 sample --seed 0`` draws first."""
     from head360cli.drive.sample import sample_heads, write_samples
 
     paths = write_samples(sample_heads(FIDELITY_SAMPLES, seed=0), work / "sampled")
-    return [{"head": p.name, **_fidelity(p, stream, stride)} for p in paths]
+    return [{"head": p.name, **_fidelity(p, stream, stride, size)} for p in paths]
 
 
 def _swap(head: Path) -> dict[str, Any]:
@@ -392,8 +437,11 @@ def _swap(head: Path) -> dict[str, Any]:
 
 
 def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
-                  progress=None) -> tuple[dict[str, Any], str]:
-    """Run every part; returns ``(result, markdown)``."""
+                  progress=None, fidelity_size: int | None = None
+                  ) -> tuple[dict[str, Any], str]:
+    """Run every part; returns ``(result, markdown)``. ``fidelity_size``: image size of
+    the expression-fidelity frames (default: the generator's, as ``head360 animate``
+    renders them)."""
     import torch
 
     from head360cli.fitting.pipeline import run_demo
@@ -418,9 +466,12 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         say("throughput and error against image size")
         result["resolution"] = _resolution(head, stream.weights[:frames])
         say("expression fidelity (dlib landmarks on frames)")
-        result["fidelity"] = _fidelity(head, stream, stride)
+        result["fidelity"] = _fidelity(head, stream, stride, fidelity_size)
         say(f"expression fidelity of {FIDELITY_SAMPLES} heads sampled from the model")
-        result["fidelity_sampled"] = _fidelity_sampled(stream, stride, work)
+        result["fidelity_sampled"] = _fidelity_sampled(stream, stride, work, fidelity_size)
+        say(f"expression fidelity of {FIDELITY_REFERENCE} SynHead-P ground-truth renders")
+        result["fidelity_reference"] = _fidelity_reference(stream, stride,
+                                                           result["fidelity"]["size"])
         say("hair swap: face before and after")
         result["swap"] = _swap(head)
         if memory and capture is not None:
@@ -464,14 +515,17 @@ def _markdown(r: dict[str, Any]) -> str:
                   f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples_same_size']:.2f} | "
                   f"{s[f'psnr_vs_32_samples_{top}px']:.2f} |" for s in r["resolution"]]
     f = r["fidelity"]
+    size = f" at {f['size']} x {f['size']}" if "size" in f else ""
     lines += ["", "## Expression fidelity (dlib landmarks on frames)", "",
-              f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}) with a "
-              "face found. The mesh column reads the same measures off the mesh's own "
+              f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}){size} with "
+              "a face found. The mesh column reads the same measures off the mesh's own "
               "landmarks (no renderer, no detector).", ""]
     sampled = r.get("fidelity_sampled", [])
-    columns = ["weight", "image measure", "correlation, dlib on frames",
-               "same, mesh landmarks"] + [f"sampled head {i}, dlib on frames"
-                                          for i in range(len(sampled))]
+    reference = r.get("fidelity_reference", [])
+    columns = (["weight", "image measure", "correlation, dlib on frames",
+                "same, mesh landmarks"]
+               + [f"sampled head {i}, dlib on frames" for i in range(len(sampled))]
+               + [f"{x['head']} ground truth, dlib" for x in reference])
     lines += ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     m = f.get("mesh", {})
 
@@ -480,11 +534,13 @@ def _markdown(r: dict[str, Any]) -> str:
         return f"{fid[key]}" + (f" ({ci[0]:.2f} to {ci[1]:.2f})" if ci else "")
 
     lines += [f"| {weight} | {measure} | {cell(f, key)} | {m.get(key)} |"
-              + "".join(f" {cell(x, key)} |" for x in sampled)
+              + "".join(f" {cell(x, key)} |" for x in [*sampled, *reference])
               for key, weight, measure in FIDELITY_MEASURES]
-    if sampled:
+    if sampled or reference:
         lines += ["", "Brackets: 95 % bootstrap interval over the frames. The sampled "
-                  "heads come from `head360 sample --seed 0` (no fit)."]
+                  "heads come from `head360 sample --seed 0` (no fit); the ground-truth "
+                  "columns are the corpus renderer's own frames of held-out SynHead-P "
+                  "heads (no generator): what dlib reads off faces that are exactly right."]
     s = r["swap"]
     lines += ["", f"## Hair swap (own style: {s['own_style']}; views at yaw "
               f"{', '.join(f'{y:g}' for y in s['views_yaw'])})", "",

@@ -6,6 +6,7 @@ import numpy as np
 
 from head360cli.bench.animate import (
     _fidelity,
+    _fidelity_reference,
     _markdown,
     _resolution,
     _reuse,
@@ -112,10 +113,11 @@ def test_fidelity_reads_every_frame_and_the_markdown_shows_sampled_heads(head_fi
                                      "blink_left_vs_right_image_eye_opening"}
     md = _markdown({"stream": "s", "stream_frames": 8, "threads": 2, "speed": [],
                     "fidelity": f, "fidelity_sampled": [f, f],
+                    "fidelity_reference": [{**f, "head": "SynHead-P test 0"}],
                     "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
                              "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0}})
     header = next(line for line in md.splitlines() if line.startswith("| weight |"))
-    assert header.count("sampled head") == 2
+    assert header.count("sampled head") == 2 and header.count("ground truth") == 1
     jaw = next(line for line in md.splitlines() if line.startswith("| jawOpen |"))
     assert jaw.count("|") == header.count("|")
 
@@ -145,3 +147,20 @@ def test_the_turning_capture_is_the_one_whose_head_turns_most(tmp_path):
                                   "fps_head_pose": 12.04, "fps_still": 14.9}})
     assert "| `--head-pose` (every point decoded) | 12.0 |" in md
     assert "turns through 30 degrees" in md
+
+
+def test_reference_fidelity_reads_the_corpus_renderer_s_own_blinks():
+    """The ground-truth column: dlib on SynHead-P's own frames sees a closed eye close."""
+    from head360cli.io.arkit import ArkitStream
+    from head360cli.mesh.arkit52 import INDEX
+
+    w = np.zeros((8, 52), np.float32)
+    w[:, INDEX["jawOpen"]] = np.linspace(0.0, 1.0, 8)
+    w[:, INDEX["eyeBlinkLeft"]] = w[:, INDEX["eyeBlinkRight"]] = [0, 0, 1, 1, 0, 0, 1, 1]
+    (f,) = _fidelity_reference(ArkitStream(w, np.arange(8) / 30.0, 30.0), stride=1,
+                               size=256, heads=1)
+    assert f["head"] == "SynHead-P test 0" and f["size"] == 256
+    assert f["frames"] == 8 and f["faces_found"] == 8
+    assert f["blink_left_vs_right_image_eye_opening"] < -0.9
+    assert f["blink_right_vs_left_image_eye_opening"] < -0.9
+    assert f["jaw_open_range"] == [0.0, 1.0]
