@@ -92,7 +92,12 @@ def _figaro_classes(data: Path) -> dict[str, Any]:
 def _hair_style(views: int = 30) -> dict[str, Any]:
     import torch
 
-    from head360cli.fitting.hair_class import classify_hair, style_silhouettes
+    from head360cli.fitting.hair_class import (
+        classify_hair,
+        hair_colour,
+        nearest_colour_name,
+        style_silhouettes,
+    )
     from head360cli.fitting.hair_parse import mask_iou, parse_hair
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
     from head360cli.mesh.bilinear import load_bilinear
@@ -104,6 +109,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
     data = Views(views, split="test", size=res)
     c2w = camera_on_sphere(torch.tensor([10.0]), torch.tensor([5.0]), RIG_DISTANCE)
     hits = {"true_mask": [0, 0], "parsed_mask": [0, 0]}
+    colours = {"true_mask": 0, "parsed_mask": 0}  # hair colour named right
     ious = []
     for i in range(views):
         batch = data.render(i, np.zeros(52, np.float32), c2w, with_hair=True)
@@ -112,15 +118,22 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
                                 c2w[0].numpy(), data.intrinsics.numpy(), res)
         px, _ = project(batch.verts[:1], c2w, data.intrinsics[None])
         lm = px[0].numpy()[model.landmarks]
+        rgb = to_uint8(batch.rgb)[0]
         masks = {"true_mask": batch.hair_alpha[0, 0].numpy() > 0.5,
-                 "parsed_mask": parse_hair(to_uint8(batch.rgb)[0], lm).hair}
+                 "parsed_mask": parse_hair(rgb, lm).hair}
         ious.append(mask_iou(masks["parsed_mask"], masks["true_mask"]))
         for key, mask in masks.items():
             rank = classify_hair(mask, sil).ranking
             hits[key][0] += rank[0] == head.hair_style
             hits[key][1] += head.hair_style in rank[:3]
-    return {k: {"top1": round(v[0] / views, 4), "top3": round(v[1] / views, 4)}
-            for k, v in hits.items()} | {"heads": views, "yaw": 10.0, "pitch": 5.0,
+            if head.hair_style != 0:
+                colours[key] += nearest_colour_name(hair_colour(rgb, mask)) == \
+                    head.hair_colour
+    with_hair = sum(data.head(i).hair_style != 0 for i in range(views))
+    return {k: {"top1": round(v[0] / views, 4), "top3": round(v[1] / views, 4),
+                "colour": round(colours[k] / max(with_hair, 1), 4)}
+            for k, v in hits.items()} | {"heads": views, "heads_with_hair": with_hair,
+                                         "yaw": 10.0, "pitch": 5.0,
                                          "parsed_iou": round(float(np.mean(ious)), 4)}
 
 
@@ -468,11 +481,18 @@ def _markdown(r: dict[str, Any]) -> str:
               f"10 degrees {h['parsed_iou']:.3f}; no face, back views "
               f"{n['back_view']['mean_iou']:.3f}, close-ups {n['close_up']['mean_iou']:.3f} "
               f"({n['back_view']['views']} heads).", ""]
-    lines += ["## Hairstyle (30 styles, held-out heads, true mesh)", "",
-              "| hair mask | top-1 | top-3 |", "|---|---|---|",
-              f"| true | {h['true_mask']['top1']:.2%} | {h['true_mask']['top3']:.2%} |",
-              f"| parsed | {h['parsed_mask']['top1']:.2%} | {h['parsed_mask']['top3']:.2%} |",
-              ""]
+    def colour(key):
+        c = h[key].get("colour")
+        return "-" if c is None else f"{c:.2%}"
+
+    lines += ["## Hairstyle (30 styles, held-out heads, true mesh) and hair colour name "
+              "(10 colours, heads with hair)", "",
+              "| hair mask | style top-1 | style top-3 | colour named right |",
+              "|---|---|---|---|",
+              f"| true | {h['true_mask']['top1']:.2%} | {h['true_mask']['top3']:.2%} | "
+              f"{colour('true_mask')} |",
+              f"| parsed | {h['parsed_mask']['top1']:.2%} | {h['parsed_mask']['top3']:.2%} | "
+              f"{colour('parsed_mask')} |", ""]
     if "figaro_classes" in r:
         f = r["figaro_classes"]
         lines += [f"Figaro coarse classes: {f['agree']} of {f['with_face']} photos with a "

@@ -14,8 +14,10 @@ from head360cli.bench.fit import (
 def test_hairstyle_accuracy_on_three_heads():
     r = _hair_style(views=3)
     assert r["heads"] == 3
+    assert r["heads_with_hair"] == 2
     for key in ("true_mask", "parsed_mask"):
         assert 0.0 <= r[key]["top1"] <= r[key]["top3"] <= 1.0
+        assert r[key]["colour"] in (0.0, 0.5, 1.0)  # share of the 2 heads with hair
     # Heads 0..2 wear styles 0..2 (bald, buzz, crew): with the true mask at least the
     # bald head (empty mask) and one other are right.
     assert r["true_mask"]["top1"] >= 2 / 3

@@ -36,6 +36,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
                                        "side part", "bangs"}
     assert s["hair_color_name"] in {"blonde", "light brown", "brown", "auburn"}
+    assert s["hair_color_chosen_by"] == "render"  # she has hair, and it shows
     from head360cli.synth.hair import HAIR_COLOURS
 
     np.testing.assert_allclose(s["hair_color"], HAIR_COLOURS[s["hair_color_name"]], atol=1e-4)
