@@ -475,13 +475,16 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
 @click.option("--fidelity-size", type=int, default=None,
               help="Image size of the expression-fidelity frames (default: the "
                    "generator's, as head360 animate renders them).")
+@click.option("--stream", "stream_path", type=click.Path(exists=True, dir_okay=False),
+              default=None, help="ARKit CSV to drive the heads with (default: the longest "
+                                 "Live Link Face capture in ../shared/data).")
 @click.option("--no-memory", is_flag=True,
               help="Skip the whole-capture peak-memory run (minutes).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
-def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None, no_memory: bool,
-                      out_dir: str) -> None:
+def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
+                      stream_path: str | None, no_memory: bool, out_dir: str) -> None:
     """Animation: frames per second with and without reuse of decoded points between
     frames, against samples and precision (with PSNR), peak memory over a whole capture,
     a turning head (--head-pose), expression fidelity by dlib landmarks (fitted and
@@ -493,6 +496,7 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None, no_me
       head360 bench animate
       head360 bench animate --frames 60 --stride 6 --no-memory
       head360 bench animate --stride 6 --fidelity-size 512
+      head360 bench animate --stream examples/smile_blink_livelinkface.csv --stride 1
     """
     from head360cli.bench.animate import bench_animate
     from head360cli.bench.report import save
@@ -505,7 +509,7 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None, no_me
         raise BadInputError(f"expected --fidelity-size between 64 and 1024, found "
                             f"{fidelity_size}")
     result, md = bench_animate(frames, stride, memory=not no_memory,
-                               fidelity_size=fidelity_size,
+                               fidelity_size=fidelity_size, stream_path=stream_path,
                                progress=None if _settings().quiet else
                                (lambda t: click.echo(f"bench animate: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "animate")

@@ -437,11 +437,12 @@ def _swap(head: Path) -> dict[str, Any]:
 
 
 def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
-                  progress=None, fidelity_size: int | None = None
-                  ) -> tuple[dict[str, Any], str]:
+                  progress=None, fidelity_size: int | None = None,
+                  stream_path: str | Path | None = None) -> tuple[dict[str, Any], str]:
     """Run every part; returns ``(result, markdown)``. ``fidelity_size``: image size of
     the expression-fidelity frames (default: the generator's, as ``head360 animate``
-    renders them)."""
+    renders them). ``stream_path``: an ARKit CSV to drive the heads with (default: the
+    longest Live Link Face capture in ``../shared/data``, else a synthetic stream)."""
     import torch
 
     from head360cli.fitting.pipeline import run_demo
@@ -449,7 +450,13 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
 
     say = progress or (lambda text: None)
     data = shared_data_dir()
-    stream, capture = _stream(data)
+    if stream_path is None:
+        stream, capture = _stream(data)
+    else:
+        from head360cli.io.arkit import read_arkit_csv
+
+        capture = Path(stream_path)
+        stream = read_arkit_csv(capture, on_bad="hold")
     result: dict[str, Any] = {"threads": torch.get_num_threads(),
                               "stream": capture.name if capture else "synthetic",
                               "stream_frames": stream.num_frames}
