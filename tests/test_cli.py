@@ -232,3 +232,13 @@ def test_bench_animate_refuses_a_fidelity_size_out_of_range(run_cli):
     r = run_cli("bench", "animate", "--fidelity-size", "32")
     assert r.code == 3
     assert "expected --fidelity-size between 64 and 1024, found 32" in r.err
+
+
+def test_bench_animate_refuses_a_stream_shorter_than_its_frames(run_cli, tmp_path):
+    short = tmp_path / "short.csv"
+    short.write_text("jawOpen\n0.1\n0.2\n")
+    r = run_cli("bench", "animate", "--stream", short, "--frames", "8", "--no-memory",
+                "--out", tmp_path / "out")
+    assert r.code == 3
+    assert "expected a stream of at least 8 frames (--frames), found 2 in short.csv" in r.err
+    assert not (tmp_path / "out").exists()

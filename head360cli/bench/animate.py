@@ -457,6 +457,11 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
 
         capture = Path(stream_path)
         stream = read_arkit_csv(capture, on_bad="hold")
+        if stream.num_frames < frames:
+            from head360cli.errors import BadInputError
+
+            raise BadInputError(f"expected a stream of at least {frames} frames (--frames), "
+                                f"found {stream.num_frames} in {capture.name}")
     result: dict[str, Any] = {"threads": torch.get_num_threads(),
                               "stream": capture.name if capture else "synthetic",
                               "stream_frames": stream.num_frames}
