@@ -2,7 +2,8 @@
 
 The head is the astronaut photo that ships with scikit-image, fitted with the fast preset
 (what ``head360 demo`` makes), driven by the real Live Link Face captures in
-``../shared/data/arkit`` when they are there (else by a synthetic stream).
+``../shared/data/arkit`` when they are there (else by a synthetic stream), or by the
+stream given with ``--stream``.
 
 - Reuse: with a still camera, frames decode only the points whose inputs changed since
   the last frame; frames per second with and without, and the difference in the frames.
@@ -21,7 +22,9 @@ The head is the astronaut photo that ships with scikit-image, fitted with the fa
   opening (inner lips over the eye distance) with jawOpen and of eye opening (lids over
   eye width) with eyeBlink, over a capture, with a 95 % bootstrap interval over the
   frames; for the fitted astronaut and for heads sampled from the model (no fit: what
-  the generator itself shows).
+  the generator itself shows), at the generator's size or ``--fidelity-size``; and for
+  held-out SynHead-P heads rendered by the corpus renderer itself (ground truth: what
+  dlib reads off faces that are exactly right, the ceiling of the other columns).
 - Hair swap: PSNR of the face (the landmarks' hull, less the pixels either hairstyle
   covers) between the head with its own hair and with each other style; and over the
   whole hull.
