@@ -474,7 +474,8 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str) -> None:
     lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "
              f"overlap {c['iou']:.3f}" for i, c in enumerate(r["top"])]
     lines.append(f"hair colour: {r['hair_color_name']} (linear RGB "
-                 + ", ".join(f"{c:.3f}" for c in r["hair_color"]) + ")")
+                 + ", ".join(f"{c:.3f}" for c in r["hair_color"])
+                 + "; by the tone curve: head360 fit also compares renders)")
     _emit(r, "\n".join(lines))
 
 

@@ -400,6 +400,8 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
     return {"photo": str(photo), "top": guess.top(top),
             "hair_color": [round(float(c), 4) for c in colour],
             "hair_color_name": name,
+            # head360 fit checks the nearest colours by rendering the fitted head
+            "hair_color_chosen_by": "tone curve",
             "hair_color_estimate": [round(float(c), 4) for c in estimate],
             "timings": {k: round(v, 4) for k, v in timings.items()}}
 

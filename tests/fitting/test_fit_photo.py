@@ -84,6 +84,7 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
 
     np.testing.assert_allclose(c["hair_color"], HAIR_COLOURS[c["hair_color_name"]], atol=1e-4)
     assert len(c["hair_color_estimate"]) == 3
+    assert c["hair_color_chosen_by"] == "tone curve"  # no generator in classify-hair
     assert run_cli("classify-hair", astronaut, "--top", "0").code == 3
     speck = tmp_path / "speck.png"
     Image.fromarray(np.zeros((3, 3, 3), np.uint8)).save(speck)
