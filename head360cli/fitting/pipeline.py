@@ -486,10 +486,13 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         first = gen(verts[None], cam[None], kk[None], code=start[None])
     hair_crop = crop_mask(parse.hair, affine, res)
     face_crop = crop_mask(parse.face, affine, res)
-    colour_by = "tone curve"
-    if style != 0:
+    colour_by, colour_s = "tone curve", 0.0
+    if style != 0:  # the colour check renders: timed with the classification
+        t1 = time.perf_counter()
         colour_name, colour, colour_by = _colour_by_render(
             gen, verts, cam, kk, start, neutral, style, crop, hair_crop, estimate)
+        colour_s = time.perf_counter() - t1
+        timings["classify"] += colour_s
     target = bald_target(crop, hair_crop, to_uint8(first["rgb"])[0])
     alpha = first["alpha"][0, 0].cpu().numpy() > 0.5
     weight = face_crop & alpha
@@ -498,7 +501,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                             f"{int(weight.sum())} pixels (is the face covered?)")
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
-    timings["bald_target"] = time.perf_counter() - t0
+    timings["bald_target"] = time.perf_counter() - t0 - colour_s
     cfg = PRESETS[preset]
     inv = invert_texture(
         gen, verts, cam, kk,
