@@ -505,9 +505,16 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
     if frames < 8 or stride < 1:
         raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
                             f"{stride}")
-    if fidelity_size is not None and not 64 <= fidelity_size <= 1024:
-        raise BadInputError(f"expected --fidelity-size between 64 and 1024, found "
-                            f"{fidelity_size}")
+    if fidelity_size is not None:
+        if not 64 <= fidelity_size <= 1024:
+            raise BadInputError(f"expected --fidelity-size between 64 and 1024, found "
+                                f"{fidelity_size}")
+        from head360cli.model.train import load_generator
+
+        try:  # refuse now a size the generator cannot make, not after minutes of work
+            load_generator()[0].image_size(fidelity_size)
+        except ValueError as exc:
+            raise BadInputError(f"--fidelity-size: {exc}") from None
     result, md = bench_animate(frames, stride, memory=not no_memory,
                                fidelity_size=fidelity_size, stream_path=stream_path,
                                progress=None if _settings().quiet else

@@ -232,6 +232,8 @@ def test_bench_animate_refuses_a_fidelity_size_out_of_range(run_cli):
     r = run_cli("bench", "animate", "--fidelity-size", "32")
     assert r.code == 3
     assert "expected --fidelity-size between 64 and 1024, found 32" in r.err
+    r = run_cli("bench", "animate", "--fidelity-size", "101")  # not a size it can make
+    assert r.code == 3 and "--fidelity-size: expected an image size" in r.err
 
 
 def test_bench_animate_refuses_a_stream_shorter_than_its_frames(run_cli, tmp_path):

@@ -350,7 +350,7 @@ def _fidelity(head: Path, stream, stride: int, size: int | None = None) -> dict[
     from head360cli.mesh.arkit52 import INDEX
 
     r = load_head_renderer(head, samples=8, size=size)
-    w = stream.weights[np.arange(0, stream.num_frames, stride)]
+    w = stream.weights[::stride]
     cams = view_cameras(0.0, 0.0).expand(len(w), 4, 4)
     found, seen = _dlib_openings(
         frame for batch in r.frames(cams, w, view_intrinsics(r.size)) for frame in batch)
@@ -374,7 +374,7 @@ def _fidelity_reference(stream, stride: int, size: int,
     from head360cli.model.head_render import to_uint8
     from head360cli.synth.scene import make_head, prepare_render, render_head
 
-    w = stream.weights[np.arange(0, stream.num_frames, stride)]
+    w = stream.weights[::stride]
     cam, k = view_cameras(0.0, 0.0), view_intrinsics(size)
     out = []
     for i in range(heads):

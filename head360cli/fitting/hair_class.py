@@ -154,9 +154,13 @@ def hair_colour(rgb: np.ndarray, hair: np.ndarray,
 
     if not hair.any():
         return np.asarray(HAIR_COLOURS["dark brown"], np.float32)
+    return _albedo(_linear_median(rgb, hair), colour_map).astype(np.float32)
+
+
+def _albedo(linear: np.ndarray, colour_map: tuple[float, float]) -> np.ndarray:
+    """The tone curve ``scale * linear ** exponent``, clipped to [0, 1]."""
     scale, exponent = colour_map
-    linear = np.maximum(_linear_median(rgb, hair), 1e-6)
-    return np.clip(scale * linear ** exponent, 0.0, 1.0).astype(np.float32)
+    return np.clip(scale * np.maximum(linear, 1e-6) ** exponent, 0.0, 1.0)
 
 
 def fit_colour_map(pixels: np.ndarray, albedos: np.ndarray) -> tuple[float, float]:
@@ -207,9 +211,7 @@ def measure_colour_map(identities: int = 16, seed: int = 1, split: str = "train"
 
     pixels, names = colour_samples(identities, seed, split)
     fitted = fit_colour_map(pixels, np.array([HAIR_COLOURS[n] for n in names]))
-    scale, exponent = fitted
-    named = [nearest_colour_name(np.clip(scale * np.maximum(p, 1e-6) ** exponent, 0, 1))
-             for p in pixels]
+    named = [nearest_colour_name(_albedo(p, fitted)) for p in pixels]
     return fitted, float(np.mean([a == b for a, b in zip(named, names, strict=True)]))
 
 

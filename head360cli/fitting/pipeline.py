@@ -370,10 +370,13 @@ def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
     small_hair = cv2.resize(hair.astype(np.uint8), (size, size),
                             interpolation=cv2.INTER_NEAREST) > 0
 
+    with torch.no_grad():
+        texture = gen.texture(code[None])  # the same head under every candidate
+
     def render(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = gen.prepare_hair(hair_for(neutral, [style], rgb[None]).to(verts.device))
         with torch.no_grad(), gen.image_size(size):
-            out = gen(verts[None], cam[None], small_k[None], code=code[None], hair=h)
+            out = gen(verts[None], cam[None], small_k[None], texture=texture, hair=h)
         return (out["rgb"][0].permute(1, 2, 0).clamp(0, 1).cpu().numpy(),
                 out["hair_alpha"][0, 0].cpu().numpy() > 0.5)
 
