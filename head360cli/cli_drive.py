@@ -332,22 +332,25 @@ def _mean_head_renderer():
 
 
 @cli.command()
-@click.option("-n", "--count", default=8, show_default=True, help="How many heads.")
+@click.option("-n", "--count", type=int, default=None,
+              help="How many heads.  [default: 8; 1 when -o names a .h360 file]")
 @click.option("--seed", default=0, show_default=True, help="Random seed.")
 @click.option("--spread", default=1.0, show_default=True,
               help="Spread around the mean head (0 = the mean head, 1 = the prior's).")
 @click.option("--bald", is_flag=True, help="No hair.")
 @click.option("-o", "--out", "out_dir", default="samples", show_default=True,
-              type=click.Path(file_okay=False),
-              help="Folder for the heads (sample_000.h360...) and samples.png.")
+              type=click.Path(),
+              help="Folder for the heads (sample_000.h360...) and samples.png, or one "
+                   "NAME.h360 file (its picture beside it as NAME.png).")
 @common_options
-def sample(count: int, seed: int, spread: float, bald: bool, out_dir: str) -> None:
+def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str) -> None:
     """Draw random heads from the model and render them side by side.
 
     \b
     Examples:
       head360 sample
       head360 sample -n 16 --seed 3 -o crowd/
+      head360 sample --seed 7 -o stranger.h360
     """
     import numpy as np
     import torch
@@ -360,11 +363,28 @@ def sample(count: int, seed: int, spread: float, bald: bool, out_dir: str) -> No
     from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
 
+    one_file = Path(out_dir).suffix.lower() == ".h360"
+    if count is None:
+        count = 1 if one_file else 8
     if not 1 <= count <= 1000:
         raise BadInputError(f"expected --count between 1 and 1000, found {count}")
+    if one_file and count != 1:
+        raise BadInputError(f"expected -n 1 with one head file ({out_dir}), found -n {count}; "
+                            f"give a folder for several heads")
+    if one_file and Path(out_dir).is_dir():
+        raise BadInputError(f"expected a head file to write, found a folder: {out_dir}")
+    if not one_file and Path(out_dir).exists() and not Path(out_dir).is_dir():
+        raise BadInputError(f"expected a folder for the heads, found a file: {out_dir}")
     device = str(resolve_device(_settings().device))
     heads = sample_heads(count, seed, spread, bald, device)
-    paths = write_samples(heads, out_dir)
+    if one_file:
+        from head360cli.io.headfile import write_head
+
+        paths = [Path(out_dir)]
+        paths[0].parent.mkdir(parents=True, exist_ok=True)
+        write_head(heads[0], paths[0])
+    else:
+        paths = write_samples(heads, out_dir)
     gen, _ = load_generator(device=device)
     cam = view_cameras(20.0, 0.0)
     tiles = []
@@ -373,12 +393,13 @@ def sample(count: int, seed: int, spread: float, bald: bool, out_dir: str) -> No
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"])
         tiles.append(next(r.frames(cam, np.zeros((1, 52)), view_intrinsics(r.size)))[0])
-    sheet = Path(out_dir) / "samples.png"
+    sheet = paths[0].with_suffix(".png") if one_file else Path(out_dir) / "samples.png"
     with atomic_path(sheet) as tmp:
         Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
             tmp, format="PNG")
     _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
-          f"wrote {count} heads into {out_dir}/ and {sheet}")
+          f"wrote {paths[0]} and {sheet}" if one_file
+          else f"wrote {count} heads into {out_dir}/ and {sheet}")
 
 
 @cli.command("export-mesh")

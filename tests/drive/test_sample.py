@@ -32,3 +32,26 @@ def test_cli_sample_writes_heads_and_a_sheet(run_cli, tmp_path):
     heads = sorted((tmp_path / "s").glob("*.h360"))
     assert len(heads) == 2 and (tmp_path / "s" / "samples.png").is_file()
     assert read_head(heads[0]).arrays["texture"].ndim == 3
+
+
+def test_cli_sample_to_one_head_file_and_its_checks(run_cli, tmp_path):
+    from PIL import Image
+
+    from head360cli.io.headfile import read_head
+
+    out = tmp_path / "one.h360"
+    r = run_cli("sample", "--seed", "3", "-o", out)
+    assert r.code == 0, r.err
+    assert out.is_file() and read_head(out).arrays["texture"].ndim == 3
+    assert Image.open(tmp_path / "one.png").size == (256, 256)
+    assert not list(tmp_path.glob("sample_*"))  # no folder of heads besides
+    # Several heads into one file, a folder named like a head file, a file as the folder.
+    (tmp_path / "d.h360").mkdir()
+    (tmp_path / "f").write_text("keep me")
+    for args, found in ((("-n", "2", "-o", tmp_path / "two.h360"), "found -n 2"),
+                        (("-o", tmp_path / "d.h360"), "found a folder"),
+                        (("-o", tmp_path / "f"), "found a file")):
+        r = run_cli("sample", *args)
+        assert r.code == 3 and found in r.err, (args, r.err)
+    assert not (tmp_path / "two.h360").exists()
+    assert (tmp_path / "f").read_text() == "keep me"
