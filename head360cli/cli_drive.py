@@ -307,12 +307,13 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
         raise BadInputError("expected a head file (or --list), found none")
     if out is None:
         raise BadInputError("expected -o NEW.h360 for the swapped head")
-    from head360cli.synth.hair import style_index
+    from head360cli.synth.hair import HAIRSTYLES, style_index
 
     style = None if hair_style is None else style_index(hair_style)
     res = run(head, out, style, colour)
-    _emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was style "
-          f"{res['from']['hair_style']})")
+    was = int(res["from"]["hair_style"])
+    _emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was "
+          f"{HAIRSTYLES[was].name}, style {was})")
 
 
 def _mean_head_renderer():

@@ -74,6 +74,8 @@ def test_cli_swap_hair(run_cli, head_file, tmp_path):
     out = tmp_path / "bob.h360"
     r = run_cli("swap-hair", head_file, "--hair", "bob", "--color", "#6b4423", "-o", out)
     assert r.code == 0 and out.is_file() and "bob" in r.out
+    r = run_cli("swap-hair", out, "--hair", "afro", "-o", tmp_path / "afro.h360")
+    assert r.code == 0 and "hair afro (was bob, style 11)" in r.out, r.out
     r = run_cli("swap-hair", head_file, "--hair", "mohawk2", "-o", tmp_path / "x.h360")
     assert r.code == 3 and "long wavy" in r.err and not (tmp_path / "x.h360").exists()
     r = run_cli("swap-hair", head_file, "--hair", "bob")
