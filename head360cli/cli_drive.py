@@ -364,28 +364,28 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
 
-    one_file = Path(out_dir).suffix.lower() == ".h360"
+    out = Path(out_dir)
+    one_file = out.suffix.lower() == ".h360"
     if count is None:
         count = 1 if one_file else 8
     if not 1 <= count <= 1000:
         raise BadInputError(f"expected --count between 1 and 1000, found {count}")
     if one_file and count != 1:
-        raise BadInputError(f"expected -n 1 with one head file ({out_dir}), found -n {count}; "
+        raise BadInputError(f"expected -n 1 with one head file ({out}), found -n {count}; "
                             f"give a folder for several heads")
-    if one_file and Path(out_dir).is_dir():
-        raise BadInputError(f"expected a head file to write, found a folder: {out_dir}")
-    if not one_file and Path(out_dir).exists() and not Path(out_dir).is_dir():
-        raise BadInputError(f"expected a folder for the heads, found a file: {out_dir}")
+    if one_file and out.is_dir():
+        raise BadInputError(f"expected a head file to write, found a folder: {out}")
+    if not one_file and out.exists() and not out.is_dir():
+        raise BadInputError(f"expected a folder for the heads, found a file: {out}")
     device = str(resolve_device(_settings().device))
     heads = sample_heads(count, seed, spread, bald, device)
     if one_file:
         from head360cli.io.headfile import write_head
 
-        paths = [Path(out_dir)]
-        paths[0].parent.mkdir(parents=True, exist_ok=True)
-        write_head(heads[0], paths[0])
+        out.parent.mkdir(parents=True, exist_ok=True)
+        paths = [write_head(heads[0], out)]
     else:
-        paths = write_samples(heads, out_dir)
+        paths = write_samples(heads, out)
     gen, _ = load_generator(device=device)
     cam = view_cameras(20.0, 0.0)
     tiles = []
@@ -394,13 +394,13 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"])
         tiles.append(next(r.frames(cam, np.zeros((1, 52)), view_intrinsics(r.size)))[0])
-    sheet = paths[0].with_suffix(".png") if one_file else Path(out_dir) / "samples.png"
+    sheet = out.with_suffix(".png") if one_file else out / "samples.png"
     with atomic_path(sheet) as tmp:
         Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
             tmp, format="PNG")
     _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
-          f"wrote {paths[0]} and {sheet}" if one_file
-          else f"wrote {count} heads into {out_dir}/ and {sheet}")
+          f"wrote {out} and {sheet}" if one_file
+          else f"wrote {count} heads into {out}/ and {sheet}")
 
 
 @cli.command("export-mesh")
