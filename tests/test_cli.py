@@ -244,3 +244,19 @@ def test_bench_animate_refuses_a_stream_shorter_than_its_frames(run_cli, tmp_pat
     assert r.code == 3
     assert "expected a stream of at least 8 frames (--frames), found 2 in short.csv" in r.err
     assert not (tmp_path / "out").exists()
+
+
+def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
+    from head360cli.fitting.hair_prior import load_hair_prior
+
+    out = tmp_path / "prior.pt"
+    r = run_cli("--json", "--quiet", "train-hair-prior", "--heads", "2", "--views", "1",
+                "--steps", "2", "--batch", "2", "--width", "4", "-o", out)
+    assert r.code == 0, r.err
+    summary = json.loads(r.out)
+    assert summary["steps"] == 2 and summary["crops"] == 2 and summary["out"] == str(out)
+    prior = load_hair_prior(out)
+    assert prior.net.cfg.width == 4 and prior.meta["train_config"]["heads"] == 2
+    assert run_cli("train-hair-prior", "--steps", "0", "-o", tmp_path / "x.pt").code == 3
+    assert run_cli("train-hair-prior", "-o", tmp_path / "no" / "x.pt").code == 3
+    assert not (tmp_path / "x.pt").exists()

@@ -13,7 +13,10 @@ seeded from what the 68 landmarks say about where hair can and cannot be:
   (long hair running off the frame);
 - a head ellipse around the face probably is;
 - pixels whose colour matches the face's own skin (a Gaussian in Lab, estimated on the
-  cheeks) probably are not.
+  cheeks) probably are not;
+- where a learned prior (:mod:`head360cli.fitting.hair_prior`, a small network trained
+  on the synthetic corpus) says hair probably is, or is not, the soft labels follow it:
+  colour alone gave hair beside the face that looks like the backdrop to the backdrop.
 
 Without landmarks (a back view, a profile, a hair close-up), the photo is taken to be about
 the hair: GrabCut separates the foreground (the centre of the image and what has its colours
@@ -199,8 +202,19 @@ def _clean(mask: np.ndarray, keep_near: np.ndarray | None, size: int) -> np.ndar
     return np.isin(labels, keep) if keep else np.zeros_like(m, bool)
 
 
+def _learned_prior(rgb: np.ndarray, landmarks: np.ndarray | None) -> np.ndarray | None:
+    """The shipped hair prior's map of ``rgb``, or ``None`` without landmarks or weights."""
+    if landmarks is None:
+        return None
+    from head360cli.fitting.hair_prior import default_hair_prior
+
+    net = default_hair_prior()
+    return None if net is None else net.predict(rgb, landmarks)
+
+
 def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
-               work_size: int = 384, iterations: int = 5) -> HairParse:
+               work_size: int = 384, iterations: int = 5,
+               prior: np.ndarray | str | None = "learned") -> HairParse:
     """Hair, face and background masks of a photo.
 
     Args:
@@ -208,13 +222,19 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         landmarks: ``(68, 2)`` iBUG landmarks in its pixels, or ``None`` (no face found).
         work_size: Longest side the segmentation runs at.
         iterations: GrabCut iterations.
+        prior: Where hair probably is, used as GrabCut's soft labels when landmarks are
+            given: ``"learned"`` runs the shipped hair prior
+            (:mod:`head360cli.fitting.hair_prior`) when it is installed; an ``(H, W)``
+            float map of probabilities in [0, 1] at the photo's size is used as it is;
+            ``None`` parses by colour and landmarks alone.
 
     Returns:
         The masks at the photo's size.
 
     Raises:
         BadInputError: ``rgb`` is not an ``(H, W, 3)`` uint8 image with sides of at least
-            :data:`MIN_SIDE` pixels.
+            :data:`MIN_SIDE` pixels, or ``prior`` is neither ``"learned"``, ``None`` nor a
+            map of the photo's size.
     """
     import cv2
 
@@ -228,6 +248,16 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     if min(h, w) < MIN_SIDE:
         raise BadInputError(f"expected a photo at least {MIN_SIDE}x{MIN_SIDE} pixels to parse "
                             f"hair, found {w}x{h}")
+    if isinstance(prior, str):
+        if prior != "learned":
+            raise BadInputError(f"expected prior 'learned', None or an (H, W) map, found "
+                                f"{prior!r}")
+        prior = _learned_prior(rgb, landmarks)
+    elif prior is not None:
+        prior = np.asarray(prior, np.float32)
+        if prior.shape != (h, w):
+            raise BadInputError(f"expected a hair prior of the photo's shape {(h, w)}, found "
+                                f"{tuple(prior.shape)}")
     scale = min(1.0, work_size / max(h, w))
     sw, sh = max(1, round(w * scale)), max(1, round(h * scale))
     small = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA) if scale < 1 else rgb
@@ -286,6 +316,11 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         m[head] = cv2.GC_PR_FGD
         m[backdrop] = cv2.GC_BGD
         m[never | neck | hair_seeds] = cv2.GC_FGD
+        likely = None
+        if prior is not None:
+            # The learned prior's hair is probably part of the person.
+            likely = cv2.resize(prior, (sw, sh), interpolation=cv2.INTER_AREA) > 0.5
+            m[likely & (m == cv2.GC_PR_BGD)] = cv2.GC_PR_FGD
         person = _grabcut(bgr, m, iterations)
         # Stage 2: hair against skin and clothes, inside the person.
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
@@ -299,6 +334,11 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         m[~person] = cv2.GC_BGD
         m[never | neck] = cv2.GC_BGD
         m[(yy > lm[8, 1] + 0.8 * height) & (np.abs(xx - cx) < 0.6 * width)] = cv2.GC_BGD
+        if likely is not None:
+            # Within the soft labels the prior decides which side GrabCut starts from;
+            # the hard seeds above stay, and the colour models still have the last word.
+            soft = (m == cv2.GC_PR_FGD) | (m == cv2.GC_PR_BGD)
+            m[soft] = np.where(likely[soft], cv2.GC_PR_FGD, cv2.GC_PR_BGD)
         hair = _grabcut(bgr, m, iterations) & person & ~never
         hair = _clean(hair, cap | head, size)
         if hair.sum() < MIN_HAIR * outline.sum():

@@ -242,11 +242,12 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
 
 
 def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
-                detector: str = "hog") -> dict[str, Any]:
+                detector: str = "hog", learned_prior: bool = True) -> dict[str, Any]:
     """``head360 parse-hair``: hair and face masks of a photo (PNG, 255 inside, at the
     photo's size on disk) and an overlay (hair red, face blue).
 
     A photo without a detectable face is parsed without landmarks (``"seeded": false``).
+    ``learned_prior=False`` parses by colour and landmarks alone (no hair-prior network).
     """
     import cv2
     from PIL import Image
@@ -265,7 +266,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
         if face:
             raise
         landmarks = None
-    parse = parse_hair(img.pixels, landmarks)
+    parse = parse_hair(img.pixels, landmarks, prior="learned" if learned_prior else None)
     w, h = img.source_size
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -284,10 +285,18 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     with atomic_path(paths["overlay"]) as tmp:
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
     return {"photo": str(photo), "seeded": parse.seeded,
+            "learned_prior": bool(learned_prior and landmarks is not None
+                                  and _hair_prior_installed()),
             "hair_fraction": round(float(parse.hair.mean()), 4),
             "face_fraction": round(float(parse.face.mean()), 4),
             "seconds": round(time.perf_counter() - t0, 3),
             **{k: str(v) for k, v in paths.items()}}
+
+
+def _hair_prior_installed() -> bool:
+    from head360cli.fitting.hair_prior import default_hair_prior
+
+    return default_hair_prior() is not None
 
 
 def _aligned(img, fit, model, res: int):

@@ -124,6 +124,11 @@ class Views:
             self._heads[key] = head
         return self._heads[key]
 
+    def forget(self) -> None:
+        """Drop the heads built so far (a pass that renders each head once keeps memory
+        flat)."""
+        self._heads.clear()
+
     def prefetch(self, workers: int = 1) -> None:
         """Build every head of the split now, in ``workers`` processes."""
         from head360cli.synth.scene import make_head, prepare_render

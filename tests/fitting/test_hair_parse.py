@@ -48,6 +48,31 @@ def test_seeded_parse_finds_the_synthetic_hair():
     assert r.face[face & (np.mgrid[0:200, 0:200][0] > 100)].mean() > 0.8  # lower face
 
 
+def test_an_explicit_prior_guides_only_the_soft_labels():
+    """A prior map moves GrabCut's probable labels, never its certain ones: a map that
+    calls every pixel hair still leaves the inner face (brows, eyes, nose, mouth) out."""
+    import cv2
+
+    img, lm, hair, _ = _synthetic_portrait()
+    alone = mask_iou(parse_hair(img, lm, prior=None).hair, hair)
+    guided = mask_iou(parse_hair(img, lm, prior=hair.astype(np.float32)).hair, hair)
+    assert guided >= alone - 0.01
+    everywhere = parse_hair(img, lm, prior=np.ones(hair.shape, np.float32)).hair
+    inner = np.zeros(hair.shape, np.uint8)
+    cv2.fillPoly(inner, [cv2.convexHull(lm[17:68].astype(np.int32))], 1)
+    assert everywhere.any() and not (everywhere & inner.astype(bool)).any()
+
+
+def test_parse_refuses_a_prior_of_the_wrong_shape_or_kind():
+    from head360cli.errors import BadInputError
+
+    img, lm, _, _ = _synthetic_portrait()
+    with pytest.raises(BadInputError, match=r"photo's shape \(200, 200\), found \(100, 200\)"):
+        parse_hair(img, lm, prior=np.zeros((100, 200)))
+    with pytest.raises(BadInputError, match="expected prior 'learned'"):
+        parse_hair(img, lm, prior="colour")
+
+
 def test_unseeded_parse_runs_and_scales_back():
     img = _synthetic_portrait()[0]
     big = np.kron(img, np.ones((3, 3, 1), np.uint8))  # 600 x 600: parsed at work_size

@@ -1,0 +1,356 @@
+"""Training the learned hair prior (:mod:`head360cli.fitting.hair_prior`) on corpus renders.
+
+The data are head360's own synthetic heads (``Views`` of a SynHead-P split): each head is
+rendered from a few random cameras around the front (the prior is only used when a face
+was found), with its own or a random hairstyle and colour and sometimes an expression,
+and every view is warped to the aligned crop by its true landmarks. The renders have no
+backdrop, and real photos do, so each batch composites the head over a random backdrop
+(crops of scikit-image's bundled sample photos, smooth random colour fields, flat colours)
+and jitters colour, geometry, lighting, blur and noise: what the network has to learn is
+the shape of hair around a face, not the corpus's backdrop or palette.
+
+``head360 train-hair-prior`` runs :func:`train_hair_prior`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from head360cli.fitting.hair_prior import (
+    ALIGN_LANDMARKS,
+    HairPrior,
+    HairPriorConfig,
+    HairPriorNet,
+)
+
+__all__ = ["BACKDROPS", "Augmenter", "HairPriorTrainConfig", "canonical_landmarks",
+           "render_crops", "train_hair_prior"]
+
+BACKDROPS = ("brick", "chelsea", "coffee", "coins", "grass", "gravel", "rocket", "page",
+             "text", "moon", "colorwheel", "logo", "clock", "horse", "hubble_deep_field",
+             "immunohistochemistry", "retina", "stereo_motorcycle", "cat")
+"""scikit-image sample images used as backdrops (all bundled with it). ``astronaut`` and
+``camera`` are left out: they are development photos of the parse."""
+
+
+@dataclasses.dataclass
+class HairPriorTrainConfig:
+    """What the hair prior is trained on and how."""
+
+    heads: int = 600
+    """Corpus heads rendered (indices ``0 .. heads - 1``)."""
+    views: int = 5
+    """Random views per head."""
+    split: str = "train"
+    """Corpus split."""
+    seed: int = 3
+    """Corpus seed: 3 keeps the training heads apart from the bench's (0) and the
+    parse's development heads (1 and 2)."""
+    render_size: int = 192
+    """Resolution the heads are rendered at before the crop."""
+    yaw: float = 45.0
+    """Cameras' yaw is uniform in +-this, degrees."""
+    pitch: tuple[float, float] = (-15.0, 20.0)
+    """Range of the cameras' pitch, degrees."""
+    style_share: float = 0.7
+    """Share of heads given a random hairstyle instead of their own."""
+    colour_share: float = 0.7
+    """Share of heads given a random hair colour instead of their own."""
+    expression_share: float = 0.5
+    """Share of heads given three random blendshapes at random weights."""
+    shrink: float = 0.8
+    """The canonical landmarks are the mean frontal ones shrunk by this about the crop's
+    centre, so that the crop shows the hair around the face."""
+    steps: int = 2400
+    """Optimiser steps."""
+    minutes: float = 0.0
+    """Stop after this much training time as well (0: no limit)."""
+    batch: int = 24
+    """Crops per step."""
+    lr: float = 2e-3
+    """AdamW learning rate at the start; it decays linearly to 5 % of it."""
+    weight_decay: float = 1e-4
+    """AdamW weight decay."""
+
+
+def canonical_landmarks(views: Any, crop: int, shrink: float, heads: int = 20) -> np.ndarray:
+    """Mean frontal positions ``(41, 2)`` of landmarks 27-67 in the crop's pixels.
+
+    Args:
+        views: A ``head360cli.model.data.Views`` of the training corpus.
+        crop: Side of the crop.
+        shrink: Scale about the crop's centre (below 1: more context around the face).
+        heads: Heads averaged.
+    """
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
+    from head360cli.mesh.bilinear import load_bilinear
+
+    lm_index = load_bilinear().landmarks
+    cam = camera_on_sphere(torch.tensor([0.0]), torch.tensor([0.0]), RIG_DISTANCE)
+    points = []
+    for i in range(min(heads, views.identities)):
+        b = views.render(i, np.zeros(52, np.float32), cam)
+        px, _ = project(b.verts[:1], cam, views.intrinsics[None])
+        points.append(px[0].numpy()[lm_index][ALIGN_LANDMARKS] * crop / views.size)
+    canon = np.mean(points, 0)
+    return ((canon - crop / 2) * shrink + crop / 2).astype(np.float32)
+
+
+def render_crops(cfg: HairPriorTrainConfig, crop: int, progress: Callable[[int, int], None]
+                 | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Render the training views and warp them to aligned crops.
+
+    Args:
+        cfg: What to render.
+        crop: Side of the crops.
+        progress: Called with ``(heads done, heads)``.
+
+    Returns:
+        ``(canon (41, 2), {"rgb": (N, S, S, 3), "alpha": (N, S, S), "hair": (N, S, S)})``,
+        all uint8, ``N = heads * views``.
+    """
+    import cv2
+
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.model.data import Views
+    from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES
+
+    lm_index = load_bilinear().landmarks
+    rng = np.random.default_rng(cfg.seed)
+    views = Views(cfg.heads, split=cfg.split, seed=cfg.seed, size=cfg.render_size)
+    canon = canonical_landmarks(views, crop, cfg.shrink)
+    colours = list(HAIR_COLOURS)
+    out: dict[str, list[np.ndarray]] = {"rgb": [], "alpha": [], "hair": []}
+    for i in range(cfg.heads):
+        n = cfg.views
+        yaw = torch.tensor(rng.uniform(-cfg.yaw, cfg.yaw, n), dtype=torch.float32)
+        pitch = torch.tensor(rng.uniform(*cfg.pitch, n), dtype=torch.float32)
+        cams = camera_on_sphere(yaw, pitch, RIG_DISTANCE)
+        weights = np.zeros(52, np.float32)
+        if rng.random() < cfg.expression_share:
+            weights[rng.integers(0, 52, 3)] = rng.uniform(0, 1, 3)
+        style = int(rng.integers(len(HAIRSTYLES))) if rng.random() < cfg.style_share else None
+        colour = (colours[rng.integers(len(colours))] if rng.random() < cfg.colour_share
+                  else None)
+        b = views.render(i, weights, cams, with_hair=True, style=style, colour=colour)
+        px, _ = project(b.verts, cams, views.intrinsics[None].expand(n, 3, 3))
+        for v in range(n):
+            m, _ = cv2.estimateAffinePartial2D(px[v].numpy()[lm_index][ALIGN_LANDMARKS], canon,
+                                               method=cv2.LMEDS)
+
+            def warp(image: np.ndarray, m: np.ndarray = m) -> np.ndarray:
+                return cv2.warpAffine(image, m, (crop, crop), flags=cv2.INTER_LINEAR,
+                                      borderValue=0)
+
+            def u8(x: np.ndarray) -> np.ndarray:
+                return (np.clip(x, 0, 1) * 255).round().astype(np.uint8)
+
+            out["rgb"].append(u8(warp(b.rgb[v].permute(1, 2, 0).numpy())))
+            out["alpha"].append(u8(warp(b.alpha[v, 0].numpy())))
+            out["hair"].append(u8(warp(b.hair_alpha[v, 0].numpy())))
+        views.forget()  # each head is rendered once
+        if progress is not None:
+            progress(i + 1, cfg.heads)
+    return canon, {k: np.stack(v) for k, v in out.items()}
+
+
+def _load_backdrops() -> list[torch.Tensor]:
+    import skimage.data
+
+    images = []
+    for name in BACKDROPS:
+        im = getattr(skimage.data, name)()
+        if isinstance(im, tuple):  # stereo_motorcycle: (left, right, disparity)
+            im = im[0]
+        im = np.asarray(im, np.float32)
+        im = im / (255.0 if im.max() > 1.5 else 1.0)
+        if im.ndim == 2:
+            im = np.repeat(im[..., None], 3, 2)
+        images.append(torch.tensor(im[..., :3]).permute(2, 0, 1).contiguous())
+    return images
+
+
+_YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+
+
+class Augmenter:
+    """Random training batches from rendered crops: backdrop, colour, geometry, lighting.
+
+    Args:
+        data: ``render_crops``'s arrays.
+        seed: Seed of the augmentation's generator.
+    """
+
+    def __init__(self, data: dict[str, np.ndarray], seed: int = 0) -> None:
+        self.rgb = torch.tensor(data["rgb"]).permute(0, 3, 1, 2)
+        self.alpha = torch.tensor(data["alpha"])[:, None]
+        self.hair = torch.tensor(data["hair"])[:, None]
+        self.size = self.rgb.shape[-1]
+        self.gen = torch.Generator().manual_seed(seed)
+        self.backdrops = _load_backdrops()
+
+    def _rand(self, *shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=self.gen)
+
+    def _backdrop(self, n: int) -> torch.Tensor:
+        s = self.size
+        out = torch.empty(n, 3, s, s)
+        for b in range(n):
+            r = self._rand(1).item()
+            if r < 0.45:  # a crop of a sample photo, half of them defocused
+                im = self.backdrops[int(self._rand(1).item() * len(self.backdrops))]
+                _, h, w = im.shape
+                side = int(min(h, w) * (0.2 + 0.8 * self._rand(1).item()))
+                y = int((h - side) * self._rand(1).item())
+                x = int((w - side) * self._rand(1).item())
+                out[b] = F.interpolate(im[None, :, y:y + side, x:x + side], size=(s, s),
+                                       mode="bilinear", align_corners=False)[0]
+                if self._rand(1).item() < 0.5:
+                    out[b] = F.avg_pool2d(out[b][None], 5, 1, 2)[0]
+            elif r < 0.8:  # a smooth random colour field
+                k = int(2 + self._rand(1).item() * 6)
+                field = self._rand(1, 3, k, k)
+                out[b] = F.interpolate(field, size=(s, s), mode="bicubic",
+                                       align_corners=False)[0].clamp(0, 1)
+            else:
+                out[b] = self._rand(3, 1, 1).expand(3, s, s)
+        return out
+
+    def _jitter(self, img: torch.Tensor, strength: float) -> torch.Tensor:
+        """Brightness, contrast, saturation and hue (a rotation of YIQ's chroma)."""
+        n = len(img)
+        bright = 1 + strength * (self._rand(n, 1, 1, 1) - 0.5) * 0.8
+        contrast = 1 + strength * (self._rand(n, 1, 1, 1) - 0.5) * 0.8
+        sat = 1 + strength * (self._rand(n, 1, 1, 1) - 0.5) * 1.2
+        mean = img.mean((1, 2, 3), keepdim=True)
+        img = ((img - mean) * contrast + mean) * bright
+        grey = img.mean(1, keepdim=True)
+        img = grey + (img - grey) * sat
+        angle = strength * (self._rand(n) - 0.5) * 0.6
+        yiq = torch.einsum("ij,bjhw->bihw", _YIQ, img)
+        c, s = torch.cos(angle)[:, None, None], torch.sin(angle)[:, None, None]
+        i, q = yiq[:, 1] * c - yiq[:, 2] * s, yiq[:, 1] * s + yiq[:, 2] * c
+        img = torch.einsum("ij,bjhw->bihw", torch.linalg.inv(_YIQ),
+                           torch.stack([yiq[:, 0], i, q], 1))
+        return img.clamp(0, 1)
+
+    def batch(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` augmented crops ``(n, 3, S, S)`` in [0, 1] and their hair masks
+        ``(n, 1, S, S)`` in {0, 1}."""
+        s = self.size
+        idx = torch.randint(0, len(self.rgb), (n,), generator=self.gen)
+        x = self.rgb[idx].float() / 255
+        a = self.alpha[idx].float() / 255
+        h = self.hair[idx].float() / 255
+        # hair and head get their own colour jitter (hair colours vary more)
+        hair_x = self._jitter(x.clone(), 1.5)
+        x = self._jitter(x, 1.0)
+        x = x * (1 - h) + hair_x * h
+        img = x * a + self._jitter(self._backdrop(n), 1.0) * (1 - a)
+        # rotation, scale, shift and mirror
+        ang = (self._rand(n) - 0.5) * 0.35
+        sc = 1 + (self._rand(n) - 0.5) * 0.25
+        tx, ty = (self._rand(n) - 0.5) * 0.15, (self._rand(n) - 0.5) * 0.15
+        theta = torch.stack([
+            torch.stack([sc * torch.cos(ang), -sc * torch.sin(ang), tx], 1),
+            torch.stack([sc * torch.sin(ang), sc * torch.cos(ang), ty], 1)], 1)
+        theta[self._rand(n) < 0.5, 0, :2] *= -1
+        grid = F.affine_grid(theta, (n, 3, s, s), align_corners=False)
+        img = F.grid_sample(img, grid, padding_mode="reflection", align_corners=False)
+        h = F.grid_sample(h, grid, padding_mode="zeros", align_corners=False)
+        # lighting gradient, gamma, blur, sensor noise, greyscale
+        gy = torch.linspace(-1, 1, s)[None, None, :, None]
+        gx = torch.linspace(-1, 1, s)[None, None, None, :]
+        img = img * (1 + 0.3 * (self._rand(n, 1, 1, 1) - 0.5) * gx
+                     + 0.3 * (self._rand(n, 1, 1, 1) - 0.5) * gy)
+        img = img.clamp(1e-4, 1) ** (0.7 + 0.6 * self._rand(n, 1, 1, 1))
+        blur = self._rand(n) < 0.3
+        if blur.any():
+            img[blur] = F.avg_pool2d(img[blur], 3, 1, 1)
+        img = img + self._rand(n, 1, 1, 1) * 0.04 * torch.randn(img.shape, generator=self.gen)
+        grey = self._rand(n) < 0.08
+        img[grey] = img[grey].mean(1, keepdim=True).expand(-1, 3, -1, -1)
+        return img.clamp(0, 1), (h > 0.5).float()
+
+
+def hair_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy plus soft Dice loss (per image, averaged), a scalar."""
+    p = torch.sigmoid(logits)
+    dice = (2 * (p * target).sum((1, 2, 3)) + 1) / ((p + target).sum((1, 2, 3)) + 1)
+    return F.binary_cross_entropy_with_logits(logits, target) + 1 - dice.mean()
+
+
+def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
+                     log: Callable[[str], None] | None = None, progress: bool = True,
+                     data: tuple[np.ndarray, dict[str, np.ndarray]] | None = None,
+                     ) -> tuple[HairPrior, dict[str, Any]]:
+    """Render the training crops and train a hair prior on them (CPU or one device).
+
+    Args:
+        cfg: Data and optimisation settings.
+        net_cfg: Network shape.
+        log: Called with a line of text now and then.
+        progress: Show progress bars.
+        data: ``render_crops``'s result, to skip rendering (tests).
+
+    Returns:
+        ``(prior, summary)``: the trained prior and what training did (steps, seconds,
+        final loss, configs), which is also stored in the checkpoint.
+    """
+    from head360cli.progress import progress_bar
+
+    say = log or (lambda _: None)
+    torch.manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    if data is None:
+        bar = iter(progress_bar(range(cfg.heads), total=cfg.heads, desc="render",
+                                enabled=progress))
+
+        def tick(done: int, total: int) -> None:
+            next(bar, None)
+            if done % 100 == 0 or done == total:
+                say(f"rendered {done}/{total} heads ({time.perf_counter() - t0:.0f} s)")
+
+        data = render_crops(cfg, net_cfg.crop, tick)
+        next(bar, None)
+    canon, arrays = data
+    render_s = time.perf_counter() - t0
+    aug = Augmenter(arrays, seed=cfg.seed)
+    net = HairPriorNet(net_cfg).train()
+    opt = torch.optim.AdamW(net.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
+    t1 = time.perf_counter()
+    losses: list[float] = []
+    step = 0
+    for step in progress_bar(range(1, cfg.steps + 1), total=cfg.steps, desc="train",
+                             enabled=progress):
+        elapsed = time.perf_counter() - t1
+        if cfg.minutes and elapsed > cfg.minutes * 60:
+            step -= 1
+            break
+        done = (step - 1) / cfg.steps
+        if cfg.minutes:
+            done = max(done, elapsed / (cfg.minutes * 60))
+        for group in opt.param_groups:
+            group["lr"] = cfg.lr * max(0.05, 1 - done)
+        img, target = aug.batch(cfg.batch)
+        loss = hair_loss(net(img), target)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+        if step % 100 == 0:
+            say(f"step {step}: loss {np.mean(losses[-100:]):.4f} "
+                f"({time.perf_counter() - t1:.0f} s)")
+    summary = {"steps": step, "render_seconds": round(render_s, 1),
+               "train_seconds": round(time.perf_counter() - t1, 1),
+               "final_loss": round(float(np.mean(losses[-100:])), 4) if losses else None,
+               "crops": len(arrays["rgb"]), "train_config": dataclasses.asdict(cfg)}
+    return HairPrior(net.eval(), canon, summary), summary
