@@ -48,7 +48,7 @@ def _hair_parse(data: Path) -> dict[str, Any]:
     for name, pattern, truth in (("figaro", "*-org.jpg", lambda p: p.with_name(
             p.name.replace("-org.jpg", "-gt.pbm"))), ("celebamask", "*.jpg", lambda p:
                                                       p.with_name(p.stem + "_hair.png"))):
-        ious, seeded = [], 0
+        ious, alone, seeded = [], [], 0
         for photo in sorted((data / "hair" / name).glob(pattern)):
             img = load_image(photo).pixels
             gt = cv2.imread(str(truth(photo)), 0)
@@ -59,9 +59,13 @@ def _hair_parse(data: Path) -> dict[str, Any]:
             except NoFaceError:
                 lm = None
             ious.append(mask_iou(parse_hair(img, lm).hair, gt))
+            # without the learned prior (it is only used with a face)
+            alone.append(ious[-1] if lm is None else
+                         mask_iou(parse_hair(img, lm, prior=None).hair, gt))
         if ious:
             out[name] = {"photos": len(ious), "with_face": seeded,
                          "mean_iou": round(float(np.mean(ious)), 4),
+                         "mean_iou_no_prior": round(float(np.mean(alone)), 4),
                          "iou": [round(i, 3) for i in ious]}
     return out
 
@@ -108,9 +112,9 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
     res = 256
     data = Views(views, split="test", size=res)
     c2w = camera_on_sphere(torch.tensor([10.0]), torch.tensor([5.0]), RIG_DISTANCE)
-    hits = {"true_mask": [0, 0], "parsed_mask": [0, 0]}
-    colours = {"true_mask": 0, "parsed_mask": 0}  # hair colour named right
-    ious = []
+    hits = {"true_mask": [0, 0], "parsed_mask": [0, 0], "parsed_no_prior": [0, 0]}
+    colours = dict.fromkeys(hits, 0)  # hair colour named right
+    ious, alone = [], []
     for i in range(views):
         batch = data.render(i, np.zeros(52, np.float32), c2w, with_hair=True)
         head = data.head(i)
@@ -120,8 +124,10 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
         lm = px[0].numpy()[model.landmarks]
         rgb = to_uint8(batch.rgb)[0]
         masks = {"true_mask": batch.hair_alpha[0, 0].numpy() > 0.5,
-                 "parsed_mask": parse_hair(rgb, lm).hair}
+                 "parsed_mask": parse_hair(rgb, lm).hair,
+                 "parsed_no_prior": parse_hair(rgb, lm, prior=None).hair}
         ious.append(mask_iou(masks["parsed_mask"], masks["true_mask"]))
+        alone.append(mask_iou(masks["parsed_no_prior"], masks["true_mask"]))
         for key, mask in masks.items():
             rank = classify_hair(mask, sil).ranking
             hits[key][0] += rank[0] == head.hair_style
@@ -134,7 +140,9 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
                 "colour": round(colours[k] / max(with_hair, 1), 4)}
             for k, v in hits.items()} | {"heads": views, "heads_with_hair": with_hair,
                                          "yaw": 10.0, "pitch": 5.0,
-                                         "parsed_iou": round(float(np.mean(ious)), 4)}
+                                         "parsed_iou": round(float(np.mean(ious)), 4),
+                                         "parsed_iou_no_prior": round(float(np.mean(alone)),
+                                                                      4)}
 
 
 def _hair_parse_no_face(heads: int = 30) -> dict[str, Any]:
@@ -467,18 +475,23 @@ def _cold_cell(cold: dict[str, Any] | None) -> str:
     return f"{cold['total_s']:.1f}, {cold['wall_s']:.1f} ({cold['photo']})"
 
 
+def _maybe(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
 def _markdown(r: dict[str, Any]) -> str:
     lines = ["# head360 bench fit", ""]
     if "hair_parse" in r:
         lines += ["## Hair parsing (IoU of the hair mask)", "", "| data | photos | with a "
-                  "face found | mean IoU |", "|---|---|---|---|"]
-        lines += [f"| {k} | {v['photos']} | {v['with_face']} | {v['mean_iou']:.3f} |"
-                  for k, v in r["hair_parse"].items()]
+                  "face found | mean IoU | without the learned prior |", "|---|---|---|---|---|"]
+        lines += [f"| {k} | {v['photos']} | {v['with_face']} | {v['mean_iou']:.3f} | "
+                  f"{_maybe(v.get('mean_iou_no_prior'))} |" for k, v in r["hair_parse"].items()]
         lines.append("")
     h = r["hair_style"]
     n = r["hair_parse_no_face"]
     lines += ["Held-out synthetic heads (IoU of the parsed hair mask): with the face, yaw "
-              f"10 degrees {h['parsed_iou']:.3f}; no face, back views "
+              f"10 degrees {h['parsed_iou']:.3f} (without the learned prior "
+              f"{_maybe(h.get('parsed_iou_no_prior'))}); no face, back views "
               f"{n['back_view']['mean_iou']:.3f}, close-ups {n['close_up']['mean_iou']:.3f} "
               f"({n['back_view']['views']} heads).", ""]
     def colour(key):
@@ -492,7 +505,11 @@ def _markdown(r: dict[str, Any]) -> str:
               f"| true | {h['true_mask']['top1']:.2%} | {h['true_mask']['top3']:.2%} | "
               f"{colour('true_mask')} |",
               f"| parsed | {h['parsed_mask']['top1']:.2%} | {h['parsed_mask']['top3']:.2%} | "
-              f"{colour('parsed_mask')} |", ""]
+              f"{colour('parsed_mask')} |"]
+    if "parsed_no_prior" in h:
+        lines.append(f"| parsed without the learned prior | {h['parsed_no_prior']['top1']:.2%} "
+                     f"| {h['parsed_no_prior']['top3']:.2%} | {colour('parsed_no_prior')} |")
+    lines.append("")
     if "figaro_classes" in r:
         f = r["figaro_classes"]
         lines += [f"Figaro coarse classes: {f['agree']} of {f['with_face']} photos with a "

@@ -172,3 +172,22 @@ def shipped():
     if prior is None:
         pytest.fail("models/hair_prior.pt is not installed: run head360 train-hair-prior")
     return prior
+
+
+def test_shipped_prior_is_the_documented_network(shipped):
+    assert shipped.net.cfg == HairPriorConfig()
+    assert shipped.meta["steps"] == 2400 and shipped.meta["crops"] == 3000
+    assert shipped.canon.shape == (41, 2)
+
+
+@pytest.mark.parametrize(("index", "iou"), [(5, 0.961), (24, 0.935), (27, 0.868)])
+def test_shipped_prior_alone_reads_held_out_corpus_heads(shipped, index, iou):
+    """The network alone on development heads it never saw (corpus seed 1, test split):
+    IoU of its map at 0.5 with the true hair, measured as given."""
+    from head360cli.fitting.hair_parse import mask_iou
+    from tests.fitting.test_hair_parse import _corpus_portrait
+
+    img, lm, truth, _ = _corpus_portrait(index)
+    p = shipped.predict(img, lm)
+    assert mask_iou(p > 0.5, truth) == pytest.approx(iou, abs=0.02)
+    np.testing.assert_array_equal(shipped.predict(img, lm), p)  # deterministic
