@@ -351,9 +351,13 @@ def _progress_printer():
 @click.option("--distance", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="The camera's distance to the head in metres, when known (a rig): fixes "
               "the head's size, which landmarks alone hardly tell from its distance.")
+@click.option("--no-prior", is_flag=True,
+              help="Parse the hair by colour and landmarks alone, without the learned hair "
+              "prior.")
 @common_options
 def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
-        face: str, detector: str, focal: float | None, distance: float | None) -> None:
+        face: str, detector: str, focal: float | None, distance: float | None,
+        no_prior: bool) -> None:
     """Fit a head to a photo.
 
     Every stage: face and landmarks, shape fit, hair parsing, hairstyle and hair colour,
@@ -368,6 +372,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
       head360 fit photo.jpg                      -> photo.h360, photo_preview.png, photo.json
       head360 fit photo.jpg -o me.h360 --preset quality
       head360 fit photo.jpg --hair bob --json
+      head360 fit profile.jpg --no-prior          hair parsed by colour and landmarks alone
       head360 fit rig_photo.jpg --distance 1.0 --focal 2400
       head360 fit photo.jpg --stage shape -o out/
       head360 fit group.jpg --stage shape --face all --json > faces.json
@@ -406,7 +411,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     target = out or f"{Path(photo).stem}.h360"
     result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
                        focal=focal, device=str(resolve_device(_settings().device)),
-                       hair_style=style, distance=distance, progress=_progress_printer())
+                       hair_style=style, distance=distance, progress=_progress_printer(),
+                       learned_prior=not no_prior)
     for warning in result["warnings"]:
         _warn(warning)
     t = result["timings"]
@@ -458,8 +464,12 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
 @click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
 @click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
               show_default=True, help="dlib face detector.")
+@click.option("--no-prior", is_flag=True,
+              help="Parse the hair by colour and landmarks alone, without the learned hair "
+              "prior.")
 @common_options
-def classify_hair_cmd(photo: str, top: int, face: int, detector: str) -> None:
+def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
+                      no_prior: bool) -> None:
     """The SynHead-P hairstyles that best match a photo's hair, and its colour.
 
     Each of the 30 styles is fitted to the photo's fitted head and rasterized from its
@@ -475,7 +485,8 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str) -> None:
 
     if not 1 <= top <= 30:
         raise BadInputError(f"expected --top between 1 and 30, found {top}")
-    r = classify_photo(photo, face=face, detector=detector, top=top)
+    r = classify_photo(photo, face=face, detector=detector, top=top,
+                       learned_prior=not no_prior)
     lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "
              f"overlap {c['iou']:.3f}" for i, c in enumerate(r["top"])]
     lines.append(f"hair colour: {r['hair_color_name']} (linear RGB "

@@ -396,15 +396,17 @@ def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
 
 
 def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
-                   focal: float | None = None, top: int = 3) -> dict[str, Any]:
+                   focal: float | None = None, top: int = 3,
+                   learned_prior: bool = True) -> dict[str, Any]:
     """``head360 classify-hair``: the ``top`` SynHead-P hairstyles for a photo's hair, and
-    its hair colour."""
+    its hair colour (``learned_prior=False``: the hair parsed without the learned prior)."""
     from head360cli.fitting.hair_parse import parse_hair
 
     timings: dict[str, float] = {}
     img, found, fit, model = _photo_stage(photo, face, detector, focal, timings)
     t0 = time.perf_counter()
-    parse = parse_hair(img.pixels, found.landmarks)
+    parse = parse_hair(img.pixels, found.landmarks,
+                       prior="learned" if learned_prior else None)
     timings["parse"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     guess, estimate, name, colour = _hair_guess(img, parse, fit, model)
@@ -421,7 +423,7 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
 def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,
               detector: str = "hog", focal: float | None = None, device: str = "cpu",
               hair_style: int | None = None, distance: float | None = None,
-              progress: Any = None) -> dict[str, Any]:
+              progress: Any = None, learned_prior: bool = True) -> dict[str, Any]:
     """``head360 fit``: every stage, from a photo to a head file.
 
     Stages: detection and shape fit; hair parsing; hairstyle classification and hair
@@ -441,6 +443,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         distance: The camera's distance to the head in metres, when known (fixes the
             head's size; see :meth:`~head360cli.fitting.shape.ShapeFitter.fit`).
         progress: Callable ``(stage, step, total)`` for progress display.
+        learned_prior: Parse the hair with the learned hair prior (when installed).
 
     Returns:
         The JSON summary (also written to ``<out stem>.json``).
@@ -480,7 +483,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     timings["load"] += time.perf_counter() - t0
     say("parse", 0, 1)
     t0 = time.perf_counter()
-    parse = parse_hair(img.pixels, found.landmarks)
+    parse = parse_hair(img.pixels, found.landmarks,
+                       prior="learned" if learned_prior else None)
     timings["parse"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
@@ -578,6 +582,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "hair_color_chosen_by": colour_by,
         "hair_color_estimate": [round(float(c), 4) for c in estimate],
         "hair_parse": {"seeded": parse.seeded,
+                       "learned_prior": bool(learned_prior and _hair_prior_installed()),
                        "hair_fraction": round(float(parse.hair.mean()), 4)},
         "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                       "loss_last": round(inv.losses[-1], 5)},

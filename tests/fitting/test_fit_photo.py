@@ -32,6 +32,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
                           "summary": str(tmp_path / "me.json")}
     assert json.loads((tmp_path / "me.json").read_text()) == s
     assert s["warnings"] == []  # one face, 90 px wide, in colour, frontal
+    assert s["hair_parse"]["learned_prior"] is True
     # Short hair, light colour, a face fitted well at the input view.
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
                                        "side part", "bangs"}
@@ -76,6 +77,15 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     # Hair on the crown, face skin on the cheeks and nose (rows 150-180).
     assert hair[40:80, 180:280].mean() > 230 and face[150:180, 210:260].mean() > 180
     assert Image.open(out["overlay"]).size == (512, 512)
+    assert out["learned_prior"] is True
+    # Without the learned prior: the astronaut's hair is plain against her backdrop and
+    # both parses agree (measured: 1 pixel of 262,144 differs).
+    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "alone", "--json", "--no-prior")
+    alone = json.loads(r.out)
+    assert r.code == 0 and alone["learned_prior"] is False
+    assert (np.array(Image.open(alone["hair_mask"])) != hair).mean() < 0.001
+    r = run_cli("classify-hair", astronaut, "--json", "--no-prior")
+    assert r.code == 0 and json.loads(r.out)["top"][0]["name"] != "bald"
     r = run_cli("classify-hair", astronaut, "--json", "--top", "5")
     c = json.loads(r.out)
     assert len(c["top"]) == 5 and c["top"][0]["score"] >= c["top"][-1]["score"]
