@@ -48,3 +48,5 @@ def test_pose_errors_average_the_annotated_near_frontal_photos():
     assert r["pitch_mae_deg"] == pytest.approx(2.0)
     assert r["roll_mae_deg"] == pytest.approx(1.5)
     assert pose_errors([])["pitch_mae_deg"] is None
+    turned = pose_errors(real, 90.0, 30.0)  # only the yaw-50 photo, fitted at 0
+    assert turned["photos"] == 1 and turned["yaw_mae_deg"] == pytest.approx(50.0)
