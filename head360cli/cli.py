@@ -305,6 +305,12 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
                    f"views in the index, {summary['seconds']:.1f} s -> {summary['index']}")
 
 
+NO_PRIOR = click.option(
+    "--no-prior", is_flag=True,
+    help="Parse the hair by colour and landmarks alone, without the learned hair prior.")
+"""The ``--no-prior`` flag of fit, parse-hair and classify-hair."""
+
+
 def _progress_printer():
     """Progress of a fit's stages: one tqdm bar per stage on stderr, shown only on a
     terminal and without --quiet (the convention of :mod:`head360cli.progress`)."""
@@ -351,9 +357,7 @@ def _progress_printer():
 @click.option("--distance", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="The camera's distance to the head in metres, when known (a rig): fixes "
               "the head's size, which landmarks alone hardly tell from its distance.")
-@click.option("--no-prior", is_flag=True,
-              help="Parse the hair by colour and landmarks alone, without the learned hair "
-              "prior.")
+@NO_PRIOR
 @common_options
 def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
         face: str, detector: str, focal: float | None, distance: float | None,
@@ -432,8 +436,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 @click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
 @click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
               show_default=True, help="dlib face detector.")
-@click.option("--no-prior", is_flag=True,
-              help="Parse by colour and landmarks alone, without the learned hair prior.")
+@NO_PRIOR
 @common_options
 def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
                    no_prior: bool) -> None:
@@ -464,9 +467,7 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
 @click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
 @click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
               show_default=True, help="dlib face detector.")
-@click.option("--no-prior", is_flag=True,
-              help="Parse the hair by colour and landmarks alone, without the learned hair "
-              "prior.")
+@NO_PRIOR
 @common_options
 def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
                       no_prior: bool) -> None:

@@ -51,12 +51,14 @@ class HairParse:
         face: Face skin (inside the face outline and its forehead, not hair).
         background: Neither hair nor face.
         seeded: Whether landmarks seeded the parse (``False``: the no-face fallback).
+        prior: Whether a hair prior (learned or given) set GrabCut's soft labels.
     """
 
     hair: np.ndarray
     face: np.ndarray
     background: np.ndarray
     seeded: bool
+    prior: bool = False
 
 
 def mask_iou(pred: np.ndarray, truth: np.ndarray) -> float:
@@ -373,4 +375,5 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
                               interpolation=cv2.INTER_LINEAR) > 127
         hair, face = up(hair), up(face)
     face &= ~hair
-    return HairParse(hair, face, ~(hair | face), landmarks is not None)
+    return HairParse(hair, face, ~(hair | face), landmarks is not None,
+                     prior is not None and landmarks is not None)

@@ -285,18 +285,11 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     with atomic_path(paths["overlay"]) as tmp:
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
     return {"photo": str(photo), "seeded": parse.seeded,
-            "learned_prior": bool(learned_prior and landmarks is not None
-                                  and _hair_prior_installed()),
+            "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),
             "face_fraction": round(float(parse.face.mean()), 4),
             "seconds": round(time.perf_counter() - t0, 3),
             **{k: str(v) for k, v in paths.items()}}
-
-
-def _hair_prior_installed() -> bool:
-    from head360cli.fitting.hair_prior import default_hair_prior
-
-    return default_hair_prior() is not None
 
 
 def _aligned(img, fit, model, res: int):
@@ -582,7 +575,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "hair_color_chosen_by": colour_by,
         "hair_color_estimate": [round(float(c), 4) for c in estimate],
         "hair_parse": {"seeded": parse.seeded,
-                       "learned_prior": bool(learned_prior and _hair_prior_installed()),
+                       "learned_prior": parse.prior,
                        "hair_fraction": round(float(parse.hair.mean()), 4)},
         "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                       "loss_last": round(inv.losses[-1], 5)},

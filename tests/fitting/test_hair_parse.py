@@ -54,8 +54,10 @@ def test_an_explicit_prior_guides_only_the_soft_labels():
     import cv2
 
     img, lm, hair, _ = _synthetic_portrait()
-    alone = mask_iou(parse_hair(img, lm, prior=None).hair, hair)
-    guided = mask_iou(parse_hair(img, lm, prior=hair.astype(np.float32)).hair, hair)
+    without = parse_hair(img, lm, prior=None)
+    with_map = parse_hair(img, lm, prior=hair.astype(np.float32))
+    assert not without.prior and with_map.prior  # the parse says whether a prior was used
+    alone, guided = mask_iou(without.hair, hair), mask_iou(with_map.hair, hair)
     assert guided >= alone - 0.01
     everywhere = parse_hair(img, lm, prior=np.ones(hair.shape, np.float32)).hair
     inner = np.zeros(hair.shape, np.uint8)
@@ -78,6 +80,7 @@ def test_unseeded_parse_runs_and_scales_back():
     big = np.kron(img, np.ones((3, 3, 1), np.uint8))  # 600 x 600: parsed at work_size
     r = parse_hair(big, None, work_size=200)
     assert not r.seeded and r.hair.shape == (600, 600)
+    assert not r.prior  # no face: the learned prior is not used
     assert not r.face.any()
 
 
