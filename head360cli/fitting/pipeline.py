@@ -316,12 +316,14 @@ def _inner_landmarks(model, posed: np.ndarray, detected: np.ndarray, affine: np.
             torch.tensor(pixels, dtype=torch.float32, device=device))
 
 
-def _hair_guess(img, parse, fit, model, res: int = 128):
-    """Hairstyle ranking and hair colour of a parsed photo:
-    ``(guess, colour estimate, nearest corpus colour name, its RGB)``."""
+def _hair_guess(img, parse, fit, model, landmarks: np.ndarray, res: int = 128):
+    """Hairstyle ranking and hair colour of a parsed photo with its detected
+    ``landmarks (68, 2)``: ``(guess, colour estimate, nearest corpus colour name, its
+    RGB)``."""
     from head360cli.fitting.hair_class import (
         classify_hair,
         hair_colour,
+        hidden_by_body,
         nearest_colour_name,
         style_silhouettes,
     )
@@ -331,6 +333,7 @@ def _hair_guess(img, parse, fit, model, res: int = 128):
     c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
     hair = crop_mask(parse.hair, affine, res)
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
+    valid &= ~hidden_by_body(landmarks @ affine[:, :2].T + affine[:, 2], (res, res))
     guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
                           valid)
     estimate = hair_colour(img.pixels, parse.hair)
@@ -402,7 +405,7 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
                        prior="learned" if learned_prior else None)
     timings["parse"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    guess, estimate, name, colour = _hair_guess(img, parse, fit, model)
+    guess, estimate, name, colour = _hair_guess(img, parse, fit, model, found.landmarks)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
             "hair_color": [round(float(c), 4) for c in colour],
@@ -481,7 +484,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     timings["parse"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
-    guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model)
+    guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
+                                                       found.landmarks)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
     timings["classify"] = time.perf_counter() - t0
 

@@ -17,6 +17,7 @@ def test_hairstyle_accuracy_on_three_heads():
     assert r["heads_with_hair"] == 2
     for key in ("true_mask", "parsed_mask", "parsed_no_prior"):
         assert 0.0 <= r[key]["top1"] <= r[key]["top3"] <= 1.0
+        assert r[key]["top1"] <= r[key]["top1_same_silhouette"] <= 1.0
         assert r[key]["colour"] in (0.0, 0.5, 1.0)  # share of the 2 heads with hair
     # Heads 0..2 wear styles 0..2 (bald, buzz, crew): with the true mask at least the
     # bald head (empty mask) and one other are right.
@@ -50,7 +51,8 @@ def test_markdown_lists_every_part():
     r = {"hair_parse": {"figaro": {"photos": 2, "with_face": 0, "mean_iou": 0.5},
                         "celebamask": {"photos": 3, "with_face": 3, "mean_iou": 0.7,
                                        "mean_iou_no_prior": 0.6}},
-         "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0},
+         "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0,
+                                      "top1_same_silhouette": 0.95},
                         "parsed_mask": {"top1": 0.5, "top3": 0.8},
                         "parsed_no_prior": {"top1": 0.4, "top3": 0.7},
                         "parsed_iou": 0.9, "parsed_iou_no_prior": 0.85},
@@ -67,8 +69,8 @@ def test_markdown_lists_every_part():
          "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}]}
     md = _markdown(r)
     for text in ("| figaro | 2 | 0 | 0.500 | - |", "| celebamask | 3 | 3 | 0.700 | 0.600 |",
-                 "| true | 90.00% | 100.00% |",
-                 "| parsed without the learned prior | 40.00% | 70.00% |",
+                 "| true | 90.00% | 100.00% | 95.00% | - |",
+                 "| parsed without the learned prior | 40.00% | 70.00% | - | - |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 | 27.00 | 26.00 |",
                  "| fast | 22.00 | 25.00 | - | 0.700 | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",

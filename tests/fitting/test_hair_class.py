@@ -11,6 +11,7 @@ from head360cli.fitting.hair_class import (
     colour_samples,
     fit_colour_map,
     hair_colour,
+    hidden_by_body,
     nearest_colour_name,
     nearest_colour_names,
     pick_colour_by_render,
@@ -88,6 +89,45 @@ def test_pixels_beyond_the_photo_are_not_scored():
     assert classify_hair(hair, sil).ranking[0] == 2
     guess = classify_hair(hair, sil, valid)
     assert guess.ranking[0] in (1, 2) and guess.iou[1] == guess.iou[2] == 1.0
+
+
+def _face_landmarks(angle_deg: float = 0.0) -> np.ndarray:
+    """68 landmarks of which 4, 8, 12 and 27 matter: an upright face (nose bridge at
+    (50, 30), chin at (50, 70), jaw corners 40 px apart), rolled by ``angle_deg``
+    about the chin."""
+    lm = np.full((68, 2), 50.0)
+    lm[27], lm[8], lm[4], lm[12] = (50, 30), (50, 70), (30, 60), (70, 60)
+    a = np.deg2rad(angle_deg)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return (lm - lm[8]) @ rot.T + lm[8]
+
+
+def test_hidden_by_body_is_the_strip_below_the_chin():
+    body = hidden_by_body(_face_landmarks(), (100, 100))
+    # rows 71..99 below the chin, columns 31..69 within half the jaw's width of it
+    assert body.sum() == 29 * 39
+    assert body[71:, 31:70].all() and not body[:71].any()
+    assert not body[:, :31].any() and not body[:, 70:].any()
+    assert hidden_by_body(_face_landmarks(), (100, 100), width=2.0).sum() == 29 * 79
+    # a face rolled by 90 degrees (nose bridge right of the chin): the strip runs to the
+    # left, across the image's rows, to the image's edge
+    rolled = hidden_by_body(_face_landmarks(90.0), (100, 100))
+    assert rolled.sum() == 50 * 39 and rolled[51:90, :50].all()
+
+
+def test_hair_behind_the_neck_does_not_decide_the_style():
+    """A long style shows hair behind the neck that a photo's body hides; left out of
+    the score, the long style wins over a shorter one it would otherwise lose to."""
+    lm = _face_landmarks()
+    body = hidden_by_body(lm, (100, 100))
+    sil = np.zeros((30, 100, 100), bool)
+    sil[[14, 16], 20:35, 15:85] = True  # the top of the head
+    sil[16, 35:100, 15:30] = sil[16, 35:100, 70:85] = True  # long: to the bottom
+    sil[16, 70:100, 30:70] = True  # and behind the neck, which the render shows
+    sil[14, 35:80, 15:30] = sil[14, 35:80, 70:85] = True  # shoulder length
+    hair = sil[16] & ~body  # the photo: the body hides what is behind the neck
+    assert classify_hair(hair, sil).ranking[0] == 14
+    assert classify_hair(hair, sil, ~body).ranking[0] == 16
 
 
 def test_fit_colour_map_recovers_a_tone_curve():
