@@ -6,8 +6,9 @@ colours of the backdrop or the shoulders. This network adds what colour cannot: 
 of hair around a face. It sees a ``crop x crop`` RGB crop aligned by the inner-face
 landmarks (brows, nose, eyes, mouth: iBUG 27-67) to canonical positions, and returns the
 probability of hair per pixel, which is warped back to the photo. The parse then uses it
-as GrabCut's soft labels (probable hair or probable not), never as hard ones, so colour
-still has the last word.
+as GrabCut's soft labels (probable hair or probable not), so colour still has the last
+word on what is hair; only where it is sure (``hair_parse.PRIOR_SURE``) does it make a
+pixel certainly part of the person.
 
 It is trained only on head360's own synthetic heads
 (:mod:`head360cli.fitting.hair_prior_train`, ``head360 train-hair-prior``); the weights

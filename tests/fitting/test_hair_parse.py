@@ -48,9 +48,10 @@ def test_seeded_parse_finds_the_synthetic_hair():
     assert r.face[face & (np.mgrid[0:200, 0:200][0] > 100)].mean() > 0.8  # lower face
 
 
-def test_an_explicit_prior_guides_only_the_soft_labels():
-    """A prior map moves GrabCut's probable labels, never its certain ones: a map that
-    calls every pixel hair still leaves the inner face (brows, eyes, nose, mouth) out."""
+def test_an_explicit_prior_never_overrides_the_certain_labels():
+    """A prior map moves GrabCut's probable labels (and where it is sure, makes a pixel
+    the person's), never the certain ones: a map that calls every pixel hair still
+    leaves the inner face (brows, eyes, nose, mouth) out."""
     import cv2
 
     img, lm, hair, _ = _synthetic_portrait()
@@ -299,3 +300,19 @@ def test_learned_prior_finds_hair_that_colour_alone_gives_away(index, alone, lea
     assert mask_iou(parse_hair(img, lm, prior=None).hair, truth) == pytest.approx(alone,
                                                                                   abs=0.02)
     assert mask_iou(parse_hair(img, lm).hair, truth) == pytest.approx(learned, abs=0.02)
+
+
+def test_where_the_learned_prior_is_sure_the_pixel_is_the_persons(monkeypatch):
+    """Development head 16 (long platinum hair on the white backdrop): its curtains have
+    the backdrop's colours, and as probable person only, GrabCut's first pass gave them
+    to the backdrop; where the prior is above PRIOR_SURE they are the person's."""
+    import head360cli.fitting.hair_parse as hair_parse
+    from head360cli.fitting.hair_prior import default_hair_prior
+
+    assert default_hair_prior() is not None, "models/hair_prior.pt is not installed"
+    img, lm, truth, _ = _corpus_portrait(16)
+    sure = mask_iou(parse_hair(img, lm).hair, truth)
+    monkeypatch.setattr(hair_parse, "PRIOR_SURE", 1.01)  # never sure: soft labels only
+    soft = mask_iou(parse_hair(img, lm).hair, truth)
+    assert sure == pytest.approx(0.925, abs=0.02)  # measured 0.925
+    assert soft == pytest.approx(0.785, abs=0.02)  # measured 0.785
