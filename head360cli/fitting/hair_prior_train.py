@@ -28,6 +28,7 @@ from head360cli.fitting.hair_prior import (
     HairPrior,
     HairPriorConfig,
     HairPriorNet,
+    align_matrix,
 )
 
 __all__ = ["BACKDROPS", "Augmenter", "HairPriorTrainConfig", "canonical_landmarks",
@@ -143,8 +144,7 @@ def render_crops(cfg: HairPriorTrainConfig, crop: int, progress: Callable[[int, 
         b = views.render(i, weights, cams, with_hair=True, style=style, colour=colour)
         px, _ = project(b.verts, cams, views.intrinsics[None].expand(n, 3, 3))
         for v in range(n):
-            m, _ = cv2.estimateAffinePartial2D(px[v].numpy()[lm_index][ALIGN_LANDMARKS], canon,
-                                               method=cv2.LMEDS)
+            m = align_matrix(px[v].numpy()[lm_index], canon)  # the true landmarks: never None
 
             def warp(image: np.ndarray, m: np.ndarray = m) -> np.ndarray:
                 return cv2.warpAffine(image, m, (crop, crop), flags=cv2.INTER_LINEAR,
