@@ -371,12 +371,16 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
         values = [v for v in values if v is not None]
         return round(float(np.mean(values)), 4) if values else None
 
+    # dlib finds no face in some renders (a turned or bald head): those have no distance,
+    # and how many did is reported beside the mean, which is over the others
+    at_0 = [r["descriptor_distance"]["yaw_+0"] for r in ok]
+    at_30 = [r["descriptor_distance"][k] for r in ok for k in ("yaw_+30", "yaw_-30")]
     return {"preset": preset, "rows": rows, "mean": {
         "psnr_face": mean([r["psnr_face"] for r in ok]),
         "psnr_face_bald": mean([r["psnr_face_bald"] for r in ok]),
-        "distance_0": mean([r["descriptor_distance"]["yaw_+0"] for r in ok]),
-        "distance_30": mean([r["descriptor_distance"][k] for r in ok
-                             for k in ("yaw_+30", "yaw_-30")]),
+        "distance_0": mean(at_0), "distance_30": mean(at_30),
+        "distance_0_renders": [sum(d is not None for d in at_0), len(at_0)],
+        "distance_30_renders": [sum(d is not None for d in at_30), len(at_30)],
         "seconds": mean([r["seconds"] for r in ok])}}
 
 
@@ -548,9 +552,14 @@ def _markdown(r: dict[str, Any]) -> str:
 
             def f(x, fmt=".3f"):
                 return "-" if x is None else format(x, fmt)
+
+            def found(key, m=m):
+                n = m.get(key)
+                return "" if n is None else f" ({n[0]} of {n[1]} renders with a face)"
             lines.append(f"| {p} | {f(m['psnr_face'], '.2f')} | "
-                         f"{f(m['psnr_face_bald'], '.2f')} | {f(m['distance_0'])} | "
-                         f"{f(m['distance_30'])} | {f(m['seconds'], '.1f')} | "
+                         f"{f(m['psnr_face_bald'], '.2f')} | {f(m['distance_0'])}"
+                         f"{found('distance_0_renders')} | {f(m['distance_30'])}"
+                         f"{found('distance_30_renders')} | {f(m['seconds'], '.1f')} | "
                          f"{_cold_cell(v.get('cold'))} |")
     if r.get("sweep"):
         lines += ["", "## Inversion steps against quality (first photo, fast preset)", "",

@@ -63,8 +63,9 @@ def test_markdown_lists_every_part():
                                     "known_geometry": {"mean": {"psnr_all_views": 27.0,
                                                                 "psnr_input_view": 26.0}}}},
          "real": {"fast": {"mean": {"psnr_face": 22.0, "psnr_face_bald": 25.0,
-                                    "distance_0": None,
-                                    "distance_30": 0.7, "seconds": 13.0},
+                                    "distance_0": None, "distance_0_renders": [0, 2],
+                                    "distance_30": 0.7, "distance_30_renders": [3, 4],
+                                    "seconds": 13.0},
                            "cold": {"photo": "a.png", "wall_s": 16.0, "total_s": 13.5}}},
          "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}]}
     md = _markdown(r)
@@ -72,7 +73,8 @@ def test_markdown_lists_every_part():
                  "| true | 90.00% | 100.00% | 95.00% | - |",
                  "| parsed without the learned prior | 40.00% | 70.00% | - | - |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 | 27.00 | 26.00 |",
-                 "| fast | 22.00 | 25.00 | - | 0.700 | 13.0 | 13.5, 16.0 (a.png) |",
+                 "| fast | 22.00 | 25.00 | - (0 of 2 renders with a face) | 0.700 (3 of 4 "
+                 "renders with a face) | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",
                  "yaw 10 degrees 0.900 (without the learned prior 0.850); no face, back "
                  "views 0.800, close-ups 0.700 (29 heads)"):
