@@ -113,6 +113,8 @@ def test_hidden_by_body_is_the_strip_below_the_chin():
     # left, across the image's rows, to the image's edge
     rolled = hidden_by_body(_face_landmarks(90.0), (100, 100))
     assert rolled.sum() == 50 * 39 and rolled[51:90, :50].all()
+    # degenerate landmarks (all on one point) hide nothing rather than fail
+    assert not hidden_by_body(np.zeros((68, 2)), (100, 100)).any()
 
 
 def test_hair_behind_the_neck_does_not_decide_the_style():
