@@ -474,7 +474,10 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
     """The SynHead-P hairstyles that best match a photo's hair, and its colour.
 
     Each of the 30 styles is fitted to the photo's fitted head and rasterized from its
-    camera; the score is the overlap of that silhouette with the parsed hair.
+    camera; the score is the overlap of that silhouette with the parsed hair, leaving out
+    the strip below the chin that the body hides. Styles that differ only behind the
+    head (ponytails, bun, braid) have the same silhouette from the front: the output says
+    which share the first one's.
 
     \b
     Examples:
@@ -489,7 +492,10 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
     r = classify_photo(photo, face=face, detector=detector, top=top,
                        learned_prior=not no_prior)
     lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "
-             f"overlap {c['iou']:.3f}" for i, c in enumerate(r["top"])]
+             f"overlap {c['iou']:.3f}"
+             + (" (the same silhouette as 1. from this view)"
+                if i and c["same_silhouette_as_first"] else "")
+             for i, c in enumerate(r["top"])]
     lines.append(f"hair colour: {r['hair_color_name']} (linear RGB "
                  + ", ".join(f"{c:.3f}" for c in r["hair_color"])
                  + "; by the tone curve: head360 fit also compares renders)")

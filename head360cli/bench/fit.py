@@ -133,10 +133,11 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
         alone.append(mask_iou(masks["parsed_no_prior"], masks["true_mask"]))
         valid = ~hidden_by_body(lm, (res, res))
         for key, mask in masks.items():
-            rank = classify_hair(mask, sil, valid).ranking
+            guess = classify_hair(mask, sil, valid)
+            rank = guess.ranking
             hits[key][0] += rank[0] == head.hair_style
             hits[key][1] += head.hair_style in rank[:3]
-            hits[key][2] += np.array_equal(sil[rank[0]][valid], sil[head.hair_style][valid])
+            hits[key][2] += bool(guess.same_as_first[head.hair_style])
             if head.hair_style != 0:
                 colours[key] += nearest_colour_name(hair_colour(rgb, mask)) == \
                     head.hair_colour

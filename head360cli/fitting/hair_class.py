@@ -53,19 +53,26 @@ class HairGuess:
         ranking: Style ids, best first.
         iou: ``(30,)`` IoU of each style's silhouette with the hair mask.
         probability: ``(30,)`` softmax of ``iou / TEMPERATURE``.
+        same_as_first: ``(30,)`` bool, styles whose silhouette is the first's, pixel for
+            pixel, where scored: this view cannot tell them apart (the ponytails, the bun
+            and the braid differ only behind the head). The first is among them.
     """
 
     ranking: list[int]
     iou: np.ndarray
     probability: np.ndarray
+    same_as_first: np.ndarray
 
-    def top(self, k: int = 3) -> list[dict[str, float | int | str]]:
-        """The best ``k`` styles as ``{"id", "name", "score", "iou"}``."""
+    def top(self, k: int = 3) -> list[dict[str, float | int | str | bool]]:
+        """The best ``k`` styles as ``{"id", "name", "score", "iou",
+        "same_silhouette_as_first"}``."""
         from head360cli.synth.hair import HAIRSTYLES
 
         return [{"id": int(i), "name": HAIRSTYLES[i].name,
                  "score": round(float(self.probability[i]), 4),
-                 "iou": round(float(self.iou[i]), 4)} for i in self.ranking[:k]]
+                 "iou": round(float(self.iou[i]), 4),
+                 "same_silhouette_as_first": bool(self.same_as_first[i])}
+                for i in self.ranking[:k]]
 
 
 def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
@@ -162,7 +169,9 @@ def classify_hair(hair: np.ndarray, silhouettes: np.ndarray,
     z = (iou - iou.max()) / TEMPERATURE
     p = np.exp(z) / np.exp(z).sum()
     ranking = [int(i) for i in np.argsort(-iou, kind="stable")]
-    return HairGuess(ranking, iou, p)
+    first = silhouettes[ranking[0]]
+    same = np.array([np.array_equal(sil, first) for sil in silhouettes])
+    return HairGuess(ranking, iou, p, same)
 
 
 COLOUR_MAP = (1.164, 0.581)

@@ -90,6 +90,7 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     c = json.loads(r.out)
     assert len(c["top"]) == 5 and c["top"][0]["score"] >= c["top"][-1]["score"]
     assert c["top"][0]["name"] != "bald"
+    assert c["top"][0]["same_silhouette_as_first"] is True
     from head360cli.synth.hair import HAIR_COLOURS
 
     np.testing.assert_allclose(c["hair_color"], HAIR_COLOURS[c["hair_color_name"]], atol=1e-4)

@@ -44,6 +44,26 @@ def test_silhouette_of_the_true_style_ranks_first():
     assert np.isclose(guess.probability.sum(), 1.0)
     top = guess.top(3)
     assert [t["id"] for t in top] == guess.ranking[:3] and top[0]["name"] == "bob"
+    assert top[0]["same_silhouette_as_first"] and not top[1]["same_silhouette_as_first"]
+
+
+def test_styles_with_the_same_silhouette_are_flagged():
+    """Styles that look alike from this view (pixel for pixel where scored) tie, and the
+    guess says which share the first one's silhouette."""
+    hair = np.zeros((10, 10), bool)
+    hair[:4] = True
+    sil = np.zeros((30, 10, 10), bool)
+    sil[19, :4] = sil[20, :4] = True  # two styles that differ only out of view
+    sil[20, 9, 9] = True  # ... or only where the photo has no pixels
+    sil[5, :3] = True  # close, not the same
+    valid = np.ones((10, 10), bool)
+    valid[9, 9] = False
+    guess = classify_hair(hair, sil, valid)
+    assert guess.ranking[:2] == [19, 20] and guess.iou[19] == guess.iou[20] == 1.0
+    assert np.flatnonzero(guess.same_as_first).tolist() == [19, 20]
+    assert [t["same_silhouette_as_first"] for t in guess.top(3)] == [True, True, False]
+    # scored everywhere, the pixel at the corner tells them apart
+    assert np.flatnonzero(classify_hair(hair, sil).same_as_first).tolist() == [19]
 
 
 def test_no_hair_pixels_rank_bald_first():
