@@ -235,10 +235,10 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         iterations: GrabCut iterations.
         prior: Where hair probably is, used as GrabCut's soft labels when landmarks are
             given (and where it is above :data:`PRIOR_SURE`, as the person's hard label
-            in the first pass, person against backdrop): ``"learned"`` runs the shipped hair prior
-            (:mod:`head360cli.fitting.hair_prior`) when it is installed; an ``(H, W)``
-            float map of probabilities in [0, 1] at the photo's size is used as it is;
-            ``None`` parses by colour and landmarks alone.
+            in the first pass, person against backdrop). ``"learned"`` runs the shipped
+            hair prior (:mod:`head360cli.fitting.hair_prior`) when it is installed; an
+            ``(H, W)`` float map of probabilities in [0, 1] at the photo's size is used
+            as it is; ``None`` parses by colour and landmarks alone.
 
     Returns:
         The masks at the photo's size.
@@ -331,12 +331,12 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         likely = None
         if prior is not None:
             # The learned prior's hair is probably part of the person.
-            likely = cv2.resize(prior, (sw, sh), interpolation=cv2.INTER_AREA) > 0.5
+            small_prior = cv2.resize(prior, (sw, sh), interpolation=cv2.INTER_AREA)
+            likely = small_prior > 0.5
             m[likely & (m == cv2.GC_PR_BGD)] = cv2.GC_PR_FGD
             # Where it is sure, it is: light hair on a light backdrop has the backdrop's
             # colours, and the colour models gave it away even as a soft label.
-            sure = cv2.resize(prior, (sw, sh), interpolation=cv2.INTER_AREA) > PRIOR_SURE
-            m[sure & (m != cv2.GC_BGD)] = cv2.GC_FGD
+            m[(small_prior > PRIOR_SURE) & (m != cv2.GC_BGD)] = cv2.GC_FGD
         person = _grabcut(bgr, m, iterations)
         # Stage 2: hair against skin and clothes, inside the person.
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
