@@ -38,6 +38,7 @@ __all__ = [
     "nearest_colour_name",
     "nearest_colour_names",
     "pick_colour_by_render",
+    "place_hair",
     "style_silhouettes",
 ]
 
@@ -77,7 +78,8 @@ class HairGuess:
 
 def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
                       c2w: np.ndarray, intrinsics: np.ndarray, res: int,
-                      styles: list[int] | None = None) -> np.ndarray:
+                      styles: list[int] | None = None,
+                      offsets: np.ndarray | None = None) -> np.ndarray:
     """Visible hair of each style on a head, seen by one camera.
 
     Args:
@@ -87,6 +89,7 @@ def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
         c2w: ``(4, 4)`` camera-to-world and ``intrinsics (3, 3)`` for a ``res`` image.
         res: Image size.
         styles: Style ids (default: all 30).
+        offsets: ``(S, 3)`` metres each style's fitted hair is moved by (default: none).
 
     Returns:
         ``(S, res, res)`` bool: where each style's hair is in front of the head.
@@ -100,14 +103,65 @@ def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
     head = screen_depth(torch.as_tensor(posed, dtype=torch.float32)[None],
                         torch.as_tensor(faces, dtype=torch.long), cam, k, res)[0]
     out = np.zeros((len(styles), res, res), bool)
+    meshes: dict[int, object] = {}
     for j, s in enumerate(styles):
-        mesh = fit_hair(neutral, s)
+        if s not in meshes:  # one fit per style, however many offsets
+            meshes[s] = fit_hair(neutral, s)
+        mesh = meshes[s]
         if len(mesh.faces) == 0:
             continue
-        d = screen_depth(torch.as_tensor(mesh.verts, dtype=torch.float32)[None],
+        verts = mesh.verts if offsets is None else mesh.verts + offsets[j]
+        d = screen_depth(torch.as_tensor(verts, dtype=torch.float32)[None],
                          torch.as_tensor(mesh.faces, dtype=torch.long), cam, k, res)[0]
         out[j] = ((d < EMPTY) & (d < head + 1e-3)).numpy()
     return out
+
+
+PLACEMENT_UP = (-0.004, 0.0, 0.004, 0.008, 0.012)
+"""Heights (metres, along the head's up axis) :func:`place_hair` tries for the hair."""
+
+PLACEMENT_BACK = (0.004, 0.0, -0.004, -0.008)
+"""Shifts (metres, along the head's forward axis; negative: back) it tries."""
+
+PLACEMENT_MIN_GAIN = 0.005
+"""IoU a shift must gain over none to be taken (a parse's noise moves less)."""
+
+
+def place_hair(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray, c2w: np.ndarray,
+               intrinsics: np.ndarray, style: int, hair: np.ndarray,
+               valid: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+    """Where a style's hair sits best on a fitted head: the shift of its fitted mesh, of
+    :data:`PLACEMENT_UP` x :data:`PLACEMENT_BACK`, whose silhouette best matches a hair
+    mask.
+
+    SynHead-P's styles are fitted to a head by one rule, so their hairline lies where the
+    corpus put it, not where the person's is; drawn over a photo's forehead or temples,
+    that hair covers face the photo shows. The shift is kept only when it raises the IoU
+    by :data:`PLACEMENT_MIN_GAIN`.
+
+    Args:
+        neutral, posed, faces, c2w, intrinsics: As :func:`style_silhouettes`, for an
+            ``(R, R)`` image.
+        style: The style id.
+        hair: ``(R, R)`` bool hair mask.
+        valid: ``(R, R)`` bool, the pixels scored (default: all).
+
+    Returns:
+        ``(offset (3,) metres, IoU with it, IoU unshifted)``.
+    """
+    from head360cli.fitting.hair_parse import mask_iou
+
+    grid = np.array([(0.0, up, back) for up in PLACEMENT_UP for back in PLACEMENT_BACK])
+    sil = style_silhouettes(neutral, posed, faces, c2w, intrinsics, hair.shape[0],
+                            [int(style)] * len(grid), grid)
+    if valid is not None:
+        hair, sil = hair[valid], sil[:, valid]
+    iou = np.array([mask_iou(m, hair) for m in sil])
+    zero = int(np.flatnonzero(~grid.any(1))[0])
+    best = int(np.argmax(iou))
+    if iou[best] < iou[zero] + PLACEMENT_MIN_GAIN:
+        best = zero
+    return grid[best], float(iou[best]), float(iou[zero])
 
 
 BODY_WIDTH = 1.0

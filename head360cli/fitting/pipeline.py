@@ -426,13 +426,16 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
 def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,
               detector: str = "hog", focal: float | None = None, device: str = "cpu",
               hair_style: int | None = None, distance: float | None = None,
-              progress: Any = None, learned_prior: bool = True) -> dict[str, Any]:
+              progress: Any = None, learned_prior: bool = True,
+              hair_placement: bool = True) -> dict[str, Any]:
     """``head360 fit``: every stage, from a photo to a head file.
 
     Stages: detection and shape fit; hair parsing; hairstyle classification and hair
     colour; the bald target (hair replaced by the model's bald render, Poisson-blended);
-    neural-texture inversion; preview. Writes ``out`` (``.h360``), ``<out stem>_preview.png``
-    (photo crop | fitted front | three other views | back) and ``<out stem>.json``.
+    neural-texture inversion; hair placement (the style's mesh shifted to match the
+    parsed hair from the fitted camera); preview. Writes ``out`` (``.h360``),
+    ``<out stem>_preview.png`` (photo crop | fitted front | three other views | back) and
+    ``<out stem>.json``.
 
     Args:
         photo: The image.
@@ -447,6 +450,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
             head's size; see :meth:`~head360cli.fitting.shape.ShapeFitter.fit`).
         progress: Callable ``(stage, step, total)`` for progress display.
         learned_prior: Parse the hair with the learned hair prior (when installed).
+        hair_placement: Shift the hairstyle's mesh to the parsed hair
+            (:func:`~head360cli.fitting.hair_class.place_hair`); ``False`` leaves it
+            where the style's fit to the head puts it.
 
     Returns:
         The JSON summary (also written to ``<out stem>.json``).
@@ -531,10 +537,21 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev))
     timings["invert"] = inv.seconds
 
+    t0 = time.perf_counter()
+    offset, placed_iou, plain_iou = np.zeros(3), None, None
+    if style != 0 and hair_placement:
+        from head360cli.fitting.hair_class import hidden_by_body, place_hair
+
+        scored = valid & ~hidden_by_body(found.landmarks @ affine[:, :2].T + affine[:, 2],
+                                         (res, res))
+        offset, placed_iou, plain_iou = place_hair(
+            neutral, posed, model.faces, inv.c2w.cpu().numpy(), k, style, hair_crop, scored)
+    timings["hair_placement"] = time.perf_counter() - t0
+
     say("preview", 0, 1)
     t0 = time.perf_counter()
     head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
-                        samples=cfg.preview_samples, precision="fp32")
+                        samples=cfg.preview_samples, precision="fp32", hair_offset=offset)
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
@@ -562,6 +579,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                 "texture_code": inv.code.cpu().numpy().astype(np.float32),
                 "hair_style": np.array(style, np.int64),
                 "hair_color": colour.astype(np.float32),
+                "hair_offset": offset.astype(np.float32),
                 "vertices": neutral.astype(np.float32)},
         model_hash=model_hash,
         info={"photo": Path(photo).name, "preset": preset, "face": face,
@@ -579,7 +597,13 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "pose": {**{k_: round(v, 2) for k_, v in euler.items()},
                  "distance": round(fit.distance(), 4)},
         "hair_style": {"id": style, "name": HAIRSTYLES[style].name,
-                       "chosen_by": "classifier" if hair_style is None else "user"},
+                       "chosen_by": "classifier" if hair_style is None else "user",
+                       # the placement: mm up and forward, and its silhouette's IoU
+                       # with the parsed hair before and after
+                       "offset_mm": {"up": round(float(offset[1]) * 1e3, 1),
+                                     "forward": round(float(offset[2]) * 1e3, 1)},
+                       "iou_unplaced": None if plain_iou is None else round(plain_iou, 4),
+                       "iou_placed": None if placed_iou is None else round(placed_iou, 4)},
         "hair_candidates": guess.top(3),
         "hair_color": [round(float(c), 4) for c in colour],
         "hair_color_name": colour_name,
@@ -646,7 +670,8 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),
                         a["hair_color"], a["expression"], samples=samples, size=size,
                         precision=precision,
-                        reuse=REUSE_TOL if isinstance(reuse, str) else reuse)
+                        reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
+                        hair_offset=a.get("hair_offset"))
 
 
 def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,

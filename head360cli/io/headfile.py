@@ -50,6 +50,7 @@ KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "texture_code": (1, "f"),  # (T,) texture code it started from
     "hair_style": (0, "i"),  # () hairstyle index
     "hair_color": (1, "f"),  # (3,) linear RGB hair colour
+    "hair_offset": (1, "f"),  # (3,) metres the hair is moved by (optional; default 0)
     "vertices": (2, "f"),  # (V, 3) fitted neutral mesh
 }
 """Array name -> (rank, kind: ``f`` float, ``i`` integer) for the arrays the pipeline uses."""

@@ -81,17 +81,21 @@ class Hair:
                     None if self.planes is None else self.planes * n)
 
 
-def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray) -> Hair:
+def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,
+             offsets: np.ndarray | None = None) -> Hair:
     """Hair of hairstyles ``styles`` and ``colours (B, 3)`` fitted to neutral heads
-    ``(B, V, 3)`` (or one ``(V, 3)`` head for all)."""
+    ``(B, V, 3)`` (or one ``(V, 3)`` head for all), each moved by ``offsets (B, 3)``
+    metres in the head's frame (a fit's hair placement; default: not moved)."""
     from head360cli.synth.hair import fit_hair
 
     neutral = np.asarray(neutral)
+    shift = (np.zeros((len(styles), 3)) if offsets is None
+             else np.broadcast_to(np.asarray(offsets, np.float64), (len(styles), 3)))
     meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None] = []
     for i, style in enumerate(styles):
         m = fit_hair(neutral if neutral.ndim == 2 else neutral[i], int(style))
         meshes.append(None if len(m.faces) == 0 else (
-            torch.tensor(m.verts, dtype=torch.float32), torch.tensor(m.faces),
+            torch.tensor(m.verts + shift[i], dtype=torch.float32), torch.tensor(m.faces),
             torch.tensor(m.uv, dtype=torch.float32)))
     return Hair(meshes, torch.tensor(list(styles), dtype=torch.long),
                 torch.as_tensor(np.asarray(colours, dtype=np.float32)).reshape(-1, 3))

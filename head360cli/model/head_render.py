@@ -49,12 +49,15 @@ class HeadRenderer:
             rendered one by one by a still camera (an animation without head pose): a
             point whose decoder input moved by at most this keeps its last output.
             ``None`` decodes every point of every frame.
+        hair_offset: ``(3,)`` metres, in the head's frame, that the hair is moved by
+            (a head file's ``hair_offset``; default none).
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,
                  hair_colour: np.ndarray, expression: np.ndarray | None = None,
                  samples: int | None = None, size: int | None = None,
-                 precision: str = "auto", reuse: float | None = REUSE_TOL) -> None:
+                 precision: str = "auto", reuse: float | None = REUSE_TOL,
+                 hair_offset: np.ndarray | None = None) -> None:
         from head360cli.devices import fast_bfloat16
         from head360cli.mesh.bilinear import load_bilinear
 
@@ -93,6 +96,10 @@ class HeadRenderer:
         self.runner = None
         """A frame function that renders instead of the torch generator (see
         :meth:`use_runner`), or ``None``."""
+        self.hair_offset = (np.zeros(3) if hair_offset is None
+                            else np.asarray(hair_offset, np.float64).reshape(3))
+        """``(3,)`` metres every hairstyle this head wears is moved by (its fit's
+        placement, :func:`head360cli.fitting.hair_class.place_hair`)."""
         self.set_hair(hair_style, hair_colour)
 
     def use_runner(self, runner) -> None:
@@ -116,7 +123,8 @@ class HeadRenderer:
         self.hair_colour = np.asarray(hair_colour, np.float64).reshape(3)
         self.hair = None
         if self.gen.cfg.hair:
-            hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None])
+            hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None],
+                            self.hair_offset[None])
             if hair.meshes[0] is not None:
                 with torch.no_grad():
                     self.hair = self.gen.prepare_hair(hair.to(self.device))

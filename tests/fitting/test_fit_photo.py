@@ -46,6 +46,15 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     head = read_head(out)
     assert head.arrays["texture"].shape[0] == 16 and np.isfinite(head.arrays["texture"]).all()
     assert int(head.arrays["hair_style"]) == s["hair_style"]["id"]
+    # the hair placement: on the grid, saved in the head, and no worse than none
+    from head360cli.fitting.hair_class import PLACEMENT_BACK, PLACEMENT_UP
+
+    placed = s["hair_style"]
+    assert placed["offset_mm"]["up"] / 1e3 in np.round(PLACEMENT_UP, 6)
+    assert placed["offset_mm"]["forward"] / 1e3 in np.round(PLACEMENT_BACK, 6)
+    np.testing.assert_allclose(head.arrays["hair_offset"] * 1e3, [
+        0.0, placed["offset_mm"]["up"], placed["offset_mm"]["forward"]], atol=1e-3)
+    assert placed["iou_placed"] >= placed["iou_unplaced"] > 0.3
     preview = Image.open(tmp_path / "me_preview.png")
     assert preview.size == (6 * 256, 256)
 

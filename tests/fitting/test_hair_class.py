@@ -15,6 +15,7 @@ from head360cli.fitting.hair_class import (
     nearest_colour_name,
     nearest_colour_names,
     pick_colour_by_render,
+    place_hair,
     style_silhouettes,
 )
 
@@ -45,6 +46,29 @@ def test_silhouette_of_the_true_style_ranks_first():
     top = guess.top(3)
     assert [t["id"] for t in top] == guess.ranking[:3] and top[0]["name"] == "bob"
     assert top[0]["same_silhouette_as_first"] and not top[1]["same_silhouette_as_first"]
+
+
+def test_place_hair_finds_the_shift_of_the_hair():
+    """A corpus head's hair, seen from the front, moved 8 mm up and 4 mm back: the
+    placement finds that shift of the style's fitted mesh (the silhouettes are the same
+    pixel for pixel), and leaves the unshifted hair where it is."""
+    from head360cli.mesh.bilinear import load_bilinear
+
+    faces = load_bilinear().faces
+    views, batch, c2w = _front_view(11)  # style 11 (bob)
+    head, k = views.head(11), views.intrinsics.numpy()
+    posed = batch.verts[0].numpy()
+    shift = np.array([[0.0, 0.008, -0.004]])
+    moved = style_silhouettes(head.verts, posed, faces, c2w, k, 96, [11], shift)[0]
+    plain = style_silhouettes(head.verts, posed, faces, c2w, k, 96, [11])[0]
+    assert np.array_equal(
+        plain, style_silhouettes(head.verts, posed, faces, c2w, k, 96, [11], 0 * shift)[0])
+    assert (moved != plain).sum() > 20  # the shift shows at 96 px
+    offset, iou, iou_plain = place_hair(head.verts, posed, faces, c2w, k, 11, moved)
+    np.testing.assert_allclose(offset, shift[0], atol=1e-12)
+    assert iou == 1.0 and iou_plain < 0.95
+    offset, iou, iou_plain = place_hair(head.verts, posed, faces, c2w, k, 11, plain)
+    assert not offset.any() and iou == iou_plain == 1.0
 
 
 def test_styles_with_the_same_silhouette_are_flagged():

@@ -78,3 +78,25 @@ def test_image_size_is_scoped_and_checked(renderer):
     for bad in (97, 8):
         with pytest.raises(ValueError, match="multiple of 2"):
             gen.image_size(bad)
+
+
+def test_hair_offset_moves_every_style_and_old_files_have_none(head_file, tmp_path):
+    """A head file's ``hair_offset`` (a fit's hair placement) moves the hair mesh by
+    exactly that, for a swapped style too; a file without one (older fits, sampled
+    heads) wears the hair where the style's fit puts it."""
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.io.headfile import read_head, write_head
+
+    plain = load_head_renderer(head_file, samples=4, size=64, precision="fp32")
+    assert not plain.hair_offset.any()
+    head = read_head(head_file)
+    head.arrays["hair_offset"] = np.array([0.0, 0.006, -0.003], np.float32)
+    moved_file = write_head(head, tmp_path / "moved.h360")
+    moved = load_head_renderer(moved_file, samples=4, size=64, precision="fp32")
+    for a, b in ((plain, moved), (plain.with_hair(11, plain.hair_colour),
+                                  moved.with_hair(11, moved.hair_colour))):
+        va, fa, _ = a.hair.meshes[0]
+        vb, fb, _ = b.hair.meshes[0]
+        assert torch.equal(fa, fb)
+        torch.testing.assert_close(vb - va, torch.tensor([[0.0, 0.006, -0.003]]).expand_as(va),
+                                   atol=1e-6, rtol=0)
