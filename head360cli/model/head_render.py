@@ -97,7 +97,10 @@ class HeadRenderer:
         """A frame function that renders instead of the torch generator (see
         :meth:`use_runner`), or ``None``."""
         self.hair_offset = (np.zeros(3) if hair_offset is None
-                            else np.asarray(hair_offset, np.float64).reshape(3))
+                            else np.asarray(hair_offset, np.float64))
+        if self.hair_offset.shape != (3,) or not np.isfinite(self.hair_offset).all():
+            raise ValueError("expected a hair offset of 3 finite numbers (metres), found "
+                             f"{np.asarray(hair_offset).tolist()}")
         """``(3,)`` metres every hairstyle this head wears is moved by (its fit's
         placement, :func:`head360cli.fitting.hair_class.place_hair`)."""
         self.set_hair(hair_style, hair_colour)

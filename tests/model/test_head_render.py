@@ -100,3 +100,12 @@ def test_hair_offset_moves_every_style_and_old_files_have_none(head_file, tmp_pa
         assert torch.equal(fa, fb)
         torch.testing.assert_close(vb - va, torch.tensor([[0.0, 0.006, -0.003]]).expand_as(va),
                                    atol=1e-6, rtol=0)
+
+
+def test_a_malformed_hair_offset_is_refused(renderer):
+    from head360cli.model.head_render import HeadRenderer
+
+    for bad in ([0.0, 0.01], [0.0, np.nan, 0.0]):
+        with pytest.raises(ValueError, match="expected a hair offset of 3 finite numbers"):
+            HeadRenderer(renderer.gen, renderer.shape, renderer.texture[0], 1,
+                         renderer.hair_colour, size=64, hair_offset=bad)
