@@ -509,9 +509,6 @@ def _markdown(r: dict[str, Any]) -> str:
               f"{_maybe(h.get('parsed_iou_no_prior'))}); no face, back views "
               f"{n['back_view']['mean_iou']:.3f}, close-ups {n['close_up']['mean_iou']:.3f} "
               f"({n['back_view']['views']} heads).", ""]
-    def colour(key):
-        return _pct(h[key].get("colour"))
-
     lines += ["## Hairstyle (30 styles, held-out heads, true mesh) and hair colour name "
               "(10 colours, heads with hair)", "",
               "| hair mask | style top-1 | style top-3 | top-1 or the same silhouette | "
@@ -520,7 +517,7 @@ def _markdown(r: dict[str, Any]) -> str:
     names = {"true_mask": "true", "parsed_mask": "parsed",
              "parsed_no_prior": "parsed without the learned prior"}
     lines += [f"| {name} | {h[key]['top1']:.2%} | {h[key]['top3']:.2%} | "
-              f"{_pct(h[key].get('top1_same_silhouette'))} | {colour(key)} |"
+              f"{_pct(h[key].get('top1_same_silhouette'))} | {_pct(h[key].get('colour'))} |"
               for key, name in names.items() if key in h]
     lines += ["", "(A style with the same silhouette as the true one from the input view "
               "differs only behind the head, as the ponytails, bun and braid do from the "

@@ -323,6 +323,15 @@ def _inner_landmarks(model, posed: np.ndarray, detected: np.ndarray, affine: np.
             torch.tensor(pixels, dtype=torch.float32, device=device))
 
 
+def _outside_body(landmarks: np.ndarray, affine: np.ndarray, res: int) -> np.ndarray:
+    """``(res, res)`` bool: the crop (``affine`` from the photo) without the strip below
+    the chin that a body hides (:func:`~head360cli.fitting.hair_class.hidden_by_body`),
+    from the detected ``landmarks (68, 2)``: where a hairstyle's silhouette is scored."""
+    from head360cli.fitting.hair_class import hidden_by_body
+
+    return ~hidden_by_body(landmarks @ affine[:, :2].T + affine[:, 2], (res, res))
+
+
 def _hair_guess(img, parse, fit, model, landmarks: np.ndarray, res: int = 128):
     """Hairstyle ranking and hair colour of a parsed photo with its detected
     ``landmarks (68, 2)``: ``(guess, colour estimate, nearest corpus colour name, its
@@ -330,7 +339,6 @@ def _hair_guess(img, parse, fit, model, landmarks: np.ndarray, res: int = 128):
     from head360cli.fitting.hair_class import (
         classify_hair,
         hair_colour,
-        hidden_by_body,
         nearest_colour_name,
         style_silhouettes,
     )
@@ -340,7 +348,7 @@ def _hair_guess(img, parse, fit, model, landmarks: np.ndarray, res: int = 128):
     c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
     hair = crop_mask(parse.hair, affine, res)
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
-    valid &= ~hidden_by_body(landmarks @ affine[:, :2].T + affine[:, 2], (res, res))
+    valid &= _outside_body(landmarks, affine, res)
     guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
                           valid)
     estimate = hair_colour(img.pixels, parse.hair)
@@ -540,12 +548,11 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     t0 = time.perf_counter()
     offset, placed_iou, plain_iou = np.zeros(3), None, None
     if style != 0 and hair_placement:
-        from head360cli.fitting.hair_class import hidden_by_body, place_hair
+        from head360cli.fitting.hair_class import place_hair
 
-        scored = valid & ~hidden_by_body(found.landmarks @ affine[:, :2].T + affine[:, 2],
-                                         (res, res))
         offset, placed_iou, plain_iou = place_hair(
-            neutral, posed, model.faces, inv.c2w.cpu().numpy(), k, style, hair_crop, scored)
+            neutral, posed, model.faces, inv.c2w.cpu().numpy(), k, style, hair_crop,
+            valid & _outside_body(found.landmarks, affine, res))
     timings["hair_placement"] = time.perf_counter() - t0
 
     say("preview", 0, 1)
