@@ -373,6 +373,8 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
 
     losses: list[float] = []
     total = cfg.code_steps + cfg.steps
+    with torch.no_grad():  # the mesh stays put: rasterized onto the planes once
+        raster = gen.plane_raster(v)
     with gen.samples_per_ray(cfg.samples), _deterministic():
         code = start_code.detach().clone()[None].requires_grad_(True)
         rot = torch.zeros(3, dtype=c2w.dtype, device=c2w.device, requires_grad=True)
@@ -384,7 +386,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
         opt = Adam(groups)
         for step in range(cfg.code_steps):
             cam = pose(rot, shift)
-            out = gen(v, cam, k, code=code)
+            out = gen(v, cam, k, code=code, plane_raster=raster)
             loss = photometric(out) + 1e-3 * code.square().mean()
             if cfg.pose:
                 loss = loss + cfg.coverage * ((1.0 - out["alpha"]) * m).sum() / area
@@ -418,7 +420,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
                 delta, size=(side, side), mode="bilinear", align_corners=False)
 
         def texture_loss(texture: torch.Tensor) -> torch.Tensor:
-            loss = photometric(gen(v, cam, k, texture=texture))
+            loss = photometric(gen(v, cam, k, texture=texture, plane_raster=raster))
             loss = loss + cfg.near * (texture - start).square().mean() \
                 + cfg.symmetry * (texture - _mirror(texture)).abs().mean()
             if fine is not None:

@@ -30,9 +30,12 @@ from head360cli.model.config import GeneratorConfig
 from head360cli.model.networks import Decoder, HairTextureGenerator, RefineNet, TextureGenerator
 from head360cli.model.planes import (
     PLANE_SETS,
+    PlaneRaster,
+    plane_raster,
     plane_zbuffer,
     rasterize_planes,
     sample_planes,
+    texture_planes,
 )
 from head360cli.model.render import EMPTY, composite, samples_around, screen_depth
 from head360cli.model.reuse import DecodeReuse
@@ -229,12 +232,24 @@ class Generator(nn.Module):
         """``(B, code_dim)`` -> neural texture ``(B, C, R, R)``."""
         return self.texture_generator(code)
 
-    def planes(self, verts: torch.Tensor, texture: torch.Tensor) -> torch.Tensor:
-        """Hex-planes ``(B, P, C + 2, res, res)`` of a posed mesh ``(B, V, 3)``."""
+    def planes(self, verts: torch.Tensor, texture: torch.Tensor,
+               raster: PlaneRaster | None = None) -> torch.Tensor:
+        """Hex-planes ``(B, P, C + 2, res, res)`` of a posed mesh ``(B, V, 3)``; with
+        ``raster`` (:meth:`plane_raster` of the same ``verts``) only the texture is read."""
+        if raster is not None:
+            return texture_planes(texture, raster)
         c = self.cfg
         return rasterize_planes(verts, self.faces, self.uv, self.faces_uv, texture,
                                 self.plane_names, c.plane_res, c.plane_centre,
                                 c.plane_half_size)
+
+    def plane_raster(self, verts: torch.Tensor) -> PlaneRaster:
+        """Where a posed mesh ``(B, V, 3)`` lands on the hex-planes, for any texture: give
+        it to :meth:`forward` as ``plane_raster`` to render the same mesh many times
+        (a texture inversion) without rasterizing it each time."""
+        c = self.cfg
+        return plane_raster(verts, self.faces, self.uv, self.faces_uv, self.plane_names,
+                            c.plane_res, c.plane_centre, c.plane_half_size)
 
     def hair_planes(self, mesh: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
                     texture: torch.Tensor) -> torch.Tensor:
@@ -270,11 +285,12 @@ class Generator(nn.Module):
 
     def _head_planes(self, verts: torch.Tensor, texture: torch.Tensor,
                      reuse: DecodeReuse | None,
-                     still: tuple[torch.Tensor, torch.Tensor] | None) -> torch.Tensor:
+                     still: tuple[torch.Tensor, torch.Tensor] | None,
+                     raster: PlaneRaster | None = None) -> torch.Tensor:
         """:meth:`planes`; with ``still``, the still triangles drawn once (as
         :meth:`_head_depth`)."""
         if still is None:
-            return self.planes(verts, texture)
+            return self.planes(verts, texture, raster)
         faces, pos = still
         c = self.cfg
         under = reuse.kept("planes_under", (pos,), lambda: plane_zbuffer(
@@ -299,7 +315,8 @@ class Generator(nn.Module):
     def forward(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, *,
                 code: torch.Tensor | None = None, texture: torch.Tensor | None = None,
                 hair: Hair | None = None, jitter: bool = False,
-                reuse: DecodeReuse | None = None) -> dict[str, Any]:
+                reuse: DecodeReuse | None = None,
+                plane_raster: PlaneRaster | None = None) -> dict[str, Any]:
         """Render heads.
 
         Args:
@@ -313,6 +330,8 @@ class Generator(nn.Module):
             reuse: Decoded points kept from the previous frame of an animation (a
                 one-item batch, no gradients): the decoders run only on points whose
                 input changed (see :class:`~head360cli.model.reuse.DecodeReuse`).
+            plane_raster: :meth:`plane_raster` of these ``verts``, when the caller renders
+                the same mesh many times; without it the mesh is rasterized here.
 
         Returns:
             ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
@@ -373,7 +392,8 @@ class Generator(nn.Module):
                 -1, -1, c.samples, 3))
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
-        feats = sample_planes(points, self._head_planes(verts, texture, reuse, still),
+        feats = sample_planes(points, self._head_planes(verts, texture, reuse, still,
+                                                        plane_raster),
                               self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
         keys = slots = None

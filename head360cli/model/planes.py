@@ -12,13 +12,15 @@ Pure functions; nothing here holds parameters.
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 import torch.nn.functional as F
 
 from head360cli.geometry.rasterize import ZBuffer, interpolate_face_corners, rasterize
 
-__all__ = ["PLANES", "PLANE_SETS", "plane_coordinates", "plane_zbuffer", "rasterize_planes",
-           "sample_planes"]
+__all__ = ["PLANES", "PLANE_SETS", "PlaneRaster", "plane_coordinates", "plane_raster",
+           "plane_zbuffer", "rasterize_planes", "sample_planes", "texture_planes"]
 
 # name: (u axis, u sign, v axis, v sign, height axis, height sign). Model axes: +x the
 # subject's left, +y up, +z the way the face looks. Height grows towards the viewer.
@@ -81,6 +83,61 @@ def plane_zbuffer(verts: torch.Tensor, faces: torch.Tensor, names: tuple[str, ..
                      perspective_correct=False, near=float("-inf"), draw=draw).zbuffer
 
 
+@dataclasses.dataclass
+class PlaneRaster:
+    """Where a posed mesh lands on the planes, for any texture: what
+    :func:`rasterize_planes` computes before it reads the texture. A mesh that stays put
+    (a texture inversion's) is rasterized once and textured at every step.
+
+    Attributes:
+        grid: ``(B, P res, res, 2)`` each plane pixel's texture coordinate in [-1, 1],
+            the planes stacked into one tall grid.
+        mask: ``(B, 1, P, res, res)`` coverage (0 or 1).
+        surface: ``(B, 1, P, res, res)`` the visible surface's height towards the viewer
+            (metres), 0 where nothing is.
+    """
+
+    grid: torch.Tensor
+    mask: torch.Tensor
+    surface: torch.Tensor
+
+
+def plane_raster(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
+                 faces_uv: torch.Tensor, names: tuple[str, ...], res: int,
+                 centre: tuple[float, float, float], half: float,
+                 draw: torch.Tensor | None = None, under: ZBuffer | None = None
+                 ) -> PlaneRaster:
+    """Rasterize a mesh onto the planes, without a texture (see :func:`rasterize_planes`
+    for the arguments; :func:`texture_planes` adds the texture)."""
+    b, p = verts.shape[0], len(names)
+    frags = rasterize(*_plane_screen(verts, names, res, centre, half), faces, res, res,
+                      perspective_correct=False, near=float("-inf"), draw=draw, under=under)
+    corner_uv = uv[faces_uv]  # (F, 3, 2)
+    uvs = interpolate_face_corners(corner_uv, frags)  # (BP, res, res, 2)
+    # One texture read by all P planes at once: the grids stacked into one tall grid
+    # (the same values as sampling P copies of the texture, without making the copies).
+    grid = (uvs * 2.0 - 1.0).reshape(b, p * res, res, 2)
+    mask = frags.mask.to(grid.dtype).view(b, 1, p, res, res)
+    surface = -frags.depth.view(b, 1, p, res, res) * mask
+    return PlaneRaster(grid, mask, surface)
+
+
+def texture_planes(texture: torch.Tensor, raster: PlaneRaster) -> torch.Tensor:
+    """Planes ``(B, P, C + 2, res, res)`` of a neural texture ``(B, C, R, R)`` on a mesh
+    rasterized by :func:`plane_raster`: as :func:`rasterize_planes`."""
+    b, _, p, res, _ = raster.mask.shape
+    # Border padding is written as a grid clamped half a texel inside the edge with zero
+    # padding: the same samples (the outer texel's weight is 1 at the clamp), and
+    # onnxruntime's border mode was 4x slower than its zero padding (35 vs 8 ms a frame)
+    lim = 1.0 - 1.0 / texture.shape[-1]
+    feat = F.grid_sample(texture, raster.grid.clamp(-lim, lim), mode="bilinear",
+                         padding_mode="zeros", align_corners=False)  # (B, C, P res, res)
+    feat = feat.view(b, -1, p, res, res)
+    mask, surface = raster.mask.to(feat.dtype), raster.surface.to(feat.dtype)
+    out = torch.cat([feat * mask, surface, mask], 1)  # (B, C + 2, P, res, res)
+    return out.transpose(1, 2).contiguous()
+
+
 def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
                      faces_uv: torch.Tensor, texture: torch.Tensor, names: tuple[str, ...],
                      res: int, centre: tuple[float, float, float], half: float,
@@ -105,25 +162,8 @@ def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
         ``(B, P, C + 2, res, res)``: texture features, surface height (metres towards the
         viewer) and coverage.
     """
-    b, p = verts.shape[0], len(names)
-    frags = rasterize(*_plane_screen(verts, names, res, centre, half), faces, res, res,
-                      perspective_correct=False, near=float("-inf"), draw=draw, under=under)
-    corner_uv = uv[faces_uv]  # (F, 3, 2)
-    uvs = interpolate_face_corners(corner_uv, frags)  # (BP, res, res, 2)
-    # One texture read by all P planes at once: the grids stacked into one tall grid
-    # (the same values as sampling P copies of the texture, without making the copies).
-    # Border padding is written as a grid clamped half a texel inside the edge with zero
-    # padding: the same samples (the outer texel's weight is 1 at the clamp), and
-    # onnxruntime's border mode was 4x slower than its zero padding (35 vs 8 ms a frame)
-    lim = 1.0 - 1.0 / texture.shape[-1]
-    grid = (uvs * 2.0 - 1.0).clamp(-lim, lim).reshape(b, p * res, res, 2)
-    feat = F.grid_sample(texture, grid, mode="bilinear", padding_mode="zeros",
-                         align_corners=False)  # (B, C, P res, res)
-    feat = feat.view(b, -1, p, res, res)
-    mask = frags.mask.to(feat.dtype).view(b, 1, p, res, res)
-    surface = -frags.depth.view(b, 1, p, res, res) * mask
-    out = torch.cat([feat * mask, surface, mask], 1)  # (B, C + 2, P, res, res)
-    return out.transpose(1, 2).contiguous()
+    return texture_planes(texture, plane_raster(verts, faces, uv, faces_uv, names, res,
+                                                centre, half, draw, under))
 
 
 def sample_planes(points: torch.Tensor, planes: torch.Tensor, names: tuple[str, ...],

@@ -57,6 +57,37 @@ def test_a_given_texture_replaces_the_code(parts):
         gen(verts, c2w, k)
 
 
+def test_a_precomputed_plane_raster_renders_the_same(parts, monkeypatch):
+    """A mesh rasterized onto the planes once (a texture inversion's fixed mesh) renders
+    bit for bit as when it is rasterized in every call, with the same texture gradients,
+    and the call then rasterizes nothing onto the planes."""
+    import head360cli.model.generator as generator
+
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv).eval()
+    with torch.no_grad():
+        texture = gen.texture(torch.randn(2, TINY.code_dim))
+        raster = gen.plane_raster(verts)
+    assert raster.grid.shape == (2, 6 * 16, 16, 2)
+    assert raster.mask.shape == raster.surface.shape == (2, 1, 6, 16, 16)
+    renders, grads = [], []
+    for given in (None, raster):
+        tex = texture.clone().requires_grad_(True)
+        out = gen(verts, c2w, k, texture=tex, plane_raster=given)
+        (out["rgb"] * torch.linspace(0, 1, 32)).sum().backward()
+        renders.append(out["rgb"].detach())
+        grads.append(tex.grad)
+    assert torch.equal(renders[0], renders[1]) and torch.equal(grads[0], grads[1])
+    assert grads[0].abs().sum() > 0
+    calls = []
+    monkeypatch.setattr(generator, "rasterize_planes",
+                        lambda *a, **kw: calls.append(1) or pytest.fail("rasterized"))
+    with torch.no_grad():
+        gen(verts, c2w, k, texture=texture, plane_raster=raster)
+    assert not calls
+
+
 def test_config_round_trip_and_checks():
     cfg = dataclasses.replace(TINY, plane_centre=(0.0, 0.1, 0.0))
     assert GeneratorConfig.from_dict(cfg.to_dict()) == cfg
