@@ -331,7 +331,8 @@ class Generator(nn.Module):
                 one-item batch, no gradients): the decoders run only on points whose
                 input changed (see :class:`~head360cli.model.reuse.DecodeReuse`).
             plane_raster: :meth:`plane_raster` of these ``verts``, when the caller renders
-                the same mesh many times; without it the mesh is rasterized here.
+                the same mesh many times; without it the mesh is rasterized here. An
+                animation's ``reuse`` keeps its own (its still triangles) and ignores it.
 
         Returns:
             ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
