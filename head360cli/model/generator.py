@@ -316,7 +316,8 @@ class Generator(nn.Module):
                 code: torch.Tensor | None = None, texture: torch.Tensor | None = None,
                 hair: Hair | None = None, jitter: bool = False,
                 reuse: DecodeReuse | None = None,
-                plane_raster: PlaneRaster | None = None) -> dict[str, Any]:
+                plane_raster: PlaneRaster | None = None,
+                head_planes: torch.Tensor | None = None) -> dict[str, Any]:
         """Render heads.
 
         Args:
@@ -333,6 +334,10 @@ class Generator(nn.Module):
             plane_raster: :meth:`plane_raster` of these ``verts``, when the caller renders
                 the same mesh many times; without it the mesh is rasterized here. An
                 animation's ``reuse`` keeps its own (its still triangles) and ignores it.
+            head_planes: ``(B, P, C + 2, res, res)`` the head's planes made by the caller
+                (:meth:`planes`, or
+                :func:`~head360cli.model.planes.add_texture_change` of them), rendered
+                instead of the texture's; not with ``reuse``.
 
         Returns:
             ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
@@ -340,7 +345,9 @@ class Generator(nn.Module):
             at ``render_res``, and the ``texture``.
         """
         c = self.cfg
-        if texture is None:
+        if head_planes is not None and reuse is not None:
+            raise ValueError("expected head planes or decoded points to reuse, found both")
+        if texture is None and head_planes is None:
             if code is None:
                 raise ValueError("expected a texture code or a neural texture, found neither")
             texture = self.texture(code)
@@ -393,8 +400,9 @@ class Generator(nn.Module):
                 -1, -1, c.samples, 3))
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
-        feats = sample_planes(points, self._head_planes(verts, texture, reuse, still,
-                                                        plane_raster),
+        if head_planes is None:
+            head_planes = self._head_planes(verts, texture, reuse, still, plane_raster)
+        feats = sample_planes(points, head_planes,
                               self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)
         keys = slots = None

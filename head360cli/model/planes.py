@@ -19,8 +19,9 @@ import torch.nn.functional as F
 
 from head360cli.geometry.rasterize import ZBuffer, interpolate_face_corners, rasterize
 
-__all__ = ["PLANES", "PLANE_SETS", "PlaneRaster", "plane_coordinates", "plane_raster",
-           "plane_zbuffer", "rasterize_planes", "sample_planes", "texture_planes"]
+__all__ = ["PLANES", "PLANE_SETS", "PlaneRaster", "add_texture_change", "plane_coordinates",
+           "plane_raster", "plane_zbuffer", "rasterize_planes", "reading_pixels",
+           "sample_planes", "texture_planes"]
 
 # name: (u axis, u sign, v axis, v sign, height axis, height sign). Model axes: +x the
 # subject's left, +y up, +z the way the face looks. Height grows towards the viewer.
@@ -136,6 +137,58 @@ def texture_planes(texture: torch.Tensor, raster: PlaneRaster) -> torch.Tensor:
     mask, surface = raster.mask.to(feat.dtype), raster.surface.to(feat.dtype)
     out = torch.cat([feat * mask, surface, mask], 1)  # (B, C + 2, P, res, res)
     return out.transpose(1, 2).contiguous()
+
+
+def reading_pixels(raster: PlaneRaster, texels: torch.Tensor) -> torch.Tensor:
+    """The covered plane pixels whose texture read touches any of ``texels``.
+
+    Args:
+        raster: Where a mesh lands on the planes (:func:`plane_raster`).
+        texels: ``(R, R)`` bool texture mask.
+
+    Returns:
+        ``(N,)`` int64 flat indices into ``(B, P, res, res)``.
+    """
+    b, _, p, res, _ = raster.mask.shape
+    lim = 1.0 - 1.0 / texels.shape[-1]
+    near = F.grid_sample(texels.to(raster.grid.dtype)[None, None].expand(b, -1, -1, -1),
+                         raster.grid.clamp(-lim, lim), mode="bilinear",
+                         padding_mode="zeros", align_corners=False)  # (B, 1, P res, res)
+    hit = (near.view(b, p, res, res) > 0) & (raster.mask.view(b, p, res, res) > 0)
+    return torch.nonzero(hit.reshape(-1)).squeeze(1)
+
+
+def add_texture_change(planes: torch.Tensor, change: torch.Tensor, raster: PlaneRaster,
+                       at: torch.Tensor) -> torch.Tensor:
+    """Planes of ``texture + change`` from the planes of ``texture``, reading ``change``
+    at the pixels ``at`` only: what :func:`texture_planes` gives when ``change`` is zero
+    wherever :func:`reading_pixels` did not look (texture planes are linear in the
+    texture), at the cost of those pixels rather than of every plane pixel.
+
+    Args:
+        planes: ``(B, P, C + 2, res, res)`` :func:`texture_planes` of the texture.
+        change: ``(1, C, R, R)`` or ``(B, C, R, R)`` change of the texture.
+        raster: The planes' :class:`PlaneRaster`.
+        at: ``(N,)`` :func:`reading_pixels` of the texels where ``change`` is not zero.
+
+    Returns:
+        ``(B, P, C + 2, res, res)``.
+    """
+    b, p, c2, res, _ = planes.shape
+    c = c2 - 2
+    lim = 1.0 - 1.0 / change.shape[-1]
+    item, pixel = at // (p * res * res), at % (p * res * res)
+    grid = raster.grid.reshape(b, -1, 2)[item, pixel].clamp(-lim, lim)
+    if change.shape[0] == 1:
+        got = F.grid_sample(change, grid[None, :, None], mode="bilinear",
+                            padding_mode="zeros", align_corners=False)[0, :, :, 0]
+    else:
+        got = F.grid_sample(change[item], grid[:, None, None], mode="bilinear",
+                            padding_mode="zeros", align_corners=False)[:, :, 0, 0].T
+    delta = torch.zeros(b, p, res * res, c, dtype=got.dtype, device=got.device)
+    delta = delta.index_put((item, pixel // (res * res), pixel % (res * res)), got.T)
+    feat = planes[:, :, :c] + delta.transpose(2, 3).reshape(b, p, c, res, res)
+    return torch.cat([feat, planes[:, :, c:]], 2)
 
 
 def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,

@@ -279,3 +279,36 @@ def test_bfloat16_decoders_see_whole_blocks_of_points(parts, hair, monkeypatch):
     with torch.no_grad():
         gen(verts, c2w, k, code=code, hair=hair)
     assert any(n % 4096 for n in seen)
+
+
+def test_a_sparse_texture_change_gives_the_planes_of_the_changed_texture(parts):
+    """Planes of a texture plus a change on a few texels, made by adding the change where
+    the planes read those texels, equal the changed texture's planes, with the same
+    gradients; rendered through ``head_planes``, so do the images."""
+    from head360cli.model.planes import add_texture_change, reading_pixels, texture_planes
+
+    model, verts, c2w, k = parts
+    torch.manual_seed(0)
+    gen = Generator(TINY, model.faces, model.uv, model.faces_uv).eval()
+    with torch.no_grad():
+        texture = gen.texture(torch.randn(2, TINY.code_dim))
+        raster = gen.plane_raster(verts)
+    texels = torch.zeros(16, 16, dtype=torch.bool)
+    texels[5:9, 3:12] = True
+    at = reading_pixels(raster, texels)
+    assert 0 < len(at) < raster.mask.sum()
+    for batch in (1, 2):  # one change for every item, or one per item
+        change = (torch.randn(batch, TINY.texture_channels, 16, 16) * texels
+                  ).requires_grad_(True)
+        dense = texture_planes(texture + change, raster)
+        sparse = add_texture_change(texture_planes(texture, raster), change, raster, at)
+        torch.testing.assert_close(sparse, dense, atol=1e-5, rtol=1e-5)
+        weights = torch.randn_like(dense)
+        g_dense, = torch.autograd.grad((dense * weights).sum(), change)
+        g_sparse, = torch.autograd.grad((sparse * weights).sum(), change)
+        torch.testing.assert_close(g_sparse * texels, g_dense * texels, atol=1e-5,
+                                   rtol=1e-5)
+    with torch.no_grad():
+        a = gen(verts, c2w, k, texture=texture + change.detach())
+        b = gen(verts, c2w, k, head_planes=sparse.detach())
+    torch.testing.assert_close(a["rgb"], b["rgb"], atol=1e-5, rtol=1e-5)
