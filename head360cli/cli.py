@@ -357,16 +357,20 @@ def _progress_printer():
 @click.option("--distance", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="The camera's distance to the head in metres, when known (a rig): fixes "
               "the head's size, which landmarks alone hardly tell from its distance.")
+@click.option("--no-lid-fit", is_flag=True,
+              help="Keep the inversion's eyelids: skip refitting the texels a blink moves "
+              "(closed eyes then render as a dark smudge that hardly reads as closed).")
 @NO_PRIOR
 @common_options
 def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
         face: str, detector: str, focal: float | None, distance: float | None,
-        no_prior: bool) -> None:
+        no_lid_fit: bool, no_prior: bool) -> None:
     """Fit a head to a photo.
 
     Every stage: face and landmarks, shape fit, hair parsing, hairstyle and hair colour,
-    bald target, neural-texture inversion. Writes the head file, a preview PNG (photo |
-    fitted front | three other views | back) and a JSON summary with timings per stage.
+    bald target, neural-texture inversion, closed eyelids. Writes the head file, a preview
+    PNG (photo | fitted front | three other views | back) and a JSON summary with timings
+    per stage.
 
     With --stage shape: writes the mesh (OBJ with UVs), an overlay PNG (detected landmarks
     green, fitted red, mesh wireframe) and the parameters as JSON.
@@ -416,7 +420,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
                        focal=focal, device=str(resolve_device(_settings().device)),
                        hair_style=style, distance=distance, progress=_progress_printer(),
-                       learned_prior=not no_prior)
+                       learned_prior=not no_prior, closed_lids=not no_lid_fit)
     for warning in result["warnings"]:
         _warn(warning)
     t = result["timings"]

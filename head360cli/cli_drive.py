@@ -323,7 +323,7 @@ def _mean_head_renderer():
     from head360cli.model.train import load_generator
 
     device = str(resolve_device(_settings().device))
-    head = sample_heads(1, scale=0.0, device=device)[0]
+    head = sample_heads(1, scale=0.0, device=device, lids=False)[0]  # still views
     gen, _ = load_generator(device=device)
     import torch
 
@@ -343,9 +343,16 @@ def _mean_head_renderer():
               type=click.Path(),
               help="Folder for the heads (sample_000.h360...) and samples.png, or one "
                    "NAME.h360 file (its picture beside it as NAME.png).")
+@click.option("--no-lid-fit", is_flag=True,
+              help="Skip fitting each head's closed eyelids (about 1 s a head): closed "
+              "eyes then render as the generator draws them, a dark smudge.")
 @common_options
-def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str) -> None:
+def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str,
+           no_lid_fit: bool) -> None:
     """Draw random heads from the model and render them side by side.
+
+    Each head gets the texture change that closes its eyelids as it blinks, as a fit
+    does.
 
     \b
     Examples:
@@ -378,7 +385,7 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     if not one_file and out.exists() and not out.is_dir():
         raise BadInputError(f"expected a folder for the heads, found a file: {out}")
     device = str(resolve_device(_settings().device))
-    heads = sample_heads(count, seed, spread, bald, device)
+    heads = sample_heads(count, seed, spread, bald, device, lids=not no_lid_fit)
     if one_file:
         from head360cli.io.headfile import write_head
 

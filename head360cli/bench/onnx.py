@@ -81,7 +81,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     tmp = tempfile.TemporaryDirectory()
     export_s = None
     if graph is None:
-        mean = sample_heads(1, scale=0.0)[0].arrays
+        mean = sample_heads(1, scale=0.0, lids=False)[0].arrays
         r = HeadRenderer(gen, mean["shape"], torch.as_tensor(mean["texture"]), 11,
                          mean["hair_color"], samples=samples, size=size, precision="fp32")
         say(f"exporting the generator ({size} px, {samples} samples per ray)")
@@ -92,7 +92,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     k = view_intrinsics(size)
     rng = np.random.default_rng(seed)
     rows, worst = [], 0.0
-    for i, head in enumerate(sample_heads(heads, seed=seed + 1)):
+    for i, head in enumerate(sample_heads(heads, seed=seed + 1, lids=False)):
         a = head.arrays
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"], samples=samples, size=size,
@@ -118,7 +118,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     timed_gen = gen if dev.type == "cpu" else load_generator(device=str(dev))[0]
     timed_runner = (runner if dev.type != "cuda" else
                     OnnxFrameRunner(graph, providers=["CUDAExecutionProvider"]))
-    a = sample_heads(1, seed=seed + 1)[0].arrays
+    a = sample_heads(1, seed=seed + 1, lids=False)[0].arrays
     cam, w = view_cameras(20.0, 5.0), np.zeros(52)
     runs, where = {}, {}
     backends = [("torch", "fp32"), ("torch", "bf16"), ("onnxruntime", "fp32")]

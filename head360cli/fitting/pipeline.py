@@ -435,15 +435,16 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
               detector: str = "hog", focal: float | None = None, device: str = "cpu",
               hair_style: int | None = None, distance: float | None = None,
               progress: Any = None, learned_prior: bool = True,
-              hair_placement: bool = True) -> dict[str, Any]:
+              hair_placement: bool = True, closed_lids: bool = True) -> dict[str, Any]:
     """``head360 fit``: every stage, from a photo to a head file.
 
     Stages: detection and shape fit; hair parsing; hairstyle classification and hair
     colour; the bald target (hair replaced by the model's bald render, Poisson-blended);
-    neural-texture inversion; hair placement (the style's mesh shifted to match the
-    parsed hair from the fitted camera); preview. Writes ``out`` (``.h360``),
-    ``<out stem>_preview.png`` (photo crop | fitted front | three other views | back) and
-    ``<out stem>.json``.
+    neural-texture inversion; closed lids (a texture change that the blinks bring in, so
+    closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); hair placement
+    (the style's mesh shifted to match the parsed hair from the fitted camera); preview.
+    Writes ``out`` (``.h360``), ``<out stem>_preview.png`` (photo crop | fitted front |
+    three other views | back) and ``<out stem>.json``.
 
     Args:
         photo: The image.
@@ -461,6 +462,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         hair_placement: Shift the hairstyle's mesh to the parsed hair
             (:func:`~head360cli.fitting.hair_class.place_hair`); ``False`` leaves it
             where the style's fit to the head puts it.
+        closed_lids: Fit the texture change that closed eyes show as a lid (stored in
+            the head file as ``lid_index``/``lid_change``); ``False``: none.
 
     Returns:
         The JSON summary (also written to ``<out stem>.json``).
@@ -472,7 +475,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     from head360cli.fitting.hair_parse import parse_hair
     from head360cli.fitting.texture import PRESETS, bald_target, crop_mask, invert_texture
     from head360cli.io.atomic import atomic_path
-    from head360cli.io.headfile import HeadFile, write_head
+    from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
     from head360cli.model.head_render import HeadRenderer, to_uint8
     from head360cli.model.train import load_generator
     from head360cli.synth.hair import HAIRSTYLES
@@ -544,6 +547,13 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         progress=lambda s, n, loss: say("texture", s, n),
         landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev))
     timings["invert"] = inv.seconds
+    lids = None
+    if closed_lids:
+        from head360cli.fitting.lids import head_lids
+
+        say("lids", 0, 1)
+        lids = head_lids(gen, model, fit.shape, inv.texture)
+    timings["lids"] = 0.0 if lids is None else lids.seconds
 
     t0 = time.perf_counter()
     offset, placed_iou, plain_iou = np.zeros(3), None, None
@@ -558,7 +568,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     say("preview", 0, 1)
     t0 = time.perf_counter()
     head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
-                        samples=cfg.preview_samples, precision="fp32", hair_offset=offset)
+                        samples=cfg.preview_samples, precision="fp32", hair_offset=offset,
+                        lid_change=None if lids is None else lids.change)
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
@@ -587,7 +598,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                 "hair_style": np.array(style, np.int64),
                 "hair_color": colour.astype(np.float32),
                 "hair_offset": offset.astype(np.float32),
-                "vertices": neutral.astype(np.float32)},
+                "vertices": neutral.astype(np.float32),
+                **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy()))},
         model_hash=model_hash,
         info={"photo": Path(photo).name, "preset": preset, "face": face,
               "hair_style_name": HAIRSTYLES[style].name,
@@ -621,6 +633,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                        "hair_fraction": round(float(parse.hair.mean()), 4)},
         "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                       "loss_last": round(inv.losses[-1], 5)},
+        "closed_lids": None if lids is None else {
+            "loss_first": round(lids.loss_first, 5), "loss_last": round(lids.loss_last, 5),
+            "texels": lids.texels},
         "psnr_face_input_view": round(psnr_face, 2),
         "psnr_face_input_view_bald": round(psnr_bald, 2),
         "image_size": list(img.source_size),
@@ -667,7 +682,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     """
     import torch
 
-    from head360cli.io.headfile import read_head
+    from head360cli.io.headfile import lid_change_of, read_head
     from head360cli.model.head_render import REUSE_TOL, HeadRenderer
     from head360cli.model.train import load_generator
 
@@ -678,7 +693,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
                         a["hair_color"], a["expression"], samples=samples, size=size,
                         precision=precision,
                         reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
-                        hair_offset=a.get("hair_offset"))
+                        hair_offset=a.get("hair_offset"), lid_change=lid_change_of(a))
 
 
 def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,

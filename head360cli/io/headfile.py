@@ -33,6 +33,8 @@ __all__ = [
     "FORMAT_VERSION",
     "KNOWN_ARRAYS",
     "HeadFile",
+    "lid_change_arrays",
+    "lid_change_of",
     "read_head",
     "write_head",
 ]
@@ -52,6 +54,8 @@ KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "hair_color": (1, "f"),  # (3,) linear RGB hair colour
     "hair_offset": (1, "f"),  # (3,) metres the hair is moved by (optional; default 0)
     "vertices": (2, "f"),  # (V, 3) fitted neutral mesh
+    "lid_index": (1, "i"),  # (N,) flat texel indices of the lid change (optional)
+    "lid_change": (2, "f"),  # (C, N) the texture's change there, eyes closed (optional)
 }
 """Array name -> (rank, kind: ``f`` float, ``i`` integer) for the arrays the pipeline uses."""
 
@@ -112,6 +116,37 @@ def _validate_arrays(arrays: dict[str, np.ndarray], where: str, error: type[Exce
                 raise error(f"{where}: expected integer array {name!r}, found {value.dtype}")
         if value.dtype.kind == "f" and not np.isfinite(value).all():
             raise error(f"{where}: array {name!r} holds NaN or infinite values")
+
+
+def lid_change_arrays(change: np.ndarray) -> dict[str, np.ndarray]:
+    """The head-file arrays of a lid change ``(C, R, R)`` (see
+    :func:`head360cli.fitting.lids.close_lids`): ``lid_index`` (its nonzero texels, flat)
+    and ``lid_change (C, N)`` there, about 3000 of 65536 texels."""
+    flat = np.asarray(change, np.float32).reshape(change.shape[0], -1)
+    index = np.flatnonzero(np.any(flat != 0, axis=0)).astype(np.int32)
+    return {"lid_index": index, "lid_change": flat[:, index]}
+
+
+def lid_change_of(arrays: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The dense lid change ``(C, R, R)`` of a head file's arrays (shaped like its
+    texture), or ``None`` if it has none.
+
+    Raises:
+        FileFormatError: The lid arrays do not fit the texture.
+    """
+    if "lid_index" not in arrays and "lid_change" not in arrays:
+        return None
+    index, values = arrays.get("lid_index"), arrays.get("lid_change")
+    c, h, w = arrays["texture"].shape
+    if index is None or values is None or values.shape != (c, len(index)) \
+            or (len(index) and not 0 <= index.min() <= index.max() < h * w):
+        raise FileFormatError(
+            f"expected lid_index (N,) in [0, {h * w}) with lid_change ({c}, N), found "
+            f"{None if index is None else tuple(index.shape)} and "
+            f"{None if values is None else tuple(values.shape)}")
+    dense = np.zeros((c, h * w), np.float32)
+    dense[:, index] = values
+    return dense.reshape(c, h, w)
 
 
 def write_head(head: HeadFile, path: str | os.PathLike[str]) -> Path:

@@ -51,13 +51,18 @@ class HeadRenderer:
             ``None`` decodes every point of every frame.
         hair_offset: ``(3,)`` metres, in the head's frame, that the hair is moved by
             (a head file's ``hair_offset``; default none).
+        lid_change: ``(C, R, R)`` the texture's change with both eyes closed
+            (:func:`~head360cli.fitting.lids.close_lids`); a frame's texture adds the part
+            on each eye's lid texels times that eye's ``eyeBlink`` weight. ``None``: the
+            texture is the same in every frame.
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,
                  hair_colour: np.ndarray, expression: np.ndarray | None = None,
                  samples: int | None = None, size: int | None = None,
                  precision: str = "auto", reuse: float | None = REUSE_TOL,
-                 hair_offset: np.ndarray | None = None) -> None:
+                 hair_offset: np.ndarray | None = None,
+                 lid_change: torch.Tensor | np.ndarray | None = None) -> None:
         from head360cli.devices import fast_bfloat16
         from head360cli.mesh.bilinear import load_bilinear
 
@@ -103,6 +108,24 @@ class HeadRenderer:
                              f"{np.asarray(hair_offset).tolist()}")
         """``(3,)`` metres every hairstyle this head wears is moved by (its fit's
         placement, :func:`head360cli.fitting.hair_class.place_hair`)."""
+        self.lids = None
+        """``(2, C, R, R)``: the lid change on the left and on the right eye's texels,
+        or ``None``."""
+        if lid_change is not None:
+            from head360cli.fitting.lids import eye_texels
+
+            change = torch.as_tensor(np.asarray(lid_change, np.float32), device=self.device)
+            if change.shape != self.texture.shape[1:]:
+                raise ValueError(f"expected a lid change shaped like the texture "
+                                 f"{tuple(self.texture.shape[1:])}, found "
+                                 f"{tuple(change.shape)}")
+            sides = torch.as_tensor(np.stack(eye_texels(self.model, self.shape,
+                                                        change.shape[-1])),
+                                    device=self.device)
+            self.lids = change[None] * sides[:, None].to(change.dtype)
+        from head360cli.mesh.arkit52 import INDEX
+
+        self._blinks = [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]
         self.set_hair(hair_style, hair_colour)
 
     def use_runner(self, runner) -> None:
@@ -137,6 +160,18 @@ class HeadRenderer:
         other = copy.copy(self)
         other.set_hair(hair_style, hair_colour)
         return other
+
+    def textures(self, weights: np.ndarray) -> torch.Tensor:
+        """Neural textures ``(B, C, R, R)`` of frames with ARKit weights ``(B, 52)``: the
+        texture, plus the lid change as far as each eye is closed."""
+        n = len(weights)
+        if self.lids is None:
+            return self.texture.expand(n, -1, -1, -1)
+        w = torch.as_tensor(np.asarray(weights, np.float32)[:, self._blinks],
+                            device=self.device)
+        if not bool((w != 0).any()):
+            return self.texture.expand(n, -1, -1, -1)
+        return self.texture + torch.einsum("be,echw->bchw", w, self.lids)
 
     def vertices(self, expression: np.ndarray | torch.Tensor | None = None) -> torch.Tensor:
         """Meshes ``(B, V, 3)`` for ARKit weights ``(B, 52)`` (or ``(V, 3)`` for one
@@ -190,7 +225,6 @@ class HeadRenderer:
                 self.gen.network_dtype = own_dtype
 
     def _runner_frames(self, c2w, weights, k, hair, uint8):
-        tex = self.texture.detach().cpu().numpy()
         extra = ()
         if hair and self.hair is not None:
             hv, hf, _ = self.hair.meshes[0]
@@ -198,7 +232,9 @@ class HeadRenderer:
                      self.hair.planes[0].detach().cpu().numpy())
         kk = k.reshape(1, 3, 3).cpu().numpy()
         for i in range(len(c2w)):
-            verts = self.vertices(np.asarray(weights[i:i + 1], np.float32)).cpu().numpy()
+            w = np.asarray(weights[i:i + 1], np.float32)
+            verts = self.vertices(w).cpu().numpy()
+            tex = self.textures(w).detach().cpu().numpy()
             out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
                                                *extra))
             yield to_uint8(out) if uint8 else out
@@ -216,8 +252,9 @@ class HeadRenderer:
         for i in range(0, len(c2w), batch):
             cams = c2w[i:i + batch].to(self.device)
             n = len(cams)
-            verts = self.vertices(np.asarray(weights[i:i + n], np.float32))
+            w = np.asarray(weights[i:i + n], np.float32)
+            verts = self.vertices(w)
             h = self.hair.repeat(n) if hair and self.hair is not None else None
-            out = self.gen(verts, cams, k, texture=self.texture.expand(n, -1, -1, -1),
+            out = self.gen(verts, cams, k, texture=self.textures(w),
                            hair=h, reuse=reuse)["rgb"].clamp(0, 1)  # RefineNet may overshoot
             yield to_uint8(out) if uint8 else out.cpu()

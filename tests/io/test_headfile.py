@@ -152,3 +152,26 @@ def test_pickle_bearing_file_is_refused_without_unpickling(tmp_path):
     path.write_bytes(buf.getvalue())
     with pytest.raises(FileFormatError, match="pickled Python objects"):
         read_head(path)
+
+
+def test_a_lid_change_is_stored_on_its_texels_and_read_back_dense(tmp_path):
+    from head360cli.io.headfile import lid_change_arrays, lid_change_of
+
+    head = sample_head()
+    assert lid_change_of(head.arrays) is None
+    change = np.zeros((8, 16, 16), np.float32)
+    change[:, 3:6, 4:9] = np.random.default_rng(1).standard_normal((8, 3, 5))
+    packed = lid_change_arrays(change)
+    assert packed["lid_index"].shape == (15,) and packed["lid_change"].shape == (8, 15)
+    head.arrays.update(packed)
+    back = read_head(write_head(head, tmp_path / "lids.h360"))
+    np.testing.assert_array_equal(lid_change_of(back.arrays), change)
+    for bad in ({"lid_index": packed["lid_index"][:-1]},
+                {"lid_index": packed["lid_index"] + 256},
+                {"lid_change": packed["lid_change"][:4]}):
+        with pytest.raises(FileFormatError, match="lid_index"):
+            lid_change_of({**head.arrays, **bad})
+    only = dict(head.arrays)
+    del only["lid_change"]
+    with pytest.raises(FileFormatError, match="lid_index"):
+        lid_change_of(only)
