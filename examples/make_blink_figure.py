@@ -2,14 +2,15 @@
 eye, on the corpus renderer's ground truth and on the generator's frames.
 
 Rows: a held-out SynHead-P head (test split, corpus seed 0) rendered by the corpus
-renderer (ground truth, no generator); the first head ``head360 sample --seed 0`` draws;
-the astronaut fitted with the fast preset. Columns: eyes open and both eyes closed
-(eyeBlinkLeft = eyeBlinkRight = 1), at 256 and at 512 pixels. Each tile is the eye region
-of a frontal frame, scaled to one size, with dlib's 12 eye landmarks drawn in and the
-mean eye opening (eyelid gap over eye width, as ``head360 bench animate`` measures it)
-written below.
+renderer (ground truth, no generator); the first head ``head360 sample --seed 0`` draws,
+without and with its lid change (``--no-lid-fit``; see ``head360cli/fitting/lids.py``);
+the astronaut fitted with the fast preset, without and with its lid change. Columns: eyes
+open and both eyes closed (eyeBlinkLeft = eyeBlinkRight = 1), at 256 and at 512 pixels.
+Each tile is the eye region of a frontal frame, scaled to one size, with dlib's 12 eye
+landmarks drawn in and the mean eye opening (eyelid gap over eye width, as ``head360 bench
+animate`` measures it) written below.
 
-Run from the repository root (about a minute on 2 CPU cores):
+Run from the repository root (about 2 minutes on 2 CPU cores):
 
     python examples/make_blink_figure.py
 """
@@ -88,9 +89,13 @@ def main() -> None:
         photo = work / "astronaut.png"
         Image.fromarray(data.astronaut()).save(photo)
         fit_photo(photo, work / "astronaut.h360", preset="fast")
+        fit_photo(photo, work / "astronaut_no_lids.h360", preset="fast", closed_lids=False)
         (sampled,) = write_samples(sample_heads(1, seed=0), work)
-        heads = {"sampled head 0 (generator)": sampled,
-                 "fitted astronaut (generator)": work / "astronaut.h360"}
+        (bare,) = write_samples(sample_heads(1, seed=0, lids=False), work, "bare")
+        heads = {"sampled head 0, no lid change": bare,
+                 "sampled head 0, lid change": sampled,
+                 "fitted astronaut, no lid change": work / "astronaut_no_lids.h360",
+                 "fitted astronaut, lid change": work / "astronaut.h360"}
         by_size = {size: _frames(size, heads) for size in SIZES}
     names = list(by_size[SIZES[0]])
     label_w, head_h = 190, 18
