@@ -177,11 +177,18 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
 
 def head_inputs(renderer) -> dict[str, np.ndarray]:
     """What a torch-free runner needs of one head: ``base (V, 3)`` and ``deltas
-    (52, V, 3)`` (the mesh is ``base + w @ deltas``), ``texture (1, C, R, R)``, and for a
-    head with hair ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``."""
+    (52, V, 3)`` (the mesh is ``base + w @ deltas``), ``texture (1, C, R, R)``, for a head
+    with a lid change ``lids (2, C, R, R)`` (its left and right eye's parts), ``lid_from
+    (2,)`` and ``lid_weights (2,)`` (the indices of eyeBlinkLeft / Right; see
+    :meth:`~head360cli.model.head_render.HeadRenderer.textures`), and for a head with hair
+    ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``."""
     out = {"base": renderer.neutral.astype(np.float32),
            "deltas": renderer.deltas.astype(np.float32),
            "texture": renderer.texture.detach().cpu().numpy().astype(np.float32)}
+    if renderer.lids is not None:
+        out.update(lids=renderer.lids.detach().cpu().numpy().astype(np.float32),
+                   lid_from=renderer.lid_from.astype(np.float32),
+                   lid_weights=np.asarray(renderer.blink_index, np.int64))
     if renderer.hair is not None:
         hv, hf, _ = renderer.hair.meshes[0]
         out.update(hair_verts=hv[None].cpu().numpy().astype(np.float32),
@@ -256,5 +263,13 @@ class OnnxFrameRunner:
         extra = {}
         if hair and "hair_verts" in inputs:
             extra = {k: inputs[k] for k in ("hair_verts", "hair_faces", "hair_planes")}
-        return self(verts[None], inputs["texture"], np.asarray(c2w).reshape(1, 4, 4),
+        texture = inputs["texture"]
+        if "lids" in inputs:
+            from head360cli.io.headfile import lid_amounts
+
+            amount = lid_amounts(np.asarray(weights, np.float32)[inputs["lid_weights"]][None],
+                                 inputs["lid_from"])[0]
+            if (amount > 0).any():
+                texture = texture + np.tensordot(amount, inputs["lids"], 1)[None]
+        return self(verts[None], texture, np.asarray(c2w).reshape(1, 4, 4),
                     np.asarray(intrinsics).reshape(1, 3, 3), **extra)

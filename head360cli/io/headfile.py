@@ -33,6 +33,7 @@ __all__ = [
     "FORMAT_VERSION",
     "KNOWN_ARRAYS",
     "HeadFile",
+    "lid_amounts",
     "lid_change_arrays",
     "lid_change_of",
     "read_head",
@@ -125,6 +126,15 @@ def lid_change_arrays(change: np.ndarray) -> dict[str, np.ndarray]:
     flat = np.asarray(change, np.float32).reshape(change.shape[0], -1)
     index = np.flatnonzero(np.any(flat != 0, axis=0)).astype(np.int32)
     return {"lid_index": index, "lid_change": flat[:, index]}
+
+
+def lid_amounts(blinks: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """How much of each eye's lid change frames show: ``(B, 2)`` in [0, 1] for their
+    ``(B, 2)`` eyeBlinkLeft / eyeBlinkRight weights, ``(w - w0) / (1 - w0)`` above the
+    head's own weights ``own (2,)`` (its texture already shows those), 0 below. ``own`` is
+    clipped to 0.95."""
+    own = np.clip(np.asarray(own, np.float32), 0.0, 0.95)
+    return np.clip((np.asarray(blinks, np.float32) - own) / (1.0 - own), 0.0, 1.0)
 
 
 def lid_change_of(arrays: dict[str, np.ndarray]) -> np.ndarray | None:

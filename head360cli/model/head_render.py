@@ -127,11 +127,13 @@ class HeadRenderer:
             self.lids = change[None] * sides[:, None].to(change.dtype)
         from head360cli.mesh.arkit52 import INDEX
 
-        self._blinks = [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]
-        self._lid_from = self.expression[self._blinks].clip(0.0, 0.95).astype(np.float32)
-        """The own expression's blinks, from which the lid change comes in: added to
-        a photo's half-closed eyes from 0 on, it darkened their lids and cost the bench's
-        real photos 0.6 (fast) and 1.5 dB (quality) of face PSNR at the input view."""
+        self.blink_index = [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]
+        """Where eyeBlinkLeft and eyeBlinkRight are among the 52 weights."""
+        self.lid_from = self.expression[self.blink_index].astype(np.float32)
+        """``(2,)`` the own expression's eyeBlinkLeft / Right, from which the lid change
+        comes in (:func:`~head360cli.io.headfile.lid_amounts`): added to a photo's
+        half-closed eyes from 0 on, it darkened their lids and cost the bench's real
+        photos 0.6 (fast) and 1.5 dB (quality) of face PSNR at the input view."""
         self.set_hair(hair_style, hair_colour)
 
     def use_runner(self, runner) -> None:
@@ -174,11 +176,12 @@ class HeadRenderer:
         n = len(weights)
         if self.lids is None:
             return self.texture.expand(n, -1, -1, -1)
-        w = (np.asarray(weights, np.float32)[:, self._blinks] - self._lid_from) \
-            / (1.0 - self._lid_from)
+        from head360cli.io.headfile import lid_amounts
+
+        w = lid_amounts(np.asarray(weights, np.float32)[:, self.blink_index], self.lid_from)
         if not bool((w > 0).any()):
             return self.texture.expand(n, -1, -1, -1)
-        w = torch.as_tensor(w.clip(0.0, 1.0), device=self.device)
+        w = torch.as_tensor(w, device=self.device)
         return self.texture + torch.einsum("be,echw->bchw", w, self.lids)
 
     def vertices(self, expression: np.ndarray | torch.Tensor | None = None) -> torch.Tensor:
