@@ -57,18 +57,27 @@ def test_a_given_texture_replaces_the_code(parts):
         gen(verts, c2w, k)
 
 
-def test_a_precomputed_plane_raster_renders_the_same(parts, monkeypatch):
-    """A mesh rasterized onto the planes once (a texture inversion's fixed mesh) renders
-    bit for bit as when it is rasterized in every call, with the same texture gradients,
-    and the call then rasterizes nothing onto the planes."""
-    import head360cli.model.generator as generator
-
-    model, verts, c2w, k = parts
+@pytest.fixture
+def rastered(parts):
+    """A tiny generator (seed 0), two generated textures and the parts' meshes' plane
+    raster."""
+    model, verts, _, _ = parts
     torch.manual_seed(0)
     gen = Generator(TINY, model.faces, model.uv, model.faces_uv).eval()
     with torch.no_grad():
         texture = gen.texture(torch.randn(2, TINY.code_dim))
         raster = gen.plane_raster(verts)
+    return gen, texture, raster
+
+
+def test_a_precomputed_plane_raster_renders_the_same(parts, rastered, monkeypatch):
+    """A mesh rasterized onto the planes once (a texture inversion's fixed mesh) renders
+    bit for bit as when it is rasterized in every call, with the same texture gradients,
+    and the call then rasterizes nothing onto the planes."""
+    import head360cli.model.generator as generator
+
+    _, verts, c2w, k = parts
+    gen, texture, raster = rastered
     assert raster.grid.shape == (2, 6 * 16, 16, 2)
     assert raster.mask.shape == raster.surface.shape == (2, 1, 6, 16, 16)
     renders, grads = [], []
@@ -281,18 +290,14 @@ def test_bfloat16_decoders_see_whole_blocks_of_points(parts, hair, monkeypatch):
     assert any(n % 4096 for n in seen)
 
 
-def test_a_sparse_texture_change_gives_the_planes_of_the_changed_texture(parts):
+def test_a_sparse_texture_change_gives_the_planes_of_the_changed_texture(parts, rastered):
     """Planes of a texture plus a change on a few texels, made by adding the change where
     the planes read those texels, equal the changed texture's planes, with the same
     gradients; rendered through ``head_planes``, so do the images."""
     from head360cli.model.planes import add_texture_change, reading_pixels, texture_planes
 
-    model, verts, c2w, k = parts
-    torch.manual_seed(0)
-    gen = Generator(TINY, model.faces, model.uv, model.faces_uv).eval()
-    with torch.no_grad():
-        texture = gen.texture(torch.randn(2, TINY.code_dim))
-        raster = gen.plane_raster(verts)
+    _, verts, c2w, k = parts
+    gen, texture, raster = rastered
     texels = torch.zeros(16, 16, dtype=torch.bool)
     texels[5:9, 3:12] = True
     at = reading_pixels(raster, texels)
