@@ -26,6 +26,8 @@ import time
 import numpy as np
 import torch
 
+from head360cli.mesh.eyelids import blink_weights, eye_texels, lid_texels
+
 __all__ = ["LidConfig", "LidResult", "blink_weights", "close_lids", "closed_lid_target",
            "eye_texels", "head_lids", "lid_texels"]
 
@@ -101,58 +103,6 @@ class LidResult:
     loss_last: float
     texels: int
     seconds: float
-
-
-def blink_weights() -> np.ndarray:
-    """``(52,)`` ARKit weights with both eyes closed."""
-    from head360cli.mesh.arkit52 import INDEX
-
-    w = np.zeros(52)
-    w[[INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]] = 1.0
-    return w
-
-
-def lid_texels(faces: np.ndarray, uv: np.ndarray, faces_uv: np.ndarray, moved: np.ndarray,
-               res: int, grow: int = 2) -> np.ndarray:
-    """Texels of the triangles a blink moves.
-
-    Args:
-        faces: ``(F, 3)`` vertex indices.
-        uv: ``(T, 2)`` texture coordinates in [0, 1].
-        faces_uv: ``(F, 3)`` indices into ``uv``.
-        moved: ``(V,)`` bool, the vertices the blink moves.
-        res: Texture side.
-        grow: Texels added around them (the planes read the texture bilinearly).
-
-    Returns:
-        ``(res, res)`` bool.
-    """
-    from scipy import ndimage
-
-    from head360cli.geometry.rasterize import rasterize
-
-    draw = moved[faces].any(1)
-    corners = torch.tensor(uv, dtype=torch.float32) * res
-    frags = rasterize(corners[None], torch.ones(1, len(uv)), torch.as_tensor(faces_uv),
-                      res, res, perspective_correct=False, draw=torch.as_tensor(draw))
-    inside = (frags.face_id[0] >= 0).numpy()
-    return ndimage.binary_dilation(inside, iterations=grow) if grow else inside
-
-
-def eye_texels(model, shape: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray]:
-    """The lid texels of each eye: ``(left, right)``, ``(res, res)`` bool each, of the
-    triangles ``eyeBlinkLeft`` and ``eyeBlinkRight`` move on the head of identity
-    ``shape`` (a :class:`~head360cli.mesh.bilinear.BilinearModel`'s)."""
-    from head360cli.mesh.arkit52 import INDEX
-
-    neutral = model.vertices(shape, np.zeros(52))
-    out = []
-    for name in ("eyeBlinkLeft", "eyeBlinkRight"):
-        w = np.zeros(52)
-        w[INDEX[name]] = 1.0
-        moved = np.any(model.vertices(shape, w) != neutral, axis=1)
-        out.append(lid_texels(model.faces, model.uv, model.faces_uv, moved, res))
-    return out[0], out[1]
 
 
 def closed_lid_target(open_rgb: np.ndarray, closed_rgb: np.ndarray, open_lid: np.ndarray,

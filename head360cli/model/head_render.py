@@ -114,7 +114,7 @@ class HeadRenderer:
         """``(2, C, R, R)``: the lid change on the left and on the right eye's texels,
         or ``None``."""
         if lid_change is not None:
-            from head360cli.fitting.lids import eye_texels
+            from head360cli.mesh.eyelids import eye_texels
 
             change = torch.as_tensor(np.asarray(lid_change, np.float32), device=self.device)
             if change.shape != self.texture.shape[1:]:
