@@ -35,6 +35,7 @@ from head360cli.model.planes import (
     plane_zbuffer,
     rasterize_planes,
     sample_planes,
+    texel_reads,
     texture_planes,
 )
 from head360cli.model.render import EMPTY, composite, samples_around, screen_depth
@@ -246,10 +247,13 @@ class Generator(nn.Module):
     def plane_raster(self, verts: torch.Tensor) -> PlaneRaster:
         """Where a posed mesh ``(B, V, 3)`` lands on the hex-planes, for any texture: give
         it to :meth:`forward` as ``plane_raster`` to render the same mesh many times
-        (a texture inversion) without rasterizing it each time."""
+        (a texture inversion) without rasterizing it each time. It carries the texture
+        reads worked out for this generator's texture size (:func:`~head360cli.model.
+        planes.texel_reads`), which the texture's gradient needs far less time through."""
         c = self.cfg
-        return plane_raster(verts, self.faces, self.uv, self.faces_uv, self.plane_names,
-                            c.plane_res, c.plane_centre, c.plane_half_size)
+        return texel_reads(plane_raster(verts, self.faces, self.uv, self.faces_uv,
+                                        self.plane_names, c.plane_res, c.plane_centre,
+                                        c.plane_half_size), c.texture_res)
 
     def hair_planes(self, mesh: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
                     texture: torch.Tensor) -> torch.Tensor:

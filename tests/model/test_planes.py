@@ -7,8 +7,11 @@ import torch
 from head360cli.model.planes import (
     PLANE_SETS,
     plane_coordinates,
+    plane_raster,
     rasterize_planes,
     sample_planes,
+    texel_reads,
+    texture_planes,
 )
 
 CENTRE, HALF = (0.0, 0.0, 0.0), 0.2
@@ -74,3 +77,29 @@ def test_tri_planes_are_a_subset():
     tri = rasterize_planes(v[None], faces, uv, faces_uv, tex, PLANE_SETS["tri"], 16,
                            CENTRE, HALF)
     assert torch.equal(tri[0, 0], hexp[0, 0]) and torch.equal(tri[0, 1], hexp[0, 2])
+
+
+def test_texel_reads_give_the_planes_of_grid_sample():
+    """Planes read through :func:`texel_reads` (gathers) equal ``grid_sample``'s, values
+    and texture gradients, over a batch of two meshes whose UVs reach the texture's
+    border (where the read is clamped), and a texture of another size falls back to
+    ``grid_sample``."""
+    v, faces, _, faces_uv = cube()
+    uv = torch.tensor([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])  # to the texture's edges
+    verts = torch.stack([v, v * torch.tensor([1.3, 0.8, 1.1]) + 0.01])
+    raster = plane_raster(verts, faces, uv, faces_uv, PLANE_SETS["hex"], 24, CENTRE, HALF)
+    fast = texel_reads(raster, 8)
+    assert len(fast.reads.pixel) == int(raster.mask.sum())
+    torch.manual_seed(0)
+    texture = torch.randn(2, 3, 8, 8, requires_grad=True)
+    got, want = texture_planes(texture, fast), texture_planes(texture, raster)
+    assert got.shape == want.shape == (2, 6, 5, 24, 24)
+    torch.testing.assert_close(got, want, atol=1e-6, rtol=1e-6)
+    assert (want[:, :, :3].abs() > 0).any()
+    weights = torch.randn_like(want)
+    g_got, = torch.autograd.grad((got * weights).sum(), texture)
+    g_want, = torch.autograd.grad((want * weights).sum(), texture)
+    torch.testing.assert_close(g_got, g_want, atol=1e-5, rtol=1e-5)
+    assert g_want[:, :, 0, 0].abs().min() > 0  # the clamped corner texel is read
+    other = torch.randn(2, 3, 16, 16)
+    assert torch.equal(texture_planes(other, fast), texture_planes(other, raster))
