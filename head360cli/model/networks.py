@@ -175,12 +175,13 @@ class RefineNet(nn.Module):
         """Features ``(B, Cf, h, w)``, coverage ``(B, 1, h, w)`` and the composited colour
         ``(B, 3, h, w)`` -> ``(rgb (B, 3, H, W), alpha (B, 1, H, W))``."""
         x = torch.cat([features, alpha], 1)
-        if x.device.type == "cpu" and not torch.is_grad_enabled() and not _exporting():
+        if x.device.type == "cpu" and not _exporting():
             # oneDNN's CPU convolutions run faster on channels-last input (this network at
-            # 128 -> 256 px: 41 -> 31 ms on 2 cores); the same function, rounded apart
-            # by 2e-5 at most. Rendering only: the texture inversion's camera refinement
-            # ended 2.2, 5.2 or 6.1 degrees from the truth for such rounding differences
-            # (a test), so fits keep the layout they were measured with
+            # 128 -> 256 px: 41 -> 31 ms on 2 cores; with its backward pass, a fit's
+            # step, 112 -> 70 ms); the same function, rounded apart by 2e-5 at most.
+            # The texture inversion's camera refinement turns on such rounding (its test
+            # once ended 2.2, 5.2 or 6.1 degrees from the truth for it), so fits were
+            # measured again with it (stop 43, `bench fit`)
             x = x.contiguous(memory_format=torch.channels_last)
         res = self.net(x).contiguous()
         up = F.interpolate(torch.cat([rgb, alpha], 1), scale_factor=self.scale,

@@ -62,8 +62,15 @@ def test_refinenet_on_cpu_runs_channels_last_and_returns_the_same_images():
     assert got_rgb.stride() == (up + res)[:, :3].stride()
     assert got_alpha.shape == (2, 1, 32, 32)
     assert got_rgb.abs().mean() > 0.1  # the residual is not zero: a real comparison
+    # with gradients (fitting) too, and the gradients are those of the plain layout
     seen.clear()
     hook = net.net[0].register_forward_pre_hook(lambda m, args: seen.append(args[0]))
-    net(feats, alpha, rgb)  # with gradients (fitting): the plain layout
+    x = feats.clone().requires_grad_(True)
+    got_rgb, _ = net(x, alpha, rgb)
+    g_got, = torch.autograd.grad(got_rgb.square().sum(), x)
     hook.remove()
-    assert not seen[0].is_contiguous(memory_format=torch.channels_last)
+    assert seen[0].is_contiguous(memory_format=torch.channels_last)
+    plain = net.net(torch.cat([x, alpha], 1))[:, :3] + up[:, :3]
+    g_plain, = torch.autograd.grad(plain.square().sum(), x)
+    torch.testing.assert_close(g_got, g_plain, atol=1e-4, rtol=1e-4)
+    assert g_plain.abs().mean() > 1e-3
