@@ -14,6 +14,7 @@ from head360cli.fitting.texture import (
     bald_target,
     crop_image,
     invert_texture,
+    loss_window,
     photo_camera,
 )
 
@@ -75,6 +76,23 @@ def test_mirror_is_an_involution_on_the_head():
     assert (twice - x).abs().mean() < 0.06  # nearest-texel round trips at seams
 
 
+def test_loss_window_holds_the_mask_on_the_low_resolution_grid():
+    mask = torch.zeros(256, 256, dtype=torch.bool)
+    assert loss_window(mask, 2, 12) == (0, 0, 256)  # nothing to fit: the whole image
+    mask[90:181, 77:130] = True  # 91 rows, 53 columns
+    x0, y0, side = loss_window(mask, 2, 12)
+    assert x0 % 2 == y0 % 2 == side % 2 == 0
+    assert x0 <= 77 - 12 and y0 <= 90 - 12  # the box and its margin inside the square
+    assert x0 + side >= 130 + 12 and y0 + side >= 181 + 12
+    assert side <= 91 + 2 * 12 + 2  # no larger than it needs to be
+    corner = torch.zeros(256, 256, dtype=torch.bool)
+    corner[250:, 251:] = True  # near the edge: shifted inside, not cut
+    assert loss_window(corner, 2, 12) == (238, 238, 18)
+    assert loss_window(corner, 2, 2) == (240, 240, 16)  # at least 8 low-res pixels
+    mask[5:250, 3:255] = True
+    assert loss_window(mask, 2, 12) == (0, 0, 256)
+
+
 @pytest.fixture(scope="module")
 def scene():
     """The shipped generator, its codes and a held-out head seen from one rig camera."""
@@ -103,6 +121,33 @@ def test_inversion_lowers_the_photometric_loss(scene):
     assert torch.isfinite(inv.texture).all()
     assert inv.losses[-1] < 0.8 * inv.losses[0]
     assert gen.cfg.samples == 12  # the generator's own setting is restored
+
+
+def test_the_loss_window_gives_the_losses_of_the_whole_image(scene):
+    """Rendering only the square around the loss's pixels changes no loss (beyond float
+    rounding): its border is wider than the RefineNet's reach. The renders are smaller."""
+    gen, codes, batch = scene
+    mask = batch.alpha[0].clone()
+    mask[:, :100] = 0  # a face region: the lower middle of the head
+    mask[:, :, :80] = 0
+    mask[:, :, 180:] = 0
+    side = loss_window(mask[0] != 0, 2, 2 * gen.refine.reach * 2)[2]
+    assert side < 256
+    sizes = []
+    hook = gen.register_forward_hook(lambda m, a, out: sizes.append(out["rgb"].shape[-1]))
+    try:
+        losses = []
+        for window in (False, True):
+            cfg = dataclasses.replace(PRESETS["fast"], code_steps=2, steps=2, samples=4,
+                                      window=window, pose=False)
+            losses.append(invert_texture(gen, batch.verts[0], batch.c2w[0],
+                                         batch.intrinsics, batch.rgb[0], mask,
+                                         codes.mean(0), cfg).losses)
+    finally:
+        hook.remove()
+    assert sizes == [256] * 5 + [side] * 5  # 4 steps and the last texture's score
+    np.testing.assert_allclose(losses[1], losses[0], rtol=1e-4)
+    assert max(losses[0]) - min(losses[0]) > 1e-3  # the steps changed the render
 
 
 def _turned(c2w: torch.Tensor, degrees: float, axis: str) -> torch.Tensor:
