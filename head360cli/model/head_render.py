@@ -173,16 +173,21 @@ class HeadRenderer:
         """Neural textures ``(B, C, R, R)`` of frames with ARKit weights ``(B, 52)``: the
         texture, plus the lid change as far as each eye is closed beyond the head's own
         expression."""
-        n = len(weights)
+        w = self._lid_amounts(weights)
+        if w is None:
+            return self.texture.expand(len(weights), -1, -1, -1)
+        w = torch.as_tensor(w, device=self.device)
+        return self.texture + torch.einsum("be,echw->bchw", w, self.lids)
+
+    def _lid_amounts(self, weights: np.ndarray) -> np.ndarray | None:
+        """``(B, 2)`` how much of each eye's lid change frames with weights ``(B, 52)``
+        show, or ``None`` when none shows any (or the head has no lid change)."""
         if self.lids is None:
-            return self.texture.expand(n, -1, -1, -1)
+            return None
         from head360cli.io.headfile import lid_amounts
 
         w = lid_amounts(np.asarray(weights, np.float32)[:, self.blink_index], self.lid_from)
-        if not bool((w > 0).any()):
-            return self.texture.expand(n, -1, -1, -1)
-        w = torch.as_tensor(w, device=self.device)
-        return self.texture + torch.einsum("be,echw->bchw", w, self.lids)
+        return w if bool((w > 0).any()) else None
 
     def vertices(self, expression: np.ndarray | torch.Tensor | None = None) -> torch.Tensor:
         """Meshes ``(B, V, 3)`` for ARKit weights ``(B, 52)`` (or ``(V, 3)`` for one
@@ -242,10 +247,12 @@ class HeadRenderer:
             extra = (hv[None].cpu().numpy(), hf.cpu().numpy(),
                      self.hair.planes[0].detach().cpu().numpy())
         kk = k.reshape(1, 3, 3).cpu().numpy()
+        plain = self.texture.detach().cpu().numpy()  # copied once: most frames use it
         for i in range(len(c2w)):
             w = np.asarray(weights[i:i + 1], np.float32)
             verts = self.vertices(w).cpu().numpy()
-            tex = self.textures(w).detach().cpu().numpy()
+            tex = plain if self._lid_amounts(w) is None else \
+                self.textures(w).detach().cpu().numpy()
             out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
                                                *extra))
             yield to_uint8(out) if uint8 else out
