@@ -26,10 +26,9 @@ import time
 import numpy as np
 import torch
 
-from head360cli.mesh.eyelids import blink_weights, eye_texels, lid_texels
+from head360cli.mesh.eyelids import blink_weights, lid_texels
 
-__all__ = ["LidConfig", "LidResult", "blink_weights", "close_lids", "closed_lid_target",
-           "eye_texels", "head_lids", "lid_texels"]
+__all__ = ["LidConfig", "LidResult", "close_lids", "closed_lid_target", "head_lids"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,8 +200,9 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
         raster = gen.plane_raster(verts)
         planes = gen.planes(verts, texture[None].expand(2, -1, -1, -1), raster)
         before = gen(verts, cams, k, head_planes=planes)["rgb"]
+        # the closed item's raster (its gathered reads, made for both items, dropped)
         raster = dataclasses.replace(raster, grid=raster.grid[1:], mask=raster.mask[1:],
-                                     surface=raster.surface[1:])
+                                     surface=raster.surface[1:], reads=None)
         planes = planes[1:]
         at = reading_pixels(raster, keep)
     rgb = before.float().cpu().numpy()

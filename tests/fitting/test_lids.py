@@ -8,13 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from head360cli.fitting.lids import (
-    LidConfig,
-    blink_weights,
-    close_lids,
-    closed_lid_target,
-    lid_texels,
-)
+from head360cli.fitting.lids import LidConfig, close_lids, closed_lid_target
+from head360cli.mesh.eyelids import blink_weights, lid_texels
 
 
 def test_closed_lid_target_fills_each_lid_with_its_ring_and_a_lash_line():
@@ -146,7 +141,7 @@ def test_no_steps_or_no_texels_give_no_change(head):
 
 
 def test_eye_texels_split_the_lids_left_and_right(head):
-    from head360cli.fitting.lids import eye_texels
+    from head360cli.mesh.eyelids import eye_texels
 
     _, model, _, _, texture, texels = head
     left, right = eye_texels(model, np.zeros(model.rank), texture.shape[-1])
