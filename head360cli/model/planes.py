@@ -204,15 +204,15 @@ def texture_planes(texture: torch.Tensor, raster: PlaneRaster) -> torch.Tensor:
     rasterized by :func:`plane_raster`: as :func:`rasterize_planes`."""
     b, _, p, res, _ = raster.mask.shape
     reads = raster.reads
+    mask = raster.mask.to(texture.dtype)
     if reads is not None and reads.res == texture.shape[-1] and \
-            texture.shape[-2] == reads.res:
+            texture.shape[-2] == reads.res:  # zero already where nothing is covered
         feat = _gather_texture(texture, reads, b * p * res * res)
         feat = feat.view(-1, b, p, res, res).transpose(0, 1)
     else:
         feat = _read_texture(texture, raster.grid)  # (B, C, P res, res)
-        feat = feat.view(b, -1, p, res, res)
-    mask, surface = raster.mask.to(feat.dtype), raster.surface.to(feat.dtype)
-    out = torch.cat([feat * mask, surface, mask], 1)  # (B, C + 2, P, res, res)
+        feat = feat.view(b, -1, p, res, res) * mask
+    out = torch.cat([feat, raster.surface.to(feat.dtype), mask], 1)  # (B, C + 2, P, res, res)
     return out.transpose(1, 2).contiguous()
 
 
