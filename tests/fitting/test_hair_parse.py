@@ -38,8 +38,10 @@ def _synthetic_portrait():
 
 
 def test_seeded_parse_finds_the_synthetic_hair():
+    """By colour and landmarks (the drawn portrait is no face to the learned prior, whose
+    map is below 1e-4 everywhere on it: that case is the next test's)."""
     img, lm, hair, face = _synthetic_portrait()
-    r = parse_hair(img, lm)
+    r = parse_hair(img, lm, prior=None)
     assert r.seeded
     assert r.hair.shape == face.shape and r.hair.dtype == bool
     assert mask_iou(r.hair, hair) > 0.7
@@ -64,6 +66,45 @@ def test_an_explicit_prior_never_overrides_the_certain_labels():
     inner = np.zeros(hair.shape, np.uint8)
     cv2.fillPoly(inner, [cv2.convexHull(lm[17:68].astype(np.int32))], 1)
     assert everywhere.any() and not (everywhere & inner.astype(bool)).any()
+
+
+def test_a_prior_sure_of_no_hair_vetoes_the_caps_seeds():
+    """The cap above the brows is placed by the landmarks alone: above a bald head it lies
+    on the backdrop, whose colour then seeded the hair. Where the prior is below
+    PRIOR_NO_HAIR the cap seeds nothing: with a map of zeros the drawn hair has no seed
+    and the parse is empty; a map of 0.1 everywhere keeps the seeds."""
+    img, lm, hair, _ = _synthetic_portrait()
+    assert not parse_hair(img, lm, prior=np.zeros(hair.shape, np.float32)).hair.any()
+    kept = parse_hair(img, lm, prior=np.full(hair.shape, 0.1, np.float32)).hair
+    assert mask_iou(kept, hair) > 0.7
+
+
+def test_where_the_prior_is_sure_of_hair_it_seeds_the_hair(monkeypatch):
+    """The cap's seeds miss hair that lies below it (a VOC photo's dark curls, whose cap
+    lay on the backdrop above them); where the prior is above PRIOR_SURE and the colour
+    is not the skin's, the second GrabCut pass (hair against skin and clothes) starts
+    from certain hair, inside the person. Read off the labels that pass is given."""
+    import cv2
+
+    import head360cli.fitting.hair_parse as hair_parse
+
+    img, lm, hair, face = _synthetic_portrait()
+    yy = np.mgrid[0:200, 0:200][0]
+    sides = hair & (yy > 60)  # below the cap (rows of about 30 to 54)
+    labels = []
+    grabcut = hair_parse._grabcut
+
+    def recording(bgr, mask, iterations):
+        labels.append(mask.copy())
+        return grabcut(bgr, mask, iterations)
+
+    monkeypatch.setattr(hair_parse, "_grabcut", recording)
+    parse_hair(img, lm, prior=None)
+    parse_hair(img, lm, prior=np.where(sides | face, 1.0, 0.1).astype(np.float32))
+    (_, alone), (_, guided) = labels[:2], labels[2:]
+    assert (alone[sides] == cv2.GC_FGD).mean() < 0.05
+    assert (guided[sides] == cv2.GC_FGD).mean() > 0.9
+    assert not (guided[face & (yy > 100)] == cv2.GC_FGD).any()  # sure, but skin
 
 
 def test_parse_refuses_a_prior_of_the_wrong_shape_or_kind():
@@ -188,6 +229,23 @@ def test_real_masks_mean_iou_floor(shared_data):
     assert np.mean(ious) > 0.5
 
 
+@pytest.mark.shared_data
+def test_walls_above_bald_heads_are_not_hair(shared_data):
+    """Development photos (not the bench's): the cap above a bald head lay on the
+    backdrop and seeded it as hair, a wall of it: dlib's ``bald_guys`` (a yellow poster,
+    3.2 % of the photo parsed as hair) and a VOC photo of a man with a receding
+    hairline before a grey wall (5.6 %, fitted an afro). The learned prior, sure there
+    is no hair there, vetoes those seeds: measured 0 % and 1.2 % (his thin hair)."""
+    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.io.images import load_image
+
+    det = LandmarkDetector("hog")
+    for name, most in (("bald_guys.jpg", 0.0), ("2009_004587.jpg", 0.02)):
+        img = load_image(shared_data / "faces" / name).pixels
+        hair = parse_hair(img, det.detect_one(img).landmarks).hair
+        assert hair.mean() <= most, name
+
+
 def test_skin_model_ignores_dark_outliers_in_the_cheek_samples():
     """Cheek polygons catch lashes and nostrils: 10 % dark samples must not widen the
     skin's lightness so far that dark hair passes for skin."""
@@ -289,10 +347,11 @@ def test_seeded_parse_of_a_bald_head_finds_no_hair(index, prior):
     assert not parse_hair(img, lm, prior=prior).hair.any()
 
 
-@pytest.mark.parametrize(("index", "alone", "learned"), [(24, 0.499, 0.994), (27, 0.284, 0.807)])
+@pytest.mark.parametrize(("index", "alone", "learned"), [(24, 0.499, 0.994), (27, 0.284, 0.842)])
 def test_learned_prior_finds_hair_that_colour_alone_gives_away(index, alone, learned):
     """Two development heads whose hair colour alone loses to the backdrop or the skin:
-    the shipped prior's probable-hair labels recover it (IoU measured as given)."""
+    the shipped prior's probable-hair labels recover it (IoU measured as given; head 27
+    0.807 before the prior's sure hair also seeded it)."""
     from head360cli.fitting.hair_prior import default_hair_prior
 
     assert default_hair_prior() is not None, "models/hair_prior.pt is not installed"
