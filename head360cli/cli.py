@@ -500,6 +500,8 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
              + (" (the same silhouette as 1. from this view)"
                 if i and c["same_silhouette_as_first"] else "")
              for i, c in enumerate(r["top"])]
+    if not r["hair_matches_a_style"]:
+        lines.append("the parsed hair matches no hairstyle: ranked as no hair")
     lines.append(f"hair colour: {r['hair_color_name']} (linear RGB "
                  + ", ".join(f"{c:.3f}" for c in r["hair_color"])
                  + "; by the tone curve: head360 fit also compares renders)")

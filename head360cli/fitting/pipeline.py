@@ -423,6 +423,8 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
     guess, estimate, name, colour = _hair_guess(img, parse, fit, model, found.landmarks)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
+            # False: no style overlaps the parsed hair enough (ranked as no hair)
+            "hair_matches_a_style": guess.matched,
             "hair_color": [round(float(c), 4) for c in colour],
             "hair_color_name": name,
             # head360 fit checks the nearest colours by rendering the fitted head
@@ -511,6 +513,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
                                                        found.landmarks)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
+    if hair_style is None and not guess.matched:
+        warnings.append(f"the parsed hair matches no hairstyle (best overlap "
+                        f"{guess.iou.max():.3f}): fitted bald; choose a style with --hair")
     timings["classify"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

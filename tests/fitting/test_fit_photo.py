@@ -100,6 +100,7 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     assert len(c["top"]) == 5 and c["top"][0]["score"] >= c["top"][-1]["score"]
     assert c["top"][0]["name"] != "bald"
     assert c["top"][0]["same_silhouette_as_first"] is True
+    assert c["hair_matches_a_style"] is True
     from head360cli.synth.hair import HAIR_COLOURS
 
     np.testing.assert_allclose(c["hair_color"], HAIR_COLOURS[c["hair_color_name"]], atol=1e-4)
@@ -166,6 +167,21 @@ def test_small_faces_are_refused_or_warned(tmp_path):
     photo.resize((300, 300), Image.Resampling.LANCZOS).save(small)  # face ~53 px
     _, warnings = _stage(small)
     assert any("pixels wide" in w for w in warnings)
+
+
+@pytest.mark.shared_data
+def test_hair_that_matches_no_style_classifies_as_no_hair(run_cli, shared_data):
+    """A development VOC photo (not the bench's) whose parse finds a patch of the
+    neighbour's hair beside the largest face: every style overlaps it by under 0.01, and
+    the widest (afro) ranked first; now it ranks as no hair, and the output says why."""
+    photo = shared_data / "faces" / "2008_002079.jpg"
+    r = run_cli("classify-hair", photo, "--json")
+    assert r.code == 0, r.err
+    c = json.loads(r.out)
+    assert c["hair_matches_a_style"] is False and c["top"][0]["name"] == "bald"
+    assert max(t["iou"] for t in c["top"]) < 0.1
+    r = run_cli("classify-hair", photo)
+    assert "matches no hairstyle" in r.out
 
 
 @pytest.mark.shared_data

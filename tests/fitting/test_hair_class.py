@@ -97,6 +97,31 @@ def test_no_hair_pixels_rank_bald_first():
     assert guess.ranking[0] == 0 and guess.iou[0] == 1.0
 
 
+def test_hair_that_no_style_matches_ranks_as_no_hair():
+    """A parsed patch that every silhouette overlaps by under MIN_STYLE_IOU (a
+    neighbour's hair, a piece of backdrop) is no evidence of a style: bald first with
+    probability 1, the measured overlaps kept, the others ranked by them; at the floor
+    the styles rank as before."""
+    from head360cli.fitting.hair_class import MIN_STYLE_IOU
+
+    sil = np.zeros((30, 20, 20), bool)
+    sil[1:, 19, 0] = True  # every style but bald shows a pixel, away from the hair
+    sil[9, :10] = True  # a wide style: 201 pixels
+    sil[1, 12:14, :5] = True  # a short one, away from the hair
+    hair = np.zeros((20, 20), bool)
+    hair[9, 5:8] = True  # 3 pixels under the wide style
+    hair[15:, 15:] = True  # 25 pixels under none
+    guess = classify_hair(hair, sil)
+    assert guess.iou[9] == 3 / 226 < MIN_STYLE_IOU and not guess.matched
+    assert guess.ranking[:3] == [0, 9, 1]
+    assert guess.probability[0] > 0.999 and guess.iou[0] == 0.0
+    hair[:2, :10] = True  # now 20 + 3 of the wide style's pixels: IoU 23 / 226
+    guess = classify_hair(hair, sil)
+    assert guess.matched and guess.ranking[0] == 9
+    assert guess.iou[9] == 23 / 226 >= MIN_STYLE_IOU
+    assert guess.probability[9] == guess.probability.max()
+
+
 def test_hair_colour_linearises_the_median_and_names_it():
     rgb = np.zeros((4, 4, 3), np.uint8)
     rgb[:2] = (188, 188, 188)  # sRGB 188 -> linear 0.5
