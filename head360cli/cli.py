@@ -783,18 +783,21 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--preset", "presets", multiple=True, type=click.Choice(["fast", "quality"]),
               help="Presets to measure (repeat; default both).")
 @click.option("--no-sweep", is_flag=True, help="Skip the inversion-steps sweep.")
+@click.option("--stability", default=3, show_default=True,
+              help="Noisy copies of the first photo fitted again (0: none).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
-                  out_dir: str) -> None:
+                  stability: int, out_dir: str) -> None:
     """Single-image fitting: hair parsing IoU, hairstyle accuracy, 72-view PSNR/SSIM of
-    synthetic fits, face PSNR and dlib descriptor distance on real photos, time.
+    synthetic fits, face PSNR and dlib descriptor distance on real photos, time, and how
+    far a fit moves when the photo moves by one grey level.
 
     \b
     Examples:
       head360 bench fit
-      head360 bench fit --preset fast --identities 1 --no-sweep
+      head360 bench fit --preset fast --identities 1 --no-sweep --stability 0
     """
     from head360cli.bench.fit import bench_fit
     from head360cli.bench.report import save
@@ -802,8 +805,10 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
     _cpu_only("bench fit")
     if identities < 1:
         raise BadInputError(f"expected --identities >= 1, found {identities}")
+    if stability < 0:
+        raise BadInputError(f"expected --stability >= 0, found {stability}")
     result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),
-                           sweep=() if no_sweep else (5, 10, 20, 40),
+                           sweep=() if no_sweep else (5, 10, 20, 40), stability=stability,
                            progress=None if _settings().quiet else
                            (lambda t: click.echo(f"bench fit: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "fit")

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["bench_fit"]
+__all__ = ["bench_fit", "noisy_copy"]
 
 
 def _hair_parse(data: Path) -> dict[str, Any]:
@@ -430,8 +430,40 @@ def _sweep(photo: Path, work: Path, steps: tuple[int, ...]) -> list[dict[str, An
     return rows
 
 
+def noisy_copy(rgb: np.ndarray, seed: int) -> np.ndarray:
+    """``rgb (H, W, 3)`` uint8 with each value moved by -1, 0 or +1 at random (``seed``),
+    clipped to 0..255: a photo no eye tells from the original, as a re-encode would be."""
+    step = np.random.default_rng(seed).integers(-1, 2, rgb.shape)
+    return np.clip(rgb.astype(np.int16) + step, 0, 255).astype(np.uint8)
+
+
+def _stability(photo: Path, work: Path, draws: int) -> dict[str, Any]:
+    """Fast fits of ``photo`` and of ``draws`` :func:`noisy_copy`-s of it (seeds 1..draws):
+    how far the fit's results move when the input moves by one grey level."""
+    from PIL import Image
+
+    from head360cli.fitting.pipeline import fit_photo
+    from head360cli.io.images import load_image
+
+    rgb = load_image(photo).pixels
+    rows = []
+    for seed in range(draws + 1):
+        path = work / f"stability_{seed}.png"
+        Image.fromarray(rgb if seed == 0 else noisy_copy(rgb, seed)).save(path)
+        s = fit_photo(path, work / f"stability_{seed}.h360", preset="fast")
+        rows.append({"seed": seed, "psnr_face": s["psnr_face_input_view"],
+                     "psnr_face_bald": s["psnr_face_input_view_bald"],
+                     "hair": s["hair_style"]["name"], "colour": s["hair_color_name"]})
+    face = [r["psnr_face"] for r in rows]
+    bald = [r["psnr_face_bald"] for r in rows]
+    return {"photo": photo.name, "draws": draws, "rows": rows,
+            "range_psnr_face": round(max(face) - min(face), 2),
+            "range_psnr_face_bald": round(max(bald) - min(bald), 2)}
+
+
 def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"),
-              sweep: tuple[int, ...] = (5, 10, 20, 40), progress=None) -> tuple[dict, str]:
+              sweep: tuple[int, ...] = (5, 10, 20, 40), stability: int = 3,
+              progress=None) -> tuple[dict, str]:
     """Run every part that its data allows; returns ``(result, markdown)``."""
     import torch
 
@@ -473,6 +505,9 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
             if sweep:
                 say("inversion steps against quality")
                 result["sweep"] = _sweep(photos[0], work, sweep)
+            if stability:
+                say("stability: the first photo with one grey level of noise")
+                result["stability"] = _stability(photos[0], work, stability)
     result["seconds"] = round(time.perf_counter() - t0, 1)
     return result, _markdown(result)
 
@@ -564,4 +599,15 @@ def _markdown(r: dict[str, Any]) -> str:
                   "| texture steps | face PSNR | inversion s | fit s |", "|---|---|---|---|"]
         lines += [f"| {s['texture_steps']} | {s['psnr_face']:.2f} | {s['invert_s']:.1f} | "
                   f"{s['total_s']:.1f} |" for s in r["sweep"]]
+    if r.get("stability"):
+        st = r["stability"]
+        lines += ["", f"## Stability ({st['photo']}, fast preset, the photo and "
+                  f"{st['draws']} copies with each value moved by one grey level)", "",
+                  "| noise seed | face PSNR | same, bald | hairstyle | hair colour |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {'none' if t['seed'] == 0 else t['seed']} | {t['psnr_face']:.2f} | "
+                  f"{t['psnr_face_bald']:.2f} | {t['hair']} | {t['colour']} |"
+                  for t in st["rows"]]
+        lines += ["", f"Range: face PSNR {st['range_psnr_face']:.2f} dB, bald "
+                  f"{st['range_psnr_face_bald']:.2f} dB."]
     return "\n".join(lines) + "\n"

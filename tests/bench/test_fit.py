@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from head360cli.bench.fit import (
     _cold_fit,
     _hair_parse_no_face,
     _hair_style,
     _known_geometry,
     _markdown,
+    _stability,
+    noisy_copy,
 )
 
 
@@ -67,7 +71,13 @@ def test_markdown_lists_every_part():
                                     "distance_30": 0.7, "distance_30_renders": [3, 4],
                                     "seconds": 13.0},
                            "cold": {"photo": "a.png", "wall_s": 16.0, "total_s": 13.5}}},
-         "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}]}
+         "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}],
+         "stability": {"photo": "a.png", "draws": 1, "range_psnr_face": 1.5,
+                       "range_psnr_face_bald": 0.25,
+                       "rows": [{"seed": 0, "psnr_face": 22.0, "psnr_face_bald": 25.0,
+                                 "hair": "bob", "colour": "black"},
+                                {"seed": 1, "psnr_face": 20.5, "psnr_face_bald": 25.25,
+                                 "hair": "lob", "colour": "black"}]}}
     md = _markdown(r)
     for text in ("| figaro | 2 | 0 | 0.500 | - |", "| celebamask | 3 | 3 | 0.700 | 0.600 |",
                  "| true | 90.00% | 100.00% | 95.00% | - |",
@@ -76,9 +86,50 @@ def test_markdown_lists_every_part():
                  "| fast | 22.00 | 25.00 | - (0 of 2 renders with a face) | 0.700 (3 of 4 "
                  "renders with a face) | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",
+                 "| none | 22.00 | 25.00 | bob | black |", "| 1 | 20.50 | 25.25 | lob | black |",
+                 "Range: face PSNR 1.50 dB, bald 0.25 dB.",
                  "yaw 10 degrees 0.900 (without the learned prior 0.850); no face, back "
                  "views 0.800, close-ups 0.700 (29 heads)"):
         assert text in md
+
+
+def test_noisy_copy_moves_each_value_by_at_most_one_grey_level():
+    rgb = np.random.default_rng(0).integers(0, 256, (20, 30, 3)).astype(np.uint8)
+    rgb[0] = 0
+    rgb[1] = 255
+    a, b = noisy_copy(rgb, 1), noisy_copy(rgb, 2)
+    step = a.astype(int) - rgb
+    assert a.dtype == np.uint8 and a.shape == rgb.shape
+    assert np.abs(step).max() == 1 and (step != 0).mean() > 0.5
+    assert (a[0] <= 1).all() and (a[1] >= 254).all()  # clipped, not wrapped
+    assert np.array_equal(a, noisy_copy(rgb, 1)) and not np.array_equal(a, b)
+
+
+def test_stability_fits_the_photo_and_its_noisy_copies(tmp_path, monkeypatch):
+    """The photo and each noisy copy go through ``fit_photo`` (stubbed here: the fits
+    themselves are the bench's work) and the ranges span their results."""
+    from PIL import Image
+
+    import head360cli.fitting.pipeline as pipeline
+
+    rgb = np.random.default_rng(0).integers(0, 256, (40, 40, 3)).astype(np.uint8)
+    Image.fromarray(rgb).save(tmp_path / "p.png")
+    seen = []
+
+    def fake_fit(path, out, preset):
+        seen.append(np.asarray(Image.open(path)))
+        n = len(seen)
+        return {"psnr_face_input_view": 20.0 + n, "psnr_face_input_view_bald": 30.0 - n / 4,
+                "hair_style": {"name": "bob"}, "hair_color_name": "black"}
+
+    monkeypatch.setattr(pipeline, "fit_photo", fake_fit)
+    work = tmp_path / "work"
+    work.mkdir()
+    r = _stability(tmp_path / "p.png", work, 2)
+    assert np.array_equal(seen[0], rgb)
+    assert all(np.abs(s.astype(int) - rgb).max() == 1 for s in seen[1:])
+    assert [t["seed"] for t in r["rows"]] == [0, 1, 2]
+    assert r["range_psnr_face"] == 2.0 and r["range_psnr_face_bald"] == 0.5
 
 
 def test_cold_fit_reports_the_commands_error(tmp_path):
