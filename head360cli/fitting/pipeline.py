@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,12 @@ __all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer
 
 _EXIF_FOCAL_35MM = 0xA405
 _EXIF_IFD = 0x8769
+
+
+def _timed(fn, *args, **kwargs) -> tuple[Any, float]:
+    """``(fn(*args, **kwargs), its wall time in seconds)``."""
+    t0 = time.perf_counter()
+    return fn(*args, **kwargs), time.perf_counter() - t0
 
 
 def _focal_35mm(path: str | Path) -> float | None:
@@ -332,25 +339,36 @@ def _outside_body(landmarks: np.ndarray, affine: np.ndarray, res: int) -> np.nda
     return ~hidden_by_body(landmarks @ affine[:, :2].T + affine[:, 2], (res, res))
 
 
-def _hair_guess(img, parse, fit, model, landmarks: np.ndarray, res: int = 128):
+CLASSIFY_RES = 128
+"""Side in pixels of the crop the hairstyles' silhouettes are compared in."""
+
+
+def _silhouettes(img, fit, model, res: int = CLASSIFY_RES) -> np.ndarray:
+    """``(30, res, res)`` the hairstyles' silhouettes on the fitted head, seen from the
+    photo's camera in its ``res``-pixel crop (they do not need the parse)."""
+    from head360cli.fitting.hair_class import style_silhouettes
+
+    c2w, k, _, _, posed, neutral = _aligned(img, fit, model, res)
+    return style_silhouettes(neutral, posed, model.faces, c2w, k, res)
+
+
+def _hair_guess(img, parse, fit, model, landmarks: np.ndarray,
+                silhouettes: np.ndarray | None = None, res: int = CLASSIFY_RES):
     """Hairstyle ranking and hair colour of a parsed photo with its detected
-    ``landmarks (68, 2)``: ``(guess, colour estimate, nearest corpus colour name, its
+    ``landmarks (68, 2)`` (and the styles' ``silhouettes`` when already made by
+    :func:`_silhouettes`): ``(guess, colour estimate, nearest corpus colour name, its
     RGB)``."""
-    from head360cli.fitting.hair_class import (
-        classify_hair,
-        hair_colour,
-        nearest_colour_name,
-        style_silhouettes,
-    )
+    from head360cli.fitting.hair_class import classify_hair, hair_colour, nearest_colour_name
     from head360cli.fitting.texture import crop_mask
     from head360cli.synth.hair import HAIR_COLOURS
 
-    c2w, k, affine, _, posed, neutral = _aligned(img, fit, model, res)
+    affine = _aligned(img, fit, model, res)[2]
     hair = crop_mask(parse.hair, affine, res)
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     valid &= _outside_body(landmarks, affine, res)
-    guess = classify_hair(hair, style_silhouettes(neutral, posed, model.faces, c2w, k, res),
-                          valid)
+    if silhouettes is None:
+        silhouettes = _silhouettes(img, fit, model, res)
+    guess = classify_hair(hair, silhouettes, valid)
     estimate = hair_colour(img.pixels, parse.hair)
     # The hair branch learnt the corpus' named colours: the head wears the nearest one.
     name = nearest_colour_name(estimate)
@@ -445,8 +463,10 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     neural-texture inversion; closed lids (a texture change that the blinks bring in, so
     closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); hair placement
     (the style's mesh shifted to match the parsed hair from the fitted camera); preview.
-    Writes ``out`` (``.h360``), ``<out stem>_preview.png`` (photo crop | fitted front |
-    three other views | back) and ``<out stem>.json``.
+    The parse runs in a second thread while the hairstyles' silhouettes and the
+    inversion's mirror grid are made, so the summary's stage times add up to more than
+    its total by that overlap. Writes ``out`` (``.h360``), ``<out stem>_preview.png``
+    (photo crop | fitted front | three other views | back) and ``<out stem>.json``.
 
     Args:
         photo: The image.
@@ -475,7 +495,13 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
     from head360cli.errors import BadInputError
     from head360cli.fitting.hair_parse import parse_hair
-    from head360cli.fitting.texture import PRESETS, bald_target, crop_mask, invert_texture
+    from head360cli.fitting.texture import (
+        PRESETS,
+        bald_target,
+        crop_mask,
+        invert_texture,
+        mirror_grid,
+    )
     from head360cli.io.atomic import atomic_path
     from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
     from head360cli.model.head_render import HeadRenderer, to_uint8
@@ -504,19 +530,28 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     res = gen.cfg.image_res
     timings["load"] += time.perf_counter() - t0
     say("parse", 0, 1)
-    t0 = time.perf_counter()
-    parse = parse_hair(img.pixels, found.landmarks,
-                       prior="learned" if learned_prior else None)
-    timings["parse"] = time.perf_counter() - t0
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # GrabCut lets go of the interpreter: the parse runs on one core while this
+        # thread makes what does not need it, the hairstyles' silhouettes and the
+        # inversion's mirror grid (the stages' times overlap by as much)
+        job = pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
+                          prior="learned" if learned_prior else None)
+        t0 = time.perf_counter()
+        silhouettes = _silhouettes(img, fit, model)
+        classify_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        mirror_grid(gen.cfg.texture_res)
+        mirror_s = time.perf_counter() - t0
+        parse, timings["parse"] = job.result()
     t0 = time.perf_counter()
     c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
     guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
-                                                       found.landmarks)
+                                                       found.landmarks, silhouettes)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
     if hair_style is None and not guess.matched:
         warnings.append(f"the parsed hair matches no hairstyle (best overlap "
                         f"{guess.iou.max():.3f}): fitted bald; choose a style with --hair")
-    timings["classify"] = time.perf_counter() - t0
+    timings["classify"] = classify_s + time.perf_counter() - t0
 
     t0 = time.perf_counter()
     dev = torch.device(device)
@@ -551,7 +586,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         torch.tensor(mask, device=dev)[None], start, cfg,
         progress=lambda s, n, loss: say("texture", s, n),
         landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev))
-    timings["invert"] = inv.seconds
+    timings["invert"] = inv.seconds + mirror_s  # its mirror grid was made beside the parse
     lids = None
     if closed_lids:
         from head360cli.fitting.lids import head_lids
