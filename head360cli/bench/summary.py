@@ -22,7 +22,7 @@ STAGE_FILES = ("fit_shape", "fit", "generator", "animate", "onnx", "synth")
 
 STAGE_RUNS = {
     "fit-shape": ([], ["--trials", "20"]),
-    "fit": ([], ["--identities", "1", "--preset", "fast"]),
+    "fit": ([], ["--identities", "1", "--preset", "fast", "--stability", "1"]),
     "generator": ([], ["--train-ids", "1", "--test-ids", "0", "--cameras", "2"]),
     "animate": ([], ["--frames", "24", "--no-memory", "--stride", "60"]),
     "onnx": ([], ["--heads", "10", "--size", "128", "--repeats", "5"]),
