@@ -359,10 +359,11 @@ def _hair_guess(img, parse, fit, model, landmarks: np.ndarray,
     :func:`_silhouettes`): ``(guess, colour estimate, nearest corpus colour name, its
     RGB)``."""
     from head360cli.fitting.hair_class import classify_hair, hair_colour, nearest_colour_name
-    from head360cli.fitting.texture import crop_mask
+    from head360cli.fitting.texture import crop_mask, photo_camera
     from head360cli.synth.hair import HAIR_COLOURS
 
-    affine = _aligned(img, fit, model, res)[2]
+    # the crop's affine only (no crop image or meshes: the silhouettes have them)
+    affine = photo_camera(fit.rotation, fit.translation, fit.focal, fit.centre, res)[2]
     hair = crop_mask(parse.hair, affine, res)
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     valid &= _outside_body(landmarks, affine, res)
