@@ -2,6 +2,12 @@
 
 The HOG detector is the default (fast on a CPU); the CNN (MMOD) detector finds harder faces
 (profiles, small or dark faces) at a higher cost. Faces are returned largest first.
+
+dlib's shape predictor reads pixel differences at fixed places in the face's box and
+answers in whole pixels, so a grey level of noise, or a box a pixel off, moves its points
+by a pixel or two, and each fit downstream with them. By default each face's landmarks
+are the mean of the predictor over seven boxes about the detected one (shifted and
+scaled by a few per cent of its width) and over the mirror image of each.
 """
 
 from __future__ import annotations
@@ -13,7 +19,15 @@ import numpy as np
 
 from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
-__all__ = ["DetectedFace", "LandmarkDetector"]
+__all__ = ["MIRROR_68", "DetectedFace", "LandmarkDetector"]
+
+MIRROR_68 = np.r_[16:-1:-1, 26:16:-1, 27:31, 35:30:-1, [45, 44, 43, 42, 47, 46],
+                  [39, 38, 37, 36, 41, 40], 54:47:-1, 59:54:-1, 64:59:-1, 67:64:-1]
+"""For each of the 68 iBUG landmarks, the landmark at its place on the mirrored face."""
+BOX_SHIFT = 0.02
+"""The averaged boxes' shift, in box widths (at least a pixel)."""
+BOX_SCALE = 0.03
+"""How far each side of the two scaled boxes moves out and in, in box widths."""
 
 
 @dataclasses.dataclass
@@ -48,19 +62,57 @@ def _load(kind: str):
     return dlib.get_frontal_face_detector(), predictor
 
 
+def _points(predictor, img: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``(68, 2)`` the predictor's points in the box ``(x0, y0, x1, y1)``."""
+    import dlib
+
+    shape = predictor(img, dlib.rectangle(*box))
+    return np.array([[p.x, p.y] for p in shape.parts()], dtype=np.float64)
+
+
+def _averaged(predictor, img: np.ndarray, mirrored: np.ndarray,
+              box: tuple[int, int, int, int]) -> np.ndarray:
+    """``(68, 2)`` the mean of the predictor's points over the box shifted by
+    ``BOX_SHIFT`` four ways, scaled out and in by ``BOX_SCALE``, and over the mirror image
+    (``mirrored``, ``img`` flipped left to right) of each.
+
+    On 13 development photos (AFLW2000-3D 00516/01322/02283/02545/03614 and dlib's VOC
+    faces), each fitted with six copies one grey level apart: landmark spread 0.52 % ->
+    0.15 % of the face's size; on the five with ground truth, NME 4.04 % -> 3.97 %.
+    """
+    x0, y0, x1, y1 = box
+    d = max(1, round((x1 - x0) * BOX_SHIFT))
+    s = max(1, round((x1 - x0) * BOX_SCALE))
+    boxes = [box, (x0 + d, y0, x1 + d, y1), (x0 - d, y0, x1 - d, y1),
+             (x0, y0 + d, x1, y1 + d), (x0, y0 - d, x1, y1 - d),
+             (x0 - s, y0 - s, x1 + s, y1 + s), (x0 + s, y0 + s, x1 - s, y1 - s)]
+    last = img.shape[1] - 1
+    runs = []
+    for b in boxes:
+        runs.append(_points(predictor, img, b))
+        flipped = _points(predictor, mirrored, (last - b[2], b[1], last - b[0], b[3]))
+        flipped[:, 0] = last - flipped[:, 0]
+        runs.append(flipped[MIRROR_68])
+    return np.mean(runs, axis=0)
+
+
 class LandmarkDetector:
     """Detects faces and their 68 landmarks.
 
     Args:
         detector: ``"hog"`` or ``"cnn"``.
         upsample: Times the image is upsampled before detection (finds smaller faces).
+        average: Average the landmarks over shifted, scaled and mirrored boxes (see the
+            module's docstring); ``False``: one run of the predictor on the box found.
     """
 
-    def __init__(self, detector: str = "hog", upsample: int = 1) -> None:
+    def __init__(self, detector: str = "hog", upsample: int = 1,
+                 average: bool = True) -> None:
         if detector not in ("hog", "cnn"):
             raise BadInputError(f"expected detector hog or cnn, found {detector!r}")
         self.kind = detector
         self.upsample = int(upsample)
+        self.average = bool(average)
 
     def detect(self, rgb: np.ndarray) -> list[DetectedFace]:
         """All faces in an ``(H, W, 3)`` uint8 RGB image, largest first."""
@@ -77,12 +129,12 @@ class LandmarkDetector:
         else:
             rects, scores, _ = det.run(img, self.upsample, 0.0)
             results = list(zip(rects, (float(s) for s in scores), strict=True))
+        mirrored = np.ascontiguousarray(img[:, ::-1]) if self.average else None
         for rect, score in results:
-            shape = predictor(img, dlib.rectangle(rect.left(), rect.top(), rect.right(),
-                                                  rect.bottom()))
-            pts = np.array([[p.x, p.y] for p in shape.parts()], dtype=np.float64)
-            faces.append(DetectedFace((float(rect.left()), float(rect.top()),
-                                       float(rect.right()), float(rect.bottom())), score, pts))
+            box = (rect.left(), rect.top(), rect.right(), rect.bottom())
+            pts = _averaged(predictor, img, mirrored, box) if self.average \
+                else _points(predictor, img, box)
+            faces.append(DetectedFace(tuple(float(v) for v in box), score, pts))
         faces.sort(key=lambda f: -f.area)
         return faces
 

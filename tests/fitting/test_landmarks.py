@@ -1,0 +1,82 @@
+"""dlib landmarks: the mirror permutation and the averaged predictor."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dlib")
+
+
+def _noisy(img: np.ndarray, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.clip(img.astype(int) + rng.integers(-1, 2, img.shape), 0, 255).astype(np.uint8)
+
+
+def test_mirror_is_an_involution_that_fixes_the_midline():
+    from head360cli.fitting.landmarks import MIRROR_68
+
+    assert sorted(MIRROR_68.tolist()) == list(range(68))
+    np.testing.assert_array_equal(MIRROR_68[MIRROR_68], np.arange(68))
+    fixed = {8, 27, 28, 29, 30, 33, 51, 57, 62, 66}  # chin, nose, lips' midpoints
+    assert {i for i in range(68) if MIRROR_68[i] == i} == fixed
+    # left eye's outer corner <-> right eye's outer corner, mouth corners swap
+    assert MIRROR_68[36] == 45 and MIRROR_68[48] == 54 and MIRROR_68[0] == 16
+
+
+def test_mirror_maps_the_predictor_on_a_flipped_photo_back():
+    """Run on the mirror image and mapped back, the points land where the plain run put
+    them (within a pixel); without the permutation the eyes would swap (tens of px)."""
+    import skimage.data
+
+    from head360cli.fitting.landmarks import MIRROR_68, LandmarkDetector, _load, _points
+
+    img = skimage.data.astronaut()
+    face = LandmarkDetector(average=False).detect_one(img)
+    x0, y0, x1, y1 = (int(v) for v in face.box)
+    last = img.shape[1] - 1
+    flipped = _points(_load("hog")[1], np.ascontiguousarray(img[:, ::-1]),
+                      (last - x1, y0, last - x0, y1))
+    flipped[:, 0] = last - flipped[:, 0]
+    err = np.linalg.norm(flipped[MIRROR_68] - face.landmarks, axis=1).mean()
+    assert err < 1.0, err
+    assert np.linalg.norm(flipped - face.landmarks, axis=1).mean() > 20.0
+
+
+def test_averaged_landmarks_move_less_under_noise():
+    """Astronaut and three copies one grey level off, the same box: the plain predictor's
+    points spread by 0.24 px about their mean, the averaged ones' by 0.09 px (measured);
+    the averaged points stay within a pixel of the plain ones."""
+    import skimage.data
+
+    from head360cli.fitting.landmarks import LandmarkDetector
+
+    img = skimage.data.astronaut()
+
+    def spread(average: bool) -> tuple[float, np.ndarray]:
+        det = LandmarkDetector(average=average)
+        runs = np.array([det.detect_one(img if s == 0 else _noisy(img, s)).landmarks
+                         for s in range(4)])
+        return float(np.linalg.norm(runs - runs.mean(0), axis=-1).mean()), runs[0]
+
+    plain, one = spread(False)
+    averaged, mean = spread(True)
+    assert averaged < 0.5 * plain, (averaged, plain)
+    assert np.linalg.norm(mean - one, axis=1).mean() < 1.0
+    assert mean.dtype == np.float64 and mean.shape == (68, 2)
+
+
+def test_averaging_commutes_with_mirroring():
+    """The averaged boxes are a mirror-symmetric set, so the mean on the mirrored photo
+    is the mirror of the mean on the photo."""
+    import skimage.data
+
+    from head360cli.fitting.landmarks import MIRROR_68, _averaged, _load
+
+    img = skimage.data.astronaut()
+    mirrored = np.ascontiguousarray(img[:, ::-1])
+    predictor = _load("hog")[1]
+    last = img.shape[1] - 1
+    box = (175, 76, 265, 166)
+    a = _averaged(predictor, img, mirrored, box)
+    b = _averaged(predictor, mirrored, img, (last - box[2], box[1], last - box[0], box[3]))
+    b[:, 0] = last - b[:, 0]
+    np.testing.assert_allclose(b[MIRROR_68], a, atol=1e-9)
