@@ -126,14 +126,17 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
         px, _ = project(batch.verts[:1], c2w, data.intrinsics[None])
         lm = px[0].numpy()[model.landmarks]
         rgb = to_uint8(batch.rgb)[0]
+        parsed, alone_parse = parse_hair(rgb, lm), parse_hair(rgb, lm, prior=None)
         masks = {"true_mask": batch.hair_alpha[0, 0].numpy() > 0.5,
-                 "parsed_mask": parse_hair(rgb, lm).hair,
-                 "parsed_no_prior": parse_hair(rgb, lm, prior=None).hair}
+                 "parsed_mask": parsed.hair, "parsed_no_prior": alone_parse.hair}
+        # the face skin each is scored with, as fit does (the true hair with the parse's)
+        faces = {"true_mask": parsed.face, "parsed_mask": parsed.face,
+                 "parsed_no_prior": alone_parse.face}
         ious.append(mask_iou(masks["parsed_mask"], masks["true_mask"]))
         alone.append(mask_iou(masks["parsed_no_prior"], masks["true_mask"]))
         valid = ~hidden_by_body(lm, (res, res))
         for key, mask in masks.items():
-            guess = classify_hair(mask, sil, valid)
+            guess = classify_hair(mask, sil, valid, faces[key])
             rank = guess.ranking
             hits[key][0] += rank[0] == head.hair_style
             hits[key][1] += head.hair_style in rank[:3]

@@ -116,8 +116,6 @@ class LandmarkDetector:
 
     def detect(self, rgb: np.ndarray) -> list[DetectedFace]:
         """All faces in an ``(H, W, 3)`` uint8 RGB image, largest first."""
-        import dlib
-
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise BadInputError(f"expected an (H, W, 3) uint8 image, found {rgb.shape} "
                                 f"{rgb.dtype}")

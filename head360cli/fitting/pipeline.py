@@ -369,7 +369,7 @@ def _hair_guess(img, parse, fit, model, landmarks: np.ndarray,
     valid &= _outside_body(landmarks, affine, res)
     if silhouettes is None:
         silhouettes = _silhouettes(img, fit, model, res)
-    guess = classify_hair(hair, silhouettes, valid)
+    guess = classify_hair(hair, silhouettes, valid, crop_mask(parse.face, affine, res))
     estimate = hair_colour(img.pixels, parse.hair)
     # The hair branch learnt the corpus' named colours: the head wears the nearest one.
     name = nearest_colour_name(estimate)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from head360cli.fitting.hair_class import (
     COLOUR_MAP,
+    TEMPERATURE,
     classify_hair,
     colour_samples,
     fit_colour_map,
@@ -120,6 +122,33 @@ def test_hair_that_no_style_matches_ranks_as_no_hair():
     assert guess.matched and guess.ranking[0] == 9
     assert guess.iou[9] == 23 / 226 >= MIN_STYLE_IOU
     assert guess.probability[9] == guess.probability.max()
+
+
+def test_styles_that_cover_the_face_lose_near_ties():
+    """Two styles overlap the hair equally; the one drawn over the parsed face skin
+    loses FACE_COVER times the face's share it covers. Without a face mask the IoU alone
+    ranks (the lower id first on a tie); a style far ahead in IoU still wins."""
+    from head360cli.fitting.hair_class import FACE_COVER
+
+    assert FACE_COVER > 0
+    sil = np.zeros((30, 20, 20), bool)
+    hair = np.zeros((20, 20), bool)
+    hair[:4] = True  # 80 hair pixels on top
+    face = np.zeros((20, 20), bool)
+    face[8:16, 5:15] = True  # 80 face pixels
+    sil[3, :4] = True
+    sil[3, 8:10, 5:15] = True  # hair over the forehead: 20 face pixels
+    sil[3, 18:20, :10] = True  # and 20 on the backdrop
+    sil[7, :4] = True
+    sil[7, 18:20] = True  # 40 pixels on the backdrop
+    assert classify_hair(hair, sil).iou[3] == classify_hair(hair, sil).iou[7] == 80 / 120
+    assert classify_hair(hair, sil).ranking[0] == 3
+    guess = classify_hair(hair, sil, face=face)
+    assert guess.ranking[:2] == [7, 3] and guess.iou[3] == 80 / 120
+    assert guess.probability[7] == pytest.approx(
+        guess.probability[3] * np.exp(FACE_COVER * 20 / 80 / TEMPERATURE))
+    sil[7, 4:12, :5] = sil[7, 4:12, 15:] = True  # 80 more on the backdrop: IoU 0.4
+    assert classify_hair(hair, sil, face=face).ranking[0] == 3
 
 
 def test_hair_colour_linearises_the_median_and_names_it():
