@@ -77,7 +77,7 @@ def _averaged(predictor, img: np.ndarray, mirrored: np.ndarray,
     (``mirrored``, ``img`` flipped left to right) of each.
 
     On 13 development photos (AFLW2000-3D 00516/01322/02283/02545/03614 and dlib's VOC
-    faces), each fitted with six copies one grey level apart: landmark spread 0.52 % ->
+    faces), each detected in six copies one grey level apart: landmark spread 0.52 % ->
     0.15 % of the face's size; on the five with ground truth, NME 4.04 % -> 3.97 %.
     """
     x0, y0, x1, y1 = box
