@@ -114,26 +114,34 @@ class LandmarkDetector:
         self.upsample = int(upsample)
         self.average = bool(average)
 
-    def detect(self, rgb: np.ndarray) -> list[DetectedFace]:
-        """All faces in an ``(H, W, 3)`` uint8 RGB image, largest first."""
+    def detect(self, rgb: np.ndarray, only: int | None = None) -> list[DetectedFace]:
+        """All faces in an ``(H, W, 3)`` uint8 RGB image, largest first.
+
+        Args:
+            rgb: The image.
+            only: When averaging, average only the landmarks of the face of this rank
+                (0: the largest); the others get one run of the predictor each (a
+                caller that fits one face of a crowd need not pay 14 runs for each).
+        """
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise BadInputError(f"expected an (H, W, 3) uint8 image, found {rgb.shape} "
                                 f"{rgb.dtype}")
         det, predictor = _load(self.kind)
         img = np.ascontiguousarray(rgb)
-        faces = []
         if self.kind == "cnn":
             results = [(r.rect, float(r.confidence)) for r in det(img, self.upsample)]
         else:
             rects, scores, _ = det.run(img, self.upsample, 0.0)
             results = list(zip(rects, (float(s) for s in scores), strict=True))
-        mirrored = np.ascontiguousarray(img[:, ::-1]) if self.average else None
-        for rect, score in results:
-            box = (rect.left(), rect.top(), rect.right(), rect.bottom())
-            pts = _averaged(predictor, img, mirrored, box) if self.average \
-                else _points(predictor, img, box)
-            faces.append(DetectedFace(tuple(float(v) for v in box), score, pts))
+        faces = [DetectedFace((float(r.left()), float(r.top()), float(r.right()),
+                               float(r.bottom())), score, np.empty((0, 2)))
+                 for r, score in results]
         faces.sort(key=lambda f: -f.area)
+        mirrored = np.ascontiguousarray(img[:, ::-1]) if self.average else None
+        for rank, f in enumerate(faces):
+            box = tuple(int(v) for v in f.box)
+            f.landmarks = _averaged(predictor, img, mirrored, box) \
+                if self.average and only in (None, rank) else _points(predictor, img, box)
         return faces
 
     def detect_one(self, rgb: np.ndarray, index: int = 0) -> DetectedFace:
@@ -142,7 +150,7 @@ class LandmarkDetector:
         Raises:
             NoFaceError: No face, or fewer than ``index + 1`` faces.
         """
-        faces = self.detect(rgb)
+        faces = self.detect(rgb, only=index)
         if not faces:
             hint = "" if self.kind == "cnn" else " (try --detector cnn for hard faces)"
             raise NoFaceError(f"no face found in the image{hint}")

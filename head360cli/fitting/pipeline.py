@@ -218,9 +218,9 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     model = load_bilinear()
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    faces = LandmarkDetector(detector).detect(img.pixels)
+    faces = LandmarkDetector(detector).detect(img.pixels, only=face)
     if not faces and max(img.size) <= 2000:  # small faces: look again at twice the size
-        faces = LandmarkDetector(detector, upsample=2).detect(img.pixels)
+        faces = LandmarkDetector(detector, upsample=2).detect(img.pixels, only=face)
     timings["detect"] = time.perf_counter() - t0
     if not faces:
         hint = "" if detector == "cnn" else " (try --detector cnn for hard faces)"

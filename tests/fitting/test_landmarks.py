@@ -80,3 +80,27 @@ def test_averaging_commutes_with_mirroring():
     b = _averaged(predictor, mirrored, img, (last - box[2], box[1], last - box[0], box[3]))
     b[:, 0] = last - b[:, 0]
     np.testing.assert_allclose(b[MIRROR_68], a, atol=1e-9)
+
+
+def test_only_the_chosen_face_is_averaged():
+    """Two astronauts (HOG finds a third, weak box too), ``only=1``: the second face's
+    landmarks are the averaged ones, every other face's a single predictor run, the
+    order by size unchanged."""
+    import cv2
+    import skimage.data
+
+    from head360cli.fitting.landmarks import LandmarkDetector
+
+    img = skimage.data.astronaut()
+    small = cv2.resize(img, (384, 384), interpolation=cv2.INTER_AREA)
+    pair = np.zeros((512, 896, 3), np.uint8)
+    pair[:, :512], pair[:384, 512:] = img, small
+    every = LandmarkDetector().detect(pair)
+    plain = LandmarkDetector(average=False).detect(pair)
+    chosen = LandmarkDetector().detect(pair, only=1)
+    assert len(every) == len(chosen) >= 2 and every[0].area > every[1].area
+    assert [f.box for f in chosen] == [f.box for f in every] == [f.box for f in plain]
+    np.testing.assert_array_equal(chosen[1].landmarks, every[1].landmarks)
+    for rank in [0, *range(2, len(chosen))]:
+        np.testing.assert_array_equal(chosen[rank].landmarks, plain[rank].landmarks)
+    assert not np.array_equal(every[0].landmarks, plain[0].landmarks)
