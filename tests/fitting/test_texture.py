@@ -336,8 +336,37 @@ def test_inversion_returns_the_best_texture_it_saw(scene):
     torch.testing.assert_close(inv.texture, start, rtol=0, atol=0)
 
 
+def test_code_steps_render_with_their_own_sample_count(scene, monkeypatch):
+    """``code_samples`` sets the samples per ray of the code steps alone; the texture
+    steps keep ``samples`` and the generator its own count afterwards."""
+    gen, codes, batch = scene
+    seen = []
+    forward = gen.forward
+
+    def spy(*args, **kwargs):
+        seen.append(("code" if kwargs.get("code") is not None else "texture",
+                     gen.cfg.samples))
+        return forward(*args, **kwargs)
+
+    monkeypatch.setattr(gen, "forward", spy)
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=2, steps=2, samples=5,
+                              code_samples=3, patience=10)
+    invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
+                   batch.alpha[0], codes.mean(0), cfg)
+    assert seen[:2] == [("code", 3), ("code", 3)]
+    assert seen[2:] and all(s == ("texture", 5) for s in seen[2:])
+    assert gen.cfg.samples == 12
+    seen.clear()
+    invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
+                   batch.alpha[0], codes.mean(0),
+                   dataclasses.replace(cfg, code_samples=None, steps=0))
+    assert seen == [("code", 5), ("code", 5)]
+
+
 def test_texture_stride_below_one_and_negative_smoothness_are_refused():
     with pytest.raises(ValueError, match=r"expected texture_stride >= 1, found 0"):
         dataclasses.replace(PRESETS["fast"], texture_stride=0)
     with pytest.raises(ValueError, match=r"expected fine_smooth >= 0, found -1"):
         dataclasses.replace(PRESETS["fast"], fine_smooth=-1.0)
+    with pytest.raises(ValueError, match=r"expected code_samples >= 1 or None, found 0"):
+        dataclasses.replace(PRESETS["fast"], code_samples=0)
