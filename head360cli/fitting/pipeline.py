@@ -603,7 +603,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
         offset, placed_iou, plain_iou = place_hair(
             neutral, posed, model.faces, inv.c2w.cpu().numpy(), k, style, hair_crop,
-            valid & _outside_body(found.landmarks, affine, res))
+            valid & _outside_body(found.landmarks, affine, res),
+            face=face_crop)
     timings["hair_placement"] = time.perf_counter() - t0
 
     say("preview", 0, 1)

@@ -73,6 +73,31 @@ def test_place_hair_finds_the_shift_of_the_hair():
     assert not offset.any() and iou == iou_plain == 1.0
 
 
+def test_place_hair_lifts_hair_off_the_parsed_face():
+    """The hair matches the unshifted silhouette exactly, but the strip it alone covers
+    (not the silhouette lifted 12 mm) is parsed as face: with the face mask the placement
+    lifts the hair off that skin, at a cost in IoU; without it the hair stays."""
+    from head360cli.fitting.hair_class import PLACEMENT_UP
+    from head360cli.mesh.bilinear import load_bilinear
+
+    faces = load_bilinear().faces
+    views, batch, c2w = _front_view(11)
+    head, k = views.head(11), views.intrinsics.numpy()
+    posed = batch.verts[0].numpy()
+    plain = style_silhouettes(head.verts, posed, faces, c2w, k, 96, [11])[0]
+    lifted = style_silhouettes(head.verts, posed, faces, c2w, k, 96, [11],
+                               np.array([[0.0, max(PLACEMENT_UP), 0.0]]))[0]
+    face = plain & ~lifted
+    assert face.sum() > 20
+    offset, iou, iou_plain = place_hair(head.verts, posed, faces, c2w, k, 11, plain,
+                                        face=face)
+    assert offset[1] > 0 and iou < iou_plain == 1.0
+    chosen = style_silhouettes(head.verts, posed, faces, c2w, k, 96, [11], offset[None])[0]
+    assert (chosen & face).sum() < 0.5 * face.sum()
+    offset, _, _ = place_hair(head.verts, posed, faces, c2w, k, 11, plain)
+    assert not offset.any()
+
+
 def test_styles_with_the_same_silhouette_are_flagged():
     """Styles that look alike from this view (pixel for pixel where scored) tie, and the
     guess says which share the first one's silhouette."""
