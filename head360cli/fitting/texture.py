@@ -64,9 +64,11 @@ class InvertConfig:
     corpus seed 1 from 17.63 to 18.14 dB over 72 views (21.75 -> 21.84 at the input view)
     and three of seed 2 from 15.91 to 16.88 (19.13 -> 19.86), and eight development
     photos' bald face PSNR from 27.33 to 27.98 dB (descriptor distance at 0 degrees 0.409
-    -> 0.401), their fits as fast as before (12.6 s each); 30 steps at 6 samples scored
-    the same (18.16 dB, 27.90) for about 1.5 s more a fit, and 40 at 3 samples 18.30 /
-    17.43 dB and 27.85 for 0.7-1.6 s more."""
+    -> 0.401). The ten more steps cost 0.5-1 s a fit (the astronaut from the command
+    line, runs alternating with the 20-step code: 9.8-10.7 s -> 11.3-11.6 s; inversion
+    5.1-5.6 -> 6.0-6.5 s); 30 steps at 6 samples scored the same (18.16 dB, 27.90) for
+    about 1.5 s more, and 40 at 3 samples 18.30 / 17.43 dB and 27.85 for about 2 s
+    more."""
     lr_code: float = 0.05
     """Adam learning rate of the code."""
     lr_texture: float = 0.3
