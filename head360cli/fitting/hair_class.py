@@ -158,6 +158,14 @@ balding man, now shows his forehead: hair 4 mm down -> 4 mm up) and one not (VOC
 72 views."""
 
 
+def _face_covered(silhouettes: np.ndarray, face: np.ndarray | None) -> np.ndarray | float:
+    """``(S,)`` the share of the face mask ``face`` (``(...)`` bool) each of the
+    silhouettes ``(S, ...)`` covers; 0 without a face mask or with an empty one."""
+    if face is None or not face.any():
+        return 0.0
+    return (silhouettes & face).reshape(len(silhouettes), -1).sum(1) / face.sum()
+
+
 def place_hair(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray, c2w: np.ndarray,
                intrinsics: np.ndarray, style: int, hair: np.ndarray,
                valid: np.ndarray | None = None, face: np.ndarray | None = None
@@ -192,10 +200,7 @@ def place_hair(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray, c2w: n
         hair, sil = hair[valid], sil[:, valid]
         face = None if face is None else face[valid]
     iou = np.array([mask_iou(m, hair) for m in sil])
-    score = iou
-    if face is not None and PLACEMENT_FACE_COVER > 0 and face.any():
-        covered = (sil & face).reshape(len(sil), -1).sum(1)
-        score = iou - PLACEMENT_FACE_COVER * covered / face.sum()
+    score = iou - PLACEMENT_FACE_COVER * _face_covered(sil, face)
     zero = int(np.flatnonzero(~grid.any(1))[0])
     best = int(np.argmax(score))
     if score[best] < score[zero] + PLACEMENT_MIN_GAIN:
@@ -286,9 +291,8 @@ def classify_hair(hair: np.ndarray, silhouettes: np.ndarray,
     matched = bool(iou.max() >= MIN_STYLE_IOU)
     # unmatched hair is no evidence of a style: scored as an empty mask (bald's IoU 1)
     score = iou if matched else np.array([float(not s.any()) for s in silhouettes])
-    if matched and face is not None and FACE_COVER > 0 and face.any():
-        covered = (silhouettes & face).reshape(len(silhouettes), -1).sum(1)
-        score = score - FACE_COVER * covered / face.sum()
+    if matched:
+        score = score - FACE_COVER * _face_covered(silhouettes, face)
     z = (score - score.max()) / TEMPERATURE
     p = np.exp(z) / np.exp(z).sum()
     ranking = [int(i) for i in np.lexsort((-iou, -score))]
