@@ -458,21 +458,21 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
             groups += [{"params": [rot], "lr": cfg.lr_rotation},
                        {"params": [shift], "lr": cfg.lr_translation}]
         opt = Adam(groups)
-        for step in range(cfg.code_steps):
-            cam = pose(rot, shift)
-            with gen.samples_per_ray(cfg.code_samples):
+        with gen.samples_per_ray(cfg.code_samples):
+            for step in range(cfg.code_steps):
+                cam = pose(rot, shift)
                 out = gen(v, cam, k, code=code, plane_raster=raster)
-            loss = photometric(out) + 1e-3 * code.square().mean()
-            if cfg.pose:
-                loss = loss + cfg.coverage * ((1.0 - out["alpha"]) * m).sum() / area
-                if landmarks is not None:
-                    loss = loss + cfg.anchor * landmark_error(cam)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            if progress:
-                progress(step + 1, total, losses[-1])
+                loss = photometric(out) + 1e-3 * code.square().mean()
+                if cfg.pose:
+                    loss = loss + cfg.coverage * ((1.0 - out["alpha"]) * m).sum() / area
+                    if landmarks is not None:
+                        loss = loss + cfg.anchor * landmark_error(cam)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                losses.append(float(loss.detach()))
+                if progress:
+                    progress(step + 1, total, losses[-1])
         with torch.no_grad():
             start = gen.texture(code.detach())
             cam = pose(rot, shift)
