@@ -1,22 +1,20 @@
 """Closed eyelids: a change of the neural texture that the blinks bring in.
 
 The generator saw few closed eyes in training (a blink above 0.8 in about 0.6 % of its
-views), and a texture fitted to a photo of open eyes draws a closed lid as a dark
-smudge, which dlib reads as an eye about as open as the open one. This stage fits a *lid
-change* of the texture, on the texels of each eye's region (the triangles its
-blendshapes move: lids, eyeball, lower lid; :func:`~head360cli.mesh.eyelids.eye_texels`),
-so that with both eyes closed the front view shows, over the lid's triangles, the colour
-of the skin around the eye with a dark lash line along the lid's lower edge, and skin on
-the lower lid. A renderer adds the change in proportion to the blink:
-``texture + eyeBlinkLeft * left part + eyeBlinkRight * right part``
-(:class:`~head360cli.model.head_render.HeadRenderer`), the way wrinkle maps follow
+views), and a texture fitted to a photo of open eyes draws a closed lid as a dark smudge,
+which dlib reads as an eye about as open as the open one. This stage fits a *lid change*
+of the texture, on the texels of the triangles a blink moves, so that with both eyes
+closed the front view shows, over those triangles, the colour of the skin around the eye
+with a dark lash line along the lid's lower edge. A renderer adds the change in
+proportion to the blink: ``texture + eyeBlinkLeft * left part + eyeBlinkRight * right
+part`` (:class:`~head360cli.model.head_render.HeadRenderer`), the way wrinkle maps follow
 blendshape weights in games. Open eyes (and the photo's view) render exactly as before,
 so the change only has to be right for closed eyes; a change fitted into the texture
 itself, held to the open eyes and the photo at the same time, closed the eyes less and
 cost the astronaut's input view 0.4 dB.
 
 Only one view is rendered, a window of :attr:`LidConfig.crop` pixels around the eyes, and
-the planes are made once (each step adds the change where they read the eyes' texels,
+the planes are made once (each step adds the change where they read the lid texels,
 :func:`~head360cli.model.planes.add_texture_change`): about 1 s on 2 CPU cores.
 """
 
@@ -28,7 +26,7 @@ import time
 import numpy as np
 import torch
 
-from head360cli.mesh.eyelids import blink_weights, eye_texels
+from head360cli.mesh.eyelids import blink_weights, lid_texels
 
 __all__ = ["LidConfig", "LidResult", "close_lids", "closed_lid_target", "head_lids"]
 
@@ -65,16 +63,6 @@ class LidConfig:
     """Brightness of the lash line as a fraction of the skin's colour."""
     lash_width: int = 3
     """Height in pixels of the lash line at the lid's lower edge."""
-    band: int = 3
-    """Height in pixels of the band below each closed lid whose target is the skin colour
-    (the lower lid). A fit can paint the photo's eye white on the lower lid's texels,
-    which a blink does not move: a sampled head refitted from its own render kept bright
-    spots under its closed lids. On five development heads (fits of VOC 2008_002506 and
-    2009_004587, a refitted sampled head, sampled heads of seeds 1 and 2) the change on
-    each eye's whole region with a band of 3 took dlib's eye opening over a blink ramp
-    from r -0.80 / -0.79, -0.86 / -0.92, -0.87 / -0.89, -0.92 / -0.93, -0.72 / -0.72 to
-    -0.87 / -0.84, -0.89 / -0.93, -0.93 / -0.93, -0.94 / -0.94, -0.69 / -0.68 (a sixth,
-    seed 4, -0.98 either way; before, the lid texels alone were fitted, without a band)."""
     seed: int = 0
     """Seed of the jittered samples (the caller's random state is left as it was), so a
     head gets the same change every time."""
@@ -91,8 +79,6 @@ class LidConfig:
             raise ValueError(f"expected a lash brightness in [0, 1], found {self.lash}")
         if not 0 < self.shade <= 1:
             raise ValueError(f"expected a lid shade in (0, 1], found {self.shade}")
-        if self.band < 0:
-            raise ValueError(f"expected a band >= 0 pixels, found {self.band}")
         if not 0 <= self.ring[0] < self.ring[1]:
             raise ValueError(f"expected a ring (inner, outer) with 0 <= inner < outer, "
                              f"found {self.ring}")
@@ -104,7 +90,7 @@ class LidResult:
 
     Attributes:
         change: ``(C, R, R)`` the texture's change with both eyes closed (zero outside
-            the texels it was allowed).
+            the lid texels).
         loss_first: L1 of the closed view's eye window before the first step.
         loss_last: The same at the last step.
         texels: Texels allowed to change.
@@ -131,9 +117,8 @@ def closed_lid_target(open_rgb: np.ndarray, closed_rgb: np.ndarray, open_lid: np
 
     Returns:
         ``(3, H, W)``: each closed lid (a connected region of ``closed_lid``) filled with
-        ``cfg.shade`` times the median colour of the open render in a ring around it, a
-        lash line of ``cfg.lash`` times that colour along its lower edge, and that colour
-        itself in the ``cfg.band`` pixels below the lid.
+        ``cfg.shade`` times the median colour of the open render in a ring around it, and
+        a lash line of ``cfg.lash`` times that colour along its lower edge.
     """
     from scipy import ndimage
 
@@ -154,11 +139,6 @@ def closed_lid_target(open_rgb: np.ndarray, closed_rgb: np.ndarray, open_lid: np
         for dy in range(1, cfg.lash_width + 1):
             below[:-dy] |= ~lid[dy:]
         target[:, lid & below] = (cfg.lash * skin)[:, None]
-        # the lower lid under the closed one: skin, not eye white a fit left there
-        under = np.zeros_like(lid)
-        for dy in range(1, cfg.band + 1):
-            under[dy:] |= lid[:-dy]
-        target[:, under & ~closed_lid] = skin[:, None]
     return target
 
 
@@ -173,8 +153,7 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
         blink: ``(V, 3)`` the same mesh with both eyes closed.
         texture: ``(C, R, R)`` neural texture.
         faces: ``(F, 3)`` the mesh's triangles.
-        texels: ``(R, R)`` bool, the texels that may change (both eyes'
-            :func:`~head360cli.mesh.eyelids.eye_texels`).
+        texels: ``(R, R)`` bool, the texels that may change (:func:`lid_texels`).
         cfg: Steps and target.
 
     Returns:
@@ -216,7 +195,7 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
     keep = torch.as_tensor(texels, device=dev)
     gen.requires_grad_(False)
     with torch.no_grad(), gen.image_size(s), gen.samples_per_ray(cfg.samples):
-        # the mesh stays put and only the eyes' texels change: the planes are made once,
+        # the mesh stays put and only the lid texels change: the planes are made once,
         # and each step adds the change where they read those texels
         raster = gen.plane_raster(verts)
         planes = gen.planes(verts, texture[None].expand(2, -1, -1, -1), raster)
@@ -265,11 +244,12 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
 def head_lids(gen, model, shape: np.ndarray, texture: torch.Tensor,
               cfg: LidConfig = LidConfig()) -> LidResult:
     """:func:`close_lids` for the head of identity ``shape`` of the bilinear ``model``
-    wearing ``texture (C, R, R)``: its open and closed meshes and eye texels made here."""
+    wearing ``texture (C, R, R)``: its open and closed meshes and lid texels made here."""
     neutral = model.vertices(shape, np.zeros(52))
     shut = model.vertices(shape, blink_weights())
-    left, right = eye_texels(model, shape, texture.shape[-1])
+    texels = lid_texels(model.faces, model.uv, model.faces_uv,
+                        np.any(shut != neutral, axis=1), texture.shape[-1])
     dev = texture.device
     return close_lids(gen, torch.tensor(neutral, dtype=torch.float32, device=dev),
                       torch.tensor(shut, dtype=torch.float32, device=dev), texture,
-                      model.faces, left | right, cfg)
+                      model.faces, texels, cfg)

@@ -122,7 +122,7 @@ def _validate_arrays(arrays: dict[str, np.ndarray], where: str, error: type[Exce
 def lid_change_arrays(change: np.ndarray) -> dict[str, np.ndarray]:
     """The head-file arrays of a lid change ``(C, R, R)`` (see
     :func:`head360cli.fitting.lids.close_lids`): ``lid_index`` (its nonzero texels, flat)
-    and ``lid_change (C, N)`` there, a few thousand of 65536 texels."""
+    and ``lid_change (C, N)`` there, about 3000 of 65536 texels."""
     flat = np.asarray(change, np.float32).reshape(change.shape[0], -1)
     index = np.flatnonzero(np.any(flat != 0, axis=0)).astype(np.int32)
     return {"lid_index": index, "lid_change": flat[:, index]}

@@ -1,13 +1,12 @@
-"""The eyelids of the template mesh: the weights that close both eyes, the texels of the
-triangles a set of vertices moves, and each eye's region (where a lid change of the
-neural texture lives, see :mod:`head360cli.fitting.lids`). Pure functions over the
-bilinear model's topology."""
+"""The eyelids of the template mesh: the weights that close both eyes, and the texels of
+the triangles a blink moves (where a lid change of the neural texture lives, see
+:mod:`head360cli.fitting.lids`). Pure functions over the bilinear model's topology."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EYE_SHAPES", "blink_weights", "eye_texels", "lid_texels"]
+__all__ = ["blink_weights", "eye_texels", "lid_texels"]
 
 
 def blink_weights() -> np.ndarray:
@@ -47,32 +46,17 @@ def lid_texels(faces: np.ndarray, uv: np.ndarray, faces_uv: np.ndarray, moved: n
     return ndimage.binary_dilation(inside, iterations=grow) if grow else inside
 
 
-EYE_SHAPES = ("eyeBlink", "eyeLookDown", "eyeLookIn", "eyeLookOut", "eyeLookUp", "eyeSquint",
-              "eyeWide")
-"""The ARKit blendshapes of one eye, less their side (``Left`` / ``Right``): the triangles
-they move are that eye's region (:func:`eye_texels`)."""
-
-
 def eye_texels(model, shape: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray]:
-    """The texels of each eye's region: ``(left, right)``, ``(res, res)`` bool each, of
-    the triangles that any of that eye's blendshapes (:data:`EYE_SHAPES`) moves on the
-    head of identity ``shape`` (a :class:`~head360cli.mesh.bilinear.BilinearModel`'s): the
-    lids, the eyeball and the lower lid, where a lid change lives
-    (:func:`head360cli.fitting.lids.close_lids`). Not only the lid's own texels: a fit can
-    leave the photo's eye white on the lower lid's, which a blink does not move. Texels
-    both regions reach are in neither."""
+    """The lid texels of each eye: ``(left, right)``, ``(res, res)`` bool each, of the
+    triangles ``eyeBlinkLeft`` and ``eyeBlinkRight`` move on the head of identity
+    ``shape`` (a :class:`~head360cli.mesh.bilinear.BilinearModel`'s)."""
     from head360cli.mesh.arkit52 import INDEX
 
     neutral = model.vertices(shape, np.zeros(52))
     out = []
-    for side in ("Left", "Right"):
-        moved = np.zeros(len(neutral), bool)
-        for name in EYE_SHAPES:
-            w = np.zeros(52)
-            w[INDEX[name + side]] = 1.0
-            moved |= np.any(model.vertices(shape, w) != neutral, axis=1)
+    for name in ("eyeBlinkLeft", "eyeBlinkRight"):
+        w = np.zeros(52)
+        w[INDEX[name]] = 1.0
+        moved = np.any(model.vertices(shape, w) != neutral, axis=1)
         out.append(lid_texels(model.faces, model.uv, model.faces_uv, moved, res))
-    # the two eyeballs lie side by side in the atlas: the texels both regions grow into
-    # (a few dozen) belong to neither, so no texel changes with both blinks
-    both = out[0] & out[1]
-    return out[0] & ~both, out[1] & ~both
+    return out[0], out[1]
