@@ -277,8 +277,8 @@ def mesh_openings(r, weights: np.ndarray, c2w, intrinsics) -> np.ndarray:
 
     from head360cli.geometry.cameras import project
 
-    # the renderer's own mesh: neutral + w @ deltas (no bilinear contraction per frame)
-    verts = r.neutral + np.tensordot(np.asarray(weights, np.float64), r.deltas, 1)
+    # the renderer's own meshes of the driving weights (its eyes from the head's own)
+    verts = r.vertices(np.asarray(weights)).cpu().numpy().astype(np.float64)
     pts = np.stack([r.model.landmark_points(v) for v in verts])
     px, _ = project(torch.as_tensor(pts, dtype=torch.float32),
                     c2w.expand(len(pts), 4, 4), intrinsics)

@@ -177,13 +177,16 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
 
 def head_inputs(renderer) -> dict[str, np.ndarray]:
     """What a torch-free runner needs of one head: ``base (V, 3)`` and ``deltas
-    (52, V, 3)`` (the mesh is ``base + w @ deltas``), ``texture (1, C, R, R)``, for a head
+    (52, V, 3)`` (the mesh is ``base + w @ deltas`` for the weights ``w`` that the head's
+    own ``expression (52,)`` drives, :func:`~head360cli.io.headfile.driven_weights`),
+    ``texture (1, C, R, R)``, for a head
     with a lid change ``lids (2, C, R, R)`` (its left and right eye's parts), ``lid_from
     (2,)`` and ``lid_weights (2,)`` (the indices of eyeBlinkLeft / Right; see
     :meth:`~head360cli.model.head_render.HeadRenderer.textures`), and for a head with hair
     ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``."""
     out = {"base": renderer.neutral.astype(np.float32),
            "deltas": renderer.deltas.astype(np.float32),
+           "expression": renderer.expression.astype(np.float32),
            "texture": renderer.texture.detach().cpu().numpy().astype(np.float32)}
     if renderer.lids is not None:
         out.update(lids=renderer.lids.detach().cpu().numpy().astype(np.float32),
@@ -257,9 +260,14 @@ class OnnxFrameRunner:
     def render(self, inputs: dict[str, np.ndarray], weights: np.ndarray, c2w: np.ndarray,
                intrinsics: np.ndarray, hair: bool = True) -> np.ndarray:
         """One frame ``(1, 3, S, S)`` of a head given as :func:`head_inputs`, with ARKit
-        ``weights (52,)`` and a camera, in numpy and onnxruntime only."""
-        verts = inputs["base"] + np.tensordot(np.asarray(weights, np.float32),
-                                              inputs["deltas"], 1)
+        ``weights (52,)`` (driving weights, as
+        :meth:`~head360cli.model.head_render.HeadRenderer.frames` takes them) and a camera,
+        in numpy and onnxruntime only."""
+        from head360cli.io.headfile import driven_weights
+
+        weights = driven_weights(np.asarray(weights, np.float32).reshape(1, 52),
+                                 inputs.get("expression", np.zeros(52, np.float32)))[0]
+        verts = inputs["base"] + np.tensordot(weights, inputs["deltas"], 1)
         extra = {}
         if hair and "hair_verts" in inputs:
             extra = {k: inputs[k] for k in ("hair_verts", "hair_faces", "hair_planes")}

@@ -39,7 +39,9 @@ class HeadRenderer:
         texture: ``(C, R, R)`` neural texture.
         hair_style: Hairstyle id (0 = bald).
         hair_colour: ``(3,)`` linear RGB.
-        expression: ``(52,)`` ARKit weights used when a render call gives none.
+        expression: ``(52,)`` the head's own ARKit weights (a fit's, the photo's): used
+            as they are when a render call gives none; weights a call gives drive the
+            head from its own eyes (:meth:`drive`).
         samples: Samples per ray (default: the generator's own).
         size: Output image size (default: the generator's own, 256).
         precision: ``"fp32"``, ``"bf16"`` (decoders and RefineNet in bfloat16), or
@@ -169,10 +171,24 @@ class HeadRenderer:
         other.set_hair(hair_style, hair_colour)
         return other
 
+    def drive(self, weights: np.ndarray) -> np.ndarray:
+        """The weights ``(B, 52)`` the mesh takes for driving ARKit weights ``(B, 52)``
+        (a stream's frames, an ``--expr``): the stream's, with each eye resting at the
+        head's own openness and closing from there as the stream blinks
+        (:func:`~head360cli.io.headfile.driven_weights`; unchanged for a head whose
+        own eyes are open as the template's)."""
+        from head360cli.io.headfile import driven_weights
+
+        return driven_weights(weights, self.expression)
+
     def textures(self, weights: np.ndarray) -> torch.Tensor:
-        """Neural textures ``(B, C, R, R)`` of frames with ARKit weights ``(B, 52)``: the
-        texture, plus the lid change as far as each eye is closed beyond the head's own
-        expression."""
+        """Neural textures ``(B, C, R, R)`` of frames driven by ARKit weights ``(B, 52)``
+        (see :meth:`drive`): the texture, plus the lid change as far as each eye is
+        closed beyond the head's own expression."""
+        return self._textures(self.drive(weights))
+
+    def _textures(self, weights: np.ndarray) -> torch.Tensor:
+        """:meth:`textures` of the mesh's own weights (already driven)."""
         w = self._lid_amounts(weights)
         if w is None:
             return self.texture.expand(len(weights), -1, -1, -1)
@@ -190,10 +206,18 @@ class HeadRenderer:
         return w if bool((w > 0).any()) else None
 
     def vertices(self, expression: np.ndarray | torch.Tensor | None = None) -> torch.Tensor:
-        """Meshes ``(B, V, 3)`` for ARKit weights ``(B, 52)`` (or ``(V, 3)`` for one
-        ``(52,)``; default: the head's own expression)."""
-        w = self.expression if expression is None else expression
-        w = torch.as_tensor(np.asarray(w, np.float32), device=self.device)
+        """Meshes ``(B, V, 3)`` for driving ARKit weights ``(B, 52)`` (see :meth:`drive`;
+        or ``(V, 3)`` for one ``(52,)``; default: the head's own expression)."""
+        if expression is None:
+            return self._vertices(self.expression)
+        w = np.asarray(expression.cpu() if torch.is_tensor(expression) else expression,
+                       np.float32)
+        out = self._vertices(self.drive(w.reshape(-1, 52)))
+        return out[0] if w.ndim == 1 else out
+
+    def _vertices(self, expression: np.ndarray) -> torch.Tensor:
+        """:meth:`vertices` of the mesh's own weights (already driven)."""
+        w = torch.as_tensor(np.asarray(expression, np.float32), device=self.device)
         one = w.dim() == 1
         v = self._base.reshape(1, -1) + w.reshape(-1, 52) @ self._deltas
         v = v.reshape(-1, *self._base.shape)
@@ -212,14 +236,16 @@ class HeadRenderer:
             w = self.expression if expression is None else np.asarray(expression)
             weights = np.broadcast_to(w, (len(c2w), 52))
         return torch.cat([torch.as_tensor(f) for f in
-                          self.frames(c2w, weights, intrinsics, hair, batch, uint8=False)])
+                          self.frames(c2w, weights, intrinsics, hair, batch, uint8=False,
+                                      drive=expression is not None)])
 
     @torch.no_grad()
     def frames(self, c2w: torch.Tensor, weights: np.ndarray, intrinsics: torch.Tensor,
-               hair: bool = True, batch: int | None = None, uint8: bool = True
-               ) -> Iterator[np.ndarray | torch.Tensor]:
+               hair: bool = True, batch: int | None = None, uint8: bool = True,
+               drive: bool = True) -> Iterator[np.ndarray | torch.Tensor]:
         """Render frame after frame (an animation): camera ``c2w[i] (4, 4)`` and ARKit
-        weights ``weights[i] (52,)``, ``batch`` frames per generator call (default: 1 on
+        weights ``weights[i] (52,)`` (driving weights, see :meth:`drive`; with
+        ``drive=False`` the mesh's own), ``batch`` frames per generator call (default: 1 on
         CPU, where larger batches measured slower; 32 on a GPU, 2.3x the frames/s of 8
         with hair on an H100). One frame at a time with one camera for all, decoded
         points are reused between frames (see ``reuse``).
@@ -231,6 +257,8 @@ class HeadRenderer:
         """
         k = intrinsics.to(self.device)
         batch = batch or (1 if self.device.type == "cpu" else 32)
+        if drive:
+            weights = self.drive(weights)
         own_dtype = self.gen.network_dtype
         self.gen.network_dtype = torch.bfloat16 if self.precision == "bf16" else None
         with self.gen.samples_per_ray(self.samples), self.gen.image_size(
@@ -250,9 +278,9 @@ class HeadRenderer:
         plain = self.texture.detach().cpu().numpy()  # copied once: most frames use it
         for i in range(len(c2w)):
             w = np.asarray(weights[i:i + 1], np.float32)
-            verts = self.vertices(w).cpu().numpy()
+            verts = self._vertices(w).cpu().numpy()
             tex = plain if self._lid_amounts(w) is None else \
-                self.textures(w).detach().cpu().numpy()
+                self._textures(w).detach().cpu().numpy()
             out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
                                                *extra))
             yield to_uint8(out) if uint8 else out
@@ -271,8 +299,8 @@ class HeadRenderer:
             cams = c2w[i:i + batch].to(self.device)
             n = len(cams)
             w = np.asarray(weights[i:i + n], np.float32)
-            verts = self.vertices(w)
+            verts = self._vertices(w)
             h = self.hair.repeat(n) if hair and self.hair is not None else None
-            out = self.gen(verts, cams, k, texture=self.textures(w),
+            out = self.gen(verts, cams, k, texture=self._textures(w),
                            hair=h, reuse=reuse)["rgb"].clamp(0, 1)  # RefineNet may overshoot
             yield to_uint8(out) if uint8 else out.cpu()

@@ -70,6 +70,20 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     cam, k = view_cameras(20.0, 5.0), view_intrinsics(48)
     got = runner.render(head_inputs(other), np.zeros(52), cam.numpy(), k.numpy())
     assert np.abs(got - other.render(cam, k, np.zeros(52)).numpy()).max() <= 1e-3
+    # a head with eyes of its own (a fit's): the runner drives them as torch does
+    from head360cli.mesh.arkit52 import INDEX
+    from head360cli.model.head_render import HeadRenderer
+
+    own = np.zeros(52)
+    own[[INDEX["eyeBlinkLeft"], INDEX["eyeWideRight"]]] = 0.7, 0.6
+    fitted = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour, own,
+                          samples=3, size=48, precision="fp32")
+    w = np.zeros(52)
+    w[INDEX["eyeBlinkRight"]] = 0.5
+    ref = fitted.render(cam, k, w).numpy()
+    assert np.abs(ref - r.render(cam, k, w).numpy()).max() > 1e-2  # the eyes moved
+    got = runner.render(head_inputs(fitted), w, cam.numpy(), k.numpy())
+    assert np.abs(got - ref).max() <= 1e-3
 
 
 def test_pad_hair_refuses_oversized_meshes():

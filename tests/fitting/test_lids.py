@@ -175,8 +175,9 @@ def test_a_renderer_adds_each_eyes_change_as_far_as_it_is_closed(head):
 
 
 def test_the_change_comes_in_from_the_heads_own_blink(head):
-    """A fitted texture already shows the photo's half-closed eyes: the change is added
-    only as far as an eye closes beyond them, so the photo's view renders as fitted."""
+    """A fitted texture already shows the photo's half-closed eyes: its own weights (a
+    render given none) show no change, and a stream's blink closes each eye from its own
+    openness, bringing in as much of the change as the stream blinks."""
     from head360cli.mesh.arkit52 import INDEX
     from head360cli.model.head_render import HeadRenderer
 
@@ -185,12 +186,15 @@ def test_the_change_comes_in_from_the_heads_own_blink(head):
     own = 0.5 * blink_weights()
     r = HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3), own,
                      lid_change=change)
-    w = np.stack([own, 0.2 * blink_weights(), 0.75 * blink_weights(), blink_weights()])
+    assert torch.equal(r._textures(own[None])[0], texture)  # the head as fitted
+    w = np.stack([np.zeros(52), 0.2 * blink_weights(), 0.75 * blink_weights(),
+                  blink_weights()])
     tex = r.textures(w)
-    assert torch.equal(tex[0], texture) and torch.equal(tex[1], texture)
-    torch.testing.assert_close(tex[2], texture + 0.5 * change)
+    assert torch.equal(tex[0], texture)
+    torch.testing.assert_close(tex[1], texture + 0.2 * change)
+    torch.testing.assert_close(tex[2], texture + 0.75 * change)
     torch.testing.assert_close(tex[3], texture + change)
     one = np.zeros((1, 52))
-    one[0, INDEX["eyeBlinkLeft"]] = 0.9  # the right eye stays at 0 < its own 0.5
+    one[0, INDEX["eyeBlinkLeft"]] = 0.9  # the right eye stays at its own openness
     left = (r.textures(one)[0] != texture).any(0).numpy()
     assert left.any() and left.sum() < texels.sum()

@@ -175,3 +175,38 @@ def test_a_lid_change_is_stored_on_its_texels_and_read_back_dense(tmp_path):
     del only["lid_change"]
     with pytest.raises(FileFormatError, match="lid_index"):
         lid_change_of(only)
+
+
+def test_driven_weights_rest_each_eye_at_the_heads_own():
+    from head360cli.io.headfile import driven_weights, lid_amounts
+    from head360cli.mesh.arkit52 import INDEX
+
+    own = np.zeros(52)
+    own[[INDEX["eyeBlinkLeft"], INDEX["eyeSquintRight"], INDEX["eyeWideLeft"],
+         INDEX["jawOpen"]]] = 0.4, 0.6, 0.5, 0.3
+    w = np.zeros((3, 52))
+    w[1, [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]] = 0.5
+    w[2, [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]] = 1.0
+    w[:, INDEX["mouthSmileLeft"]] = 0.7
+    w[:, INDEX["eyeWideLeft"]] = 0.8  # the stream's own widening adds to the head's
+    out = driven_weights(w, own)
+    assert out.shape == (3, 52) and out.dtype == np.float32
+    col = {n: out[:, INDEX[n]] for n in ("eyeBlinkLeft", "eyeBlinkRight", "eyeSquintRight",
+                                         "eyeWideLeft", "jawOpen", "mouthSmileLeft")}
+    np.testing.assert_allclose(col["eyeBlinkLeft"], [0.4, 0.7, 1.0], atol=1e-6)
+    np.testing.assert_allclose(col["eyeBlinkRight"], [0.0, 0.5, 1.0], atol=1e-6)
+    np.testing.assert_allclose(col["eyeSquintRight"], [0.6, 0.3, 0.0], atol=1e-6)
+    np.testing.assert_allclose(col["eyeWideLeft"], [1.0, 1.0, 0.8], atol=1e-6)  # at most 1
+    np.testing.assert_allclose(col["jawOpen"], 0.0)  # not an eye: the stream's
+    np.testing.assert_allclose(col["mouthSmileLeft"], 0.7)
+    # the lid change follows the stream's blink exactly
+    blinks = [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]
+    np.testing.assert_allclose(lid_amounts(out[:, blinks], own[blinks]), w[:, blinks],
+                               atol=1e-6)
+    # a head with open eyes of its own takes the stream as it is; a shut one stays shut
+    rng = np.random.default_rng(0)
+    any_w = rng.uniform(0, 1, (5, 52)).astype(np.float32)
+    np.testing.assert_array_equal(driven_weights(any_w, np.zeros(52)), any_w)
+    shut = np.zeros(52)
+    shut[blinks] = 1.0
+    np.testing.assert_allclose(driven_weights(np.zeros(52), shut)[0, blinks], 0.95)

@@ -109,3 +109,32 @@ def test_a_malformed_hair_offset_is_refused(renderer):
         with pytest.raises(ValueError, match="expected a hair offset of 3 finite numbers"):
             HeadRenderer(renderer.gen, renderer.shape, renderer.texture[0], 1,
                          renderer.hair_colour, size=64, hair_offset=bad)
+
+
+def test_frames_drive_the_eyes_from_the_heads_own(renderer):
+    """Given weights move the eyes from the head's own openness (a fit's), the mouth and
+    the rest as given; no weights give the own expression as it is."""
+    from head360cli.io.headfile import driven_weights
+    from head360cli.mesh.arkit52 import INDEX
+    from head360cli.model.head_render import HeadRenderer
+
+    own = np.zeros(52)
+    own[[INDEX["eyeBlinkLeft"], INDEX["eyeWideRight"], INDEX["jawOpen"]]] = 0.6, 0.4, 0.5
+    r = HeadRenderer(renderer.gen, renderer.shape, renderer.texture[0], 0, np.zeros(3),
+                     own, samples=4, size=64, precision="fp32")
+    model = renderer.model
+    np.testing.assert_allclose(r.vertices().numpy(), model.vertices(r.shape, own), atol=2e-6)
+    eyes = own.copy()
+    eyes[INDEX["jawOpen"]] = 0.0
+    np.testing.assert_allclose(r.vertices(np.zeros(52)).numpy(),
+                               model.vertices(r.shape, eyes), atol=2e-6)
+    w = np.zeros((2, 52))
+    w[1, [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"], INDEX["jawOpen"]]] = 1.0
+    np.testing.assert_allclose(r.vertices(w).numpy()[1],
+                               model.vertices(r.shape, w[1]), atol=2e-6)  # closed: as given
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    cam, k = view_cameras(0.0, 0.0), view_intrinsics(64)
+    np.testing.assert_array_equal(  # render (driving) == frames of the driven weights as own
+        r.render(cam, k, w[1]).numpy(),
+        next(r.frames(cam, driven_weights(w[1:], own), k, uint8=False, drive=False)).numpy())
