@@ -119,7 +119,8 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
 @click.option("--views", default=None,
               help="A PNG grid of views: yaws '0,45,90' or yaw:pitch pairs '0:0,90:20'.")
 @click.option("--expr", default=None,
-              help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1' (default neutral).")
+              help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1' (default neutral; "
+                   "a fitted head's eyes rest at the photo's openness and blink from it).")
 @_quality_options
 @_backend_options
 @common_options
