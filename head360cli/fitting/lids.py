@@ -5,9 +5,11 @@ views), and a texture fitted to a photo of open eyes draws a closed lid as a dar
 which dlib reads as an eye about as open as the open one. This stage fits a *lid change*
 of the texture, on the texels of the triangles a blink moves, so that with both eyes
 closed the front view shows, over those triangles, the colour of the skin around the eye
-with a dark lash line along the lid's lower edge. A renderer adds the change in
-proportion to the blink: ``texture + eyeBlinkLeft * left part + eyeBlinkRight * right
-part`` (:class:`~head360cli.model.head_render.HeadRenderer`), the way wrinkle maps follow
+with a dark lash line along the lid's lower edge. A renderer adds the change as the
+eyes close: ``texture + a_left * left part + a_right * right part``, each amount ``a``
+rising with the eye's blink until it is all in at a blink of 0.6
+(:func:`~head360cli.io.headfile.lid_amounts`,
+:class:`~head360cli.model.head_render.HeadRenderer`), the way wrinkle maps follow
 blendshape weights in games. Open eyes (and the photo's view) render exactly as before,
 so the change only has to be right for closed eyes; a change fitted into the texture
 itself, held to the open eyes and the photo at the same time, closed the eyes less and

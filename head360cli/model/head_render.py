@@ -56,9 +56,10 @@ class HeadRenderer:
         lid_change: ``(C, R, R)`` the texture's change with both eyes closed
             (:func:`~head360cli.fitting.lids.close_lids`); a frame's texture adds the part
             on each eye's lid texels as far as that eye closes beyond the head's own
-            ``expression`` (the photo's, which the texture was fitted to): ``(w - w0) /
-            (1 - w0)`` of it for an ``eyeBlink`` weight ``w`` above the own ``w0``, none
-            below. ``None``: the texture is the same in every frame.
+            ``expression`` (the photo's, which the texture was fitted to): for a driving
+            ``eyeBlink`` weight ``b``, ``b / 0.6`` of it, all of it from 0.6 on
+            (:func:`~head360cli.io.headfile.lid_amounts`). ``None``: the texture is the
+            same in every frame.
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,

@@ -159,7 +159,7 @@ def test_a_renderer_adds_each_eyes_change_as_far_as_it_is_closed(head):
     r = HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3), lid_change=change)
     w = np.zeros((4, 52))
     w[1, INDEX["eyeBlinkLeft"]] = 1.0
-    w[2, INDEX["eyeBlinkRight"]] = 0.5
+    w[2, INDEX["eyeBlinkRight"]] = 0.3  # half of the way to LID_FULL_AT
     w[3] = blink_weights()
     tex = r.textures(w)
     assert torch.equal(tex[0], texture)
@@ -177,7 +177,7 @@ def test_a_renderer_adds_each_eyes_change_as_far_as_it_is_closed(head):
 def test_the_change_comes_in_from_the_heads_own_blink(head):
     """A fitted texture already shows the photo's half-closed eyes: its own weights (a
     render given none) show no change, and a stream's blink closes each eye from its own
-    openness, bringing in as much of the change as the stream blinks."""
+    openness, bringing the change in as the stream blinks (all of it from 0.6 on)."""
     from head360cli.mesh.arkit52 import INDEX
     from head360cli.model.head_render import HeadRenderer
 
@@ -187,13 +187,14 @@ def test_the_change_comes_in_from_the_heads_own_blink(head):
     r = HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3), own,
                      lid_change=change)
     assert torch.equal(r._textures(own[None])[0], texture)  # the head as fitted
-    w = np.stack([np.zeros(52), 0.2 * blink_weights(), 0.75 * blink_weights(),
-                  blink_weights()])
+    w = np.stack([np.zeros(52), 0.15 * blink_weights(), 0.45 * blink_weights(),
+                  0.75 * blink_weights(), blink_weights()])
     tex = r.textures(w)
     assert torch.equal(tex[0], texture)
-    torch.testing.assert_close(tex[1], texture + 0.2 * change)
+    torch.testing.assert_close(tex[1], texture + 0.25 * change)  # 0.15 / LID_FULL_AT 0.6
     torch.testing.assert_close(tex[2], texture + 0.75 * change)
-    torch.testing.assert_close(tex[3], texture + change)
+    torch.testing.assert_close(tex[3], texture + change)  # all in from 0.6 on
+    torch.testing.assert_close(tex[4], texture + change)
     one = np.zeros((1, 52))
     one[0, INDEX["eyeBlinkLeft"]] = 0.9  # the right eye stays at its own openness
     left = (r.textures(one)[0] != texture).any(0).numpy()
