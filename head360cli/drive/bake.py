@@ -185,7 +185,7 @@ def _parts(renderer, texture: np.ndarray | None, hair_colours: np.ndarray | None
     verts = renderer.vertices(expression).cpu().numpy().astype(np.float64)
     parts = [MeshPart("head", verts, gen.faces.cpu().numpy(), gen.uv.cpu().numpy(),
                       gen.faces_uv.cpu().numpy(), texture,
-                      targets=renderer.deltas if targets else None,
+                      targets=renderer.driven_deltas() if targets else None,
                       target_names=list(ARKIT52) if targets else None)]
     if renderer.hair is not None and hair_colours is not None:
         hv, hf, _ = (t.cpu().numpy() for t in renderer.hair.meshes[0])

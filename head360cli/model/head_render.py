@@ -182,6 +182,20 @@ class HeadRenderer:
 
         return driven_weights(weights, self.expression)
 
+    def driven_deltas(self) -> np.ndarray:
+        """``(52, V, 3)`` float64: how the mesh moves per unit of each driving weight
+        from its mesh at driving weights 0 (``vertices(np.zeros(52))``), the morph
+        targets of an exported mesh. For a head whose own eyes are open as the
+        template's these are :attr:`deltas`; otherwise an eye's blink target also takes
+        out the head's own blink, squint and widening as it closes
+        (:func:`~head360cli.io.headfile.driven_weights` is linear in each weight, up
+        to its cap at 1), so a full blink ends at the closed eye."""
+        from head360cli.io.headfile import driven_weights
+
+        rest = driven_weights(np.zeros(52), self.expression)[0].astype(np.float64)
+        per_unit = driven_weights(np.eye(52), self.expression).astype(np.float64) - rest
+        return np.tensordot(per_unit, self.deltas, 1)
+
     def textures(self, weights: np.ndarray) -> torch.Tensor:
         """Neural textures ``(B, C, R, R)`` of frames driven by ARKit weights ``(B, 52)``
         (see :meth:`drive`): the texture, plus the lid change as far as each eye is

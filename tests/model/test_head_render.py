@@ -138,3 +138,31 @@ def test_frames_drive_the_eyes_from_the_heads_own(renderer):
     np.testing.assert_array_equal(  # render (driving) == frames of the driven weights as own
         r.render(cam, k, w[1]).numpy(),
         next(r.frames(cam, driven_weights(w[1:], own), k, uint8=False, drive=False)).numpy())
+
+
+def test_driven_deltas_are_the_exported_morph_targets(renderer):
+    """An exported mesh's base plus its morph targets gives the renderer's own meshes:
+    the template's deltas for open own eyes, and for a head with half-closed eyes a full
+    blink ends at the closed eye (not beyond it)."""
+    from head360cli.mesh.arkit52 import INDEX
+    from head360cli.model.head_render import HeadRenderer
+
+    np.testing.assert_allclose(renderer.driven_deltas(), renderer.deltas, atol=1e-12)
+    own = np.zeros(52)
+    own[[INDEX["eyeBlinkLeft"], INDEX["eyeSquintLeft"], INDEX["eyeWideRight"]]] = \
+        0.6, 0.3, 0.4
+    r = HeadRenderer(renderer.gen, renderer.shape, renderer.texture[0], 0, np.zeros(3),
+                     own, samples=4, size=64, precision="fp32")
+    base = r.vertices(np.zeros(52)).numpy().astype(np.float64)
+    targets = r.driven_deltas()
+    rng = np.random.default_rng(1)
+    w = rng.uniform(0, 1, (3, 52)) * (rng.uniform(0, 1, (3, 52)) < 0.3)
+    w[:, [INDEX["eyeSquintRight"], INDEX["eyeWideLeft"], INDEX["eyeSquintLeft"],
+          INDEX["eyeWideRight"]]] = 0  # away from the cap at 1
+    w[0, [INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]] = 1.0
+    got = base + np.tensordot(w, targets, 1)
+    np.testing.assert_allclose(got, r.vertices(w).numpy(), atol=2e-5)
+    closed = np.zeros(52)
+    closed[[INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]] = 1.0
+    np.testing.assert_allclose(got[0] - np.tensordot(w[0] - closed, targets, 1),
+                               r.model.vertices(r.shape, closed), atol=2e-5)
