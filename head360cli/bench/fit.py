@@ -206,6 +206,7 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
         camera_on_sphere,
         intrinsics_from_fov,
         rig72,
+        view_angles,
     )
     from head360cli.io.headfile import read_head
     from head360cli.model.data import Views
@@ -245,12 +246,16 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
             [s[0] for s in scores])), 3), "ssim_all_views": round(float(np.mean(
                 [s[1] for s in scores])), 4),
             "psnr_input_view": round(psnr(pred_in[0], gt_in[0]), 3),
+            # The photo's camera is level (pitch 0): the fit's pitch is its error, from
+            # the landmarks and after the inversion's camera refinement.
+            "pitch_landmarks": summary["pose"]["pitch"],
+            "pitch_refined": round(float(view_angles(pose[None])[1][0]), 2),
             "hair": summary["hair_style"]["name"], "true_hair": truth.head(i).hair_style,
             "seconds": summary["timings"]["total"]})
     return {"preset": preset, "rows": rows, "camera": "focal and distance known",
             "mean": {k: round(float(np.mean([r[k] for r in rows])), 3)
                      for k in ("psnr_all_views", "ssim_all_views", "psnr_input_view",
-                               "seconds")}}
+                               "pitch_landmarks", "pitch_refined", "seconds")}}
 
 
 def _known_geometry(identities: int, preset: str, every: int = 1) -> dict[str, Any]:
@@ -569,15 +574,20 @@ def _markdown(r: dict[str, Any]) -> str:
     lines += ["## Synthetic fit (one frontal render -> 72 views; the render's focal and "
               "camera distance given to the fit)", "",
               "| preset | PSNR all views | SSIM all views | PSNR input view | s per fit "
+              "| pitch error, landmarks / refined (deg) "
               "| known mesh, camera, hair: PSNR all views | input view |",
-              "|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|"]
     for p, v in r["synthetic_fit"].items():
         m = v["mean"]
         known = v.get("known_geometry", {}).get("mean")
         tail = ("- | - |" if known is None else
                 f"{known['psnr_all_views']:.2f} | {known['psnr_input_view']:.2f} |")
+        pitch = ("-" if "pitch_landmarks" not in m else
+                 f"{m['pitch_landmarks']:+.1f} / {m['pitch_refined']:+.1f}")
         lines.append(f"| {p} | {m['psnr_all_views']:.2f} | {m['ssim_all_views']:.3f} | "
-                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} | {tail}")
+                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} | {pitch} | {tail}")
+    lines += ["", "(The render's camera is level: a fitted pitch is the fit's error, + "
+              "looking down on the head.)"]
     if "real" in r:
         lines += ["", "## Real photos", "",
                   "| preset | face PSNR | same, bald | descriptor distance 0 deg | at +-30 deg "

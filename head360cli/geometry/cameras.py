@@ -36,6 +36,7 @@ __all__ = [
     "orbit",
     "project",
     "rig72",
+    "view_angles",
 ]
 
 
@@ -118,6 +119,21 @@ def camera_on_sphere(yaw_deg: torch.Tensor, pitch_deg: torch.Tensor, distance: f
                                              device=yaw.device))
         c2w = torch.where(vertical[:, None, None], alt, c2w)
     return c2w
+
+
+def view_angles(c2w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The yaw and pitch in degrees from which cameras ``c2w (B, 4, 4)`` look: those of
+    :func:`camera_on_sphere` for cameras it made, whatever their distance and target
+    (only the line of sight counts).
+
+    Returns:
+        ``(yaw (B,), pitch (B,))`` in degrees (yaw 0: in front of the face, + = subject's
+        left; pitch + = looking down from above).
+    """
+    forward = c2w[..., :3, 2]
+    pitch = torch.rad2deg(torch.asin((-forward[..., 1]).clamp(-1.0, 1.0)))
+    yaw = torch.rad2deg(torch.atan2(-forward[..., 0], -forward[..., 2]))
+    return yaw, pitch
 
 
 def rig72(dtype: torch.dtype = torch.float32, device: torch.device | str | None = None

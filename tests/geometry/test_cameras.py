@@ -8,6 +8,8 @@ import pytest
 import torch
 
 from head360cli.geometry.cameras import (
+    RIG_DISTANCE,
+    RIG_TARGET,
     camera_on_sphere,
     intrinsics_from_fov,
     invert_rigid,
@@ -15,6 +17,7 @@ from head360cli.geometry.cameras import (
     orbit,
     project,
     rig72,
+    view_angles,
 )
 
 
@@ -72,3 +75,15 @@ def test_straight_down_view_is_well_defined():
     c2w = camera_on_sphere(torch.tensor([0.0]), torch.tensor([90.0]), 1.0)
     assert torch.isfinite(c2w).all()
     assert torch.allclose(torch.det(c2w[0, :3, :3]), torch.tensor(1.0), atol=1e-5)
+
+
+def test_view_angles_invert_camera_on_sphere():
+    yaw = torch.tensor([0.0, 30.0, -75.0, 170.0, 45.0])
+    pitch = torch.tensor([0.0, 10.0, -20.0, 35.0, -60.0])
+    for dist, target in ((RIG_DISTANCE, RIG_TARGET), (0.6, (0.01, 0.0, -0.02))):
+        got_yaw, got_pitch = view_angles(camera_on_sphere(yaw, pitch, dist, target))
+        torch.testing.assert_close(got_yaw, yaw, atol=1e-3, rtol=0)
+        torch.testing.assert_close(got_pitch, pitch, atol=1e-3, rtol=0)
+    # the frontal rig camera: both 0; a camera above looks down (pitch > 0)
+    _, down = view_angles(camera_on_sphere(torch.tensor([0.0]), torch.tensor([12.0]), 1.0))
+    assert down.item() == pytest.approx(12.0, abs=1e-3)
