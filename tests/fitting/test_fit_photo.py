@@ -46,7 +46,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     head = read_head(out)
     assert head.arrays["texture"].shape[0] == 16 and np.isfinite(head.arrays["texture"]).all()
     assert int(head.arrays["hair_style"]) == s["hair_style"]["id"]
-    # the hair placement: on the grid, saved in the head, and no worse than none
+    # the hair placement: on the grid and saved in the head
     from head360cli.fitting.hair_class import PLACEMENT_BACK, PLACEMENT_UP
 
     placed = s["hair_style"]
@@ -54,7 +54,12 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert placed["offset_mm"]["forward"] / 1e3 in np.round(PLACEMENT_BACK, 6)
     np.testing.assert_allclose(head.arrays["hair_offset"] * 1e3, [
         0.0, placed["offset_mm"]["up"], placed["offset_mm"]["forward"]], atol=1e-3)
-    assert placed["iou_placed"] >= placed["iou_unplaced"] > 0.3
+    # It scores silhouette IoU less the parsed face its hair covers (place_hair, tested in
+    # test_hair_class), so a shift may give up a little IoU to uncover the face; unmoved,
+    # the two IoUs are one.
+    if placed["offset_mm"]["up"] == 0 and placed["offset_mm"]["forward"] == 0:
+        assert placed["iou_placed"] == placed["iou_unplaced"]
+    assert min(placed["iou_placed"], placed["iou_unplaced"]) > 0.3
     preview = Image.open(tmp_path / "me_preview.png")
     assert preview.size == (6 * 256, 256)
 
