@@ -582,10 +582,9 @@ def _markdown(r: dict[str, Any]) -> str:
         known = v.get("known_geometry", {}).get("mean")
         tail = ("- | - |" if known is None else
                 f"{known['psnr_all_views']:.2f} | {known['psnr_input_view']:.2f} |")
-        pitch = ("-" if "pitch_landmarks" not in m else
-                 f"{m['pitch_landmarks']:+.1f} / {m['pitch_refined']:+.1f}")
         lines.append(f"| {p} | {m['psnr_all_views']:.2f} | {m['ssim_all_views']:.3f} | "
-                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} | {pitch} | {tail}")
+                     f"{m['psnr_input_view']:.2f} | {m['seconds']:.1f} | "
+                     f"{m['pitch_landmarks']:+.1f} / {m['pitch_refined']:+.1f} | {tail}")
     lines += ["", "(The render's camera is level: a fitted pitch is the fit's error, + "
               "looking down on the head.)"]
     if "real" in r:
