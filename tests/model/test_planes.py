@@ -103,3 +103,52 @@ def test_texel_reads_give_the_planes_of_grid_sample():
     assert g_want[:, :, 0, 0].abs().min() > 0  # the clamped corner texel is read
     other = torch.randn(2, 3, 16, 16)
     assert torch.equal(texture_planes(other, fast), texture_planes(other, raster))
+
+
+def test_culling_back_faces_leaves_a_closed_meshs_planes_as_they_are():
+    v, faces, uv, faces_uv = cube()
+    v = v @ torch.tensor([[0.9, 0.3, 0.3], [-0.3, 0.95, 0.0], [-0.3, -0.1, 0.95]])  # turned
+    tex = torch.rand(1, 4, 8, 8)
+    args = (v[None], faces, uv, faces_uv, tex, PLANE_SETS["hex"], 32, CENTRE, HALF)
+    plain = rasterize_planes(*args)
+    culled = rasterize_planes(*args, cull_backfaces=True)
+    # the same coverage and surface everywhere, the same texture but at the silhouette,
+    # where a back face shares its edge with the front face and won the depth tie
+    torch.testing.assert_close(culled[:, :, -2:], plain[:, :, -2:])
+    differ = (culled - plain).abs().amax(2)[0] > 1e-5  # (P, res, res)
+    cover = plain[0, :, -1] > 0
+    edge = torch.nn.functional.max_pool2d((~cover).float()[:, None], 3, 1, 1)[:, 0] > 0
+    assert differ.sum() <= 0.05 * cover.sum()
+    assert not (differ & ~edge).any()
+    # the culling is real: the same cube turned inside out shows its far side
+    inside_out = rasterize_planes(v[None], faces.flip(1), *args[2:], cull_backfaces=True)
+    depth_gap = (plain[0, :, -2] - inside_out[0, :, -2])[cover]  # metres
+    assert depth_gap.mean() > 0.05 and depth_gap.min() >= -1e-6
+
+
+def test_the_head_template_is_closed_so_its_planes_may_cull():
+    """The generator culls the head's back faces on the planes (``HEAD_CLOSED``): that is
+    only the same picture for a closed mesh whose triangles face outwards."""
+    import numpy as np
+    import trimesh
+
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.model.generator import HEAD_CLOSED
+
+    model = load_bilinear()
+    verts = model.vertices(np.zeros(model.rank), np.zeros(52))
+    mesh = trimesh.Trimesh(verts, model.faces, process=False)
+    assert HEAD_CLOSED
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    v = torch.as_tensor(verts, dtype=torch.float32)[None]
+    f = torch.as_tensor(model.faces, dtype=torch.long)
+    uv = torch.rand(len(verts), 2)
+    args = (v, f, uv, f, torch.rand(1, 4, 16, 16), PLANE_SETS["hex"], 64, (0.0, -0.04, 0.0),
+            0.2)
+    plain = rasterize_planes(*args)
+    culled = rasterize_planes(*args, cull_backfaces=True)
+    cover = plain[:, :, -1] > 0
+    assert torch.equal(cover, culled[:, :, -1] > 0)
+    differ = (plain - culled).abs().amax(2) > 1e-5
+    # a few silhouette pixels where a back face had won the depth tie at a shared edge
+    assert differ.sum() <= 0.002 * cover.sum()
