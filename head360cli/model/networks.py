@@ -113,16 +113,23 @@ class Decoder(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(..., D)`` -> ``(density (...), features (..., Cf))``; density per metre."""
-        out = self._folded(x) if _exporting() else self.net(x)
+        if _exporting():
+            out = self._folded(x, _softplus_unit)
+        elif torch.is_grad_enabled():
+            out = self.net(x)
+        else:  # rendering: the folded layers save the betas' passes (a tenth of a decode)
+            out = self._folded(x, F.softplus)
         density = softplus(out[..., 0] - 1.0) * 1000.0
         feats = torch.cat([torch.sigmoid(out[..., 1:4]), out[..., 4:]], -1)
         return density, feats
 
-    def _folded(self, x: torch.Tensor) -> torch.Tensor:
+    def _folded(self, x: torch.Tensor, unit) -> torch.Tensor:
         """``self.net`` with each softplus's ``beta`` folded into the linear layers around
         it (``softplus_b(y) = softplus(b y) / b``): the same function with two fewer
-        element-wise passes per hidden layer, for export (the scaled weights are
-        constants in the graph)."""
+        element-wise passes per hidden layer, ``unit`` computing ``softplus(z)``: for
+        export :func:`_softplus_unit` (the scaled weights are constants in the graph),
+        for renders without gradients torch's own (its threshold, ``z > 20`` -> ``z``,
+        is the unfolded layer's ``b y > 20``)."""
         scale = 1.0  # what the current activations must be multiplied by
         layers = list(self.net)
         for i, layer in enumerate(layers):
@@ -133,7 +140,7 @@ class Decoder(nn.Module):
                 x = F.linear(x, layer.weight * (beta / scale), layer.bias * beta)
                 scale = beta
             elif isinstance(layer, Softplus):
-                x = _softplus_unit(x)
+                x = unit(x)
             else:
                 raise TypeError(f"expected Linear and Softplus layers, found "
                                 f"{type(layer).__name__}")

@@ -26,7 +26,7 @@ def test_decoder_with_betas_folded_equals_the_decoder():
     x = torch.randn(500, dec.net[0].in_features) * 3.0
     with torch.no_grad():
         ref = dec.net(x)
-        got = dec._folded(x)
+        got = dec._folded(x, _softplus_unit)
     assert got.shape == ref.shape
     assert (got - ref).abs().max() < 1e-5
     # the betas matter: without them the same weights give another function
@@ -74,3 +74,33 @@ def test_refinenet_on_cpu_runs_channels_last_and_returns_the_same_images():
     g_plain, = torch.autograd.grad(plain.square().sum(), x)
     torch.testing.assert_close(g_got, g_plain, atol=1e-4, rtol=1e-4)
     assert g_plain.abs().mean() > 1e-3
+
+
+def test_decoder_renders_folded_without_gradients_and_trains_unfolded():
+    """Without gradients (renders) the decoder runs its folded layers with torch's
+    softplus: the same densities and colours as the layers it was trained as, which
+    it still runs when gradients are on."""
+    torch.manual_seed(0)
+    dec = Decoder(GeneratorConfig(hidden=32), planes=6)
+    x = torch.randn(700, dec.net[0].in_features) * 3.0
+    x[:5] *= 40.0  # beyond softplus's threshold in some units
+    calls = []
+    hook = dec.net.register_forward_hook(lambda *a: calls.append(1))
+    with torch.no_grad():
+        density, colour = dec(x)
+    assert calls == []  # the folded path, not self.net
+    ref_density, ref_colour = dec(x)  # with gradients: self.net
+    hook.remove()
+    assert calls == [1]
+    torch.testing.assert_close(density, ref_density.detach(), atol=1e-3, rtol=1e-5)
+    torch.testing.assert_close(colour, ref_colour.detach(), atol=1e-5, rtol=1e-5)
+    # under bfloat16 (renders on CPUs that have it) the folded layers round their
+    # scaled weights apart, but stay as near float32 as the trained layers do
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        with torch.no_grad():
+            folded = dec(x)[1].float()
+        trained = dec(x)[1].detach().float()
+    err_folded = (folded - ref_colour.detach()).abs()
+    err_trained = (trained - ref_colour.detach()).abs()
+    assert err_folded.mean() < 1.5 * err_trained.mean()
+    assert err_folded.max() < 2.0 * err_trained.max()
