@@ -294,9 +294,11 @@ def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
     """
     raster = plane_raster(verts, faces, uv, faces_uv, names, res, centre, half, draw, under,
                           cull_backfaces)
-    if not torch.is_grad_enabled() and texture.shape[-1] == texture.shape[-2]:
+    exporting = torch.compiler.is_exporting() or torch.onnx.is_in_onnx_export()
+    if not (torch.is_grad_enabled() or exporting) and texture.shape[-1] == texture.shape[-2]:
         # a render: gathering the covered pixels' texels (a quarter of the pixels) beats
-        # grid_sample's reads of every pixel, the indices included (12 -> 8.5 ms a frame)
+        # grid_sample's reads of every pixel, the indices included (12 -> 8.5 ms a frame);
+        # an exported graph keeps grid_sample (no index sets that depend on the data)
         raster = texel_reads(raster, texture.shape[-1])
     return texture_planes(texture, raster)
 

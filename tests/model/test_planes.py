@@ -152,3 +152,27 @@ def test_the_head_template_is_closed_so_its_planes_may_cull():
     differ = (plain - culled).abs().amax(2) > 1e-5
     # a few silhouette pixels where a back face had won the depth tie at a shared edge
     assert differ.sum() <= 0.002 * cover.sum()
+
+
+def test_renders_gather_the_texture_and_exports_and_training_sample_it(monkeypatch):
+    """Without gradients the planes read the texture as gathers (texel_reads): the same
+    planes; with gradients, and in an exported graph, grid_sample reads it."""
+    from head360cli.model import planes as planes_mod
+
+    v, faces, uv, faces_uv = cube()
+    tex = torch.rand(1, 4, 8, 8)
+    args = (v[None], faces, uv, faces_uv, tex, PLANE_SETS["hex"], 32, CENTRE, HALF)
+    calls = []
+    real = planes_mod.texel_reads
+    monkeypatch.setattr(planes_mod, "texel_reads",
+                        lambda *a: calls.append(1) or real(*a))
+    with torch.no_grad():
+        gathered = rasterize_planes(*args)
+    assert calls == [1]
+    sampled = rasterize_planes(*args)  # gradients on
+    assert calls == [1]
+    torch.testing.assert_close(gathered, sampled.detach(), atol=1e-6, rtol=0)
+    monkeypatch.setattr(torch.onnx, "is_in_onnx_export", lambda: True)
+    with torch.no_grad():
+        rasterize_planes(*args)
+    assert calls == [1]
