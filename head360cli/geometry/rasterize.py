@@ -23,11 +23,17 @@ from collections.abc import Iterator
 
 import torch
 
-__all__ = ["Fragments", "ZBuffer", "interpolate", "interpolate_face_corners", "rasterize",
-           "static_windows"]
+__all__ = ["Fragments", "ZBuffer", "exporting", "interpolate", "interpolate_face_corners",
+           "rasterize", "static_windows"]
 
 
 _STATIC_LEVELS: tuple[int, ...] | None = None
+
+
+def exporting() -> bool:
+    """Whether torch is tracing for an export (``torch.export`` or ONNX) now: code with a
+    faster eager form and an export form picks by it."""
+    return bool(torch.compiler.is_exporting() or torch.onnx.is_in_onnx_export())
 
 
 @contextlib.contextmanager

@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
 
 __all__ = ["Decoder", "HairTextureGenerator", "RefineNet", "TextureGenerator"]
@@ -67,10 +68,6 @@ class HairTextureGenerator(nn.Module):
         return self.generator(code)
 
 
-def _exporting() -> bool:
-    return bool(torch.compiler.is_exporting() or torch.onnx.is_in_onnx_export())
-
-
 def _softplus_unit(z: torch.Tensor) -> torch.Tensor:
     """``log(1 + exp(z))`` from operators onnxruntime computes quickly: ``relu(z) -
     log(sigmoid(|z|))`` (finite for every finite ``z``; within 6e-7 of the exact value,
@@ -82,7 +79,7 @@ def softplus(x: torch.Tensor, beta: float = 1.0) -> torch.Tensor:
     """``log(1 + exp(beta x)) / beta``. Traced for export through :func:`_softplus_unit`
     (equal to within float rounding): onnxruntime's CPU Softplus kernel was the largest
     cost of an exported frame (75 ms of 180 at 256 px, 8 samples)."""
-    if not _exporting():
+    if not exporting():
         return F.softplus(x, beta=beta)
     if beta == 1.0:
         return _softplus_unit(x)
@@ -113,7 +110,7 @@ class Decoder(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(..., D)`` -> ``(density (...), features (..., Cf))``; density per metre."""
-        if _exporting():
+        if exporting():
             out = self._folded(x, _softplus_unit)
         elif torch.is_grad_enabled():
             out = self.net(x)
@@ -182,7 +179,7 @@ class RefineNet(nn.Module):
         """Features ``(B, Cf, h, w)``, coverage ``(B, 1, h, w)`` and the composited colour
         ``(B, 3, h, w)`` -> ``(rgb (B, 3, H, W), alpha (B, 1, H, W))``."""
         x = torch.cat([features, alpha], 1)
-        if x.device.type == "cpu" and not _exporting():
+        if x.device.type == "cpu" and not exporting():
             # oneDNN's CPU convolutions run faster on channels-last input (this network at
             # 128 -> 256 px: 41 -> 31 ms on 2 cores; with its backward pass, a fit's
             # step, 112 -> 70 ms); the same function, rounded apart by 2e-5 at most.

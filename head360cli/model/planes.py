@@ -17,7 +17,12 @@ import dataclasses
 import torch
 import torch.nn.functional as F
 
-from head360cli.geometry.rasterize import ZBuffer, interpolate_face_corners, rasterize
+from head360cli.geometry.rasterize import (
+    ZBuffer,
+    exporting,
+    interpolate_face_corners,
+    rasterize,
+)
 
 __all__ = ["PLANES", "PLANE_SETS", "PlaneRaster", "TexelReads", "add_texture_change",
            "plane_coordinates", "plane_raster", "plane_zbuffer", "rasterize_planes",
@@ -156,8 +161,9 @@ def plane_raster(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
 
 def texel_reads(raster: PlaneRaster, res: int) -> PlaneRaster:
     """``raster`` with its :class:`TexelReads` for an ``res`` x ``res`` texture: for a
-    mesh textured many times (a fit's), :func:`texture_planes` then gathers instead of
-    calling ``grid_sample`` (the same samples, rounded apart by about 1e-7)."""
+    mesh textured many times (a fit's) and for renders (:func:`rasterize_planes` without
+    gradients), :func:`texture_planes` then gathers instead of calling ``grid_sample``
+    (the same samples, rounded apart by about 1e-7)."""
     _, _, p, pr, _ = raster.mask.shape
     pixel = torch.nonzero(raster.mask.reshape(-1) > 0).squeeze(1)
     item = pixel // (p * pr * pr)
@@ -294,8 +300,8 @@ def rasterize_planes(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
     """
     raster = plane_raster(verts, faces, uv, faces_uv, names, res, centre, half, draw, under,
                           cull_backfaces)
-    exporting = torch.compiler.is_exporting() or torch.onnx.is_in_onnx_export()
-    if not (torch.is_grad_enabled() or exporting) and texture.shape[-1] == texture.shape[-2]:
+    if not (torch.is_grad_enabled() or exporting()) and \
+            texture.shape[-1] == texture.shape[-2]:
         # a render: gathering the covered pixels' texels (a quarter of the pixels) beats
         # grid_sample's reads of every pixel, the indices included (12 -> 8.5 ms a frame);
         # an exported graph keeps grid_sample (no index sets that depend on the data)
