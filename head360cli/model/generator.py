@@ -27,7 +27,13 @@ import torch.nn.functional as F
 from torch import nn
 
 from head360cli.model.config import GeneratorConfig
-from head360cli.model.networks import Decoder, HairTextureGenerator, RefineNet, TextureGenerator
+from head360cli.model.networks import (
+    Decoder,
+    HairTextureGenerator,
+    RefineNet,
+    TextureGenerator,
+    onednn_decodes,
+)
 from head360cli.model.planes import (
     PLANE_SETS,
     PlaneRaster,
@@ -44,10 +50,12 @@ from head360cli.model.reuse import DecodeReuse
 __all__ = ["HAIR_MARGIN", "HEAD_CLOSED", "Generator", "Hair", "hair_for", "near_rays"]
 
 DECODE_BLOCK = 4096
-"""With bfloat16 networks on a CPU, decoder inputs are padded to a multiple of this many
-points: oneDNN keeps a matrix-product primitive per input shape, and an animation's point
-count changes every frame (reuse decodes only what moved), so a bfloat16 animation grew
-from 0.5 to 1.9 GB over 600 frames; padded, it stays flat at the float32 figure."""
+"""Where the decoders run through oneDNN on a CPU (bfloat16 networks, and every render
+without gradients: :func:`~head360cli.model.networks.onednn_decodes`), their inputs are
+padded to a multiple of this many points: oneDNN keeps a matrix-product primitive per
+input shape, and an animation's point count changes every frame (reuse decodes only what
+moved), so a bfloat16 animation grew from 0.5 to 1.9 GB over 600 frames, and a float32
+one from 0.5 to 1.3 GB over 400; padded, they stay flat (0.50 and 0.52 GB)."""
 
 HEAD_CLOSED = True
 """The head template is a closed mesh with outward-facing triangles (a test checks it),
@@ -226,10 +234,11 @@ class Generator(nn.Module):
 
     def _decode(self, net: nn.Module, feats: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """``net(feats)`` for a decoder, ``feats (B, N, D)`` -> ``(B, N)`` and
-        ``(B, N, C)``, padded to :data:`DECODE_BLOCK` points under bfloat16 on a CPU."""
+        ``(B, N, C)``, padded to :data:`DECODE_BLOCK` points where oneDNN runs it."""
         n = feats.shape[1]
-        if self.network_dtype is None or feats.device.type != "cpu" or \
-                n % DECODE_BLOCK == 0:
+        onednn = feats.device.type == "cpu" and (self.network_dtype is not None
+                                                 or onednn_decodes(feats))
+        if not onednn or n % DECODE_BLOCK == 0:
             return self._net(net, feats)
         pad = feats.new_zeros(feats.shape[0], DECODE_BLOCK - n % DECODE_BLOCK,
                               feats.shape[2])

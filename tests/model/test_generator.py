@@ -266,11 +266,12 @@ def test_samples_per_ray_is_scoped(parts):
         assert gen.cfg == TINY
 
 
-def test_bfloat16_decoders_see_whole_blocks_of_points(parts, hair, monkeypatch):
-    """Under bfloat16 on a CPU the decoders get their points padded to DECODE_BLOCK (one
-    oneDNN primitive per shape, so few shapes), and the padding changes no pixel's
-    value beyond bfloat16's rounding."""
+def test_decoders_run_by_onednn_see_whole_blocks_of_points(parts, hair, monkeypatch):
+    """Under bfloat16 on a CPU, and in float32 renders on a CPU, the decoders get their
+    points padded to DECODE_BLOCK (one oneDNN primitive per shape, so few shapes), and
+    the padding changes no pixel's value beyond bfloat16's rounding."""
     from head360cli.model import generator as generator_module
+    from head360cli.model import networks
 
     model, verts, c2w, k = parts
     torch.manual_seed(0)
@@ -288,10 +289,15 @@ def test_bfloat16_decoders_see_whole_blocks_of_points(parts, hair, monkeypatch):
         plain = gen(verts, c2w, k, code=code, hair=hair)["rgb"]
     assert any(n % 4096 for n in seen)  # the tiny frames decode fewer points than a block
     torch.testing.assert_close(padded, plain, atol=2e-2, rtol=0)
-    gen.network_dtype = None  # float32 is never padded
+    monkeypatch.setattr(generator_module, "DECODE_BLOCK", 4096)
+    gen.network_dtype = None
     seen.clear()
     with torch.no_grad():
         gen(verts, c2w, k, code=code, hair=hair)
+    # float32 renders run oneDNN's linear op too where torch has it: padded as well
+    assert all(n % 4096 == 0 for n in seen) == networks._HAS_CPU_LINEAR
+    seen.clear()
+    gen(verts, c2w, k, code=code, hair=hair)  # with gradients (training): not padded
     assert any(n % 4096 for n in seen)
 
 
