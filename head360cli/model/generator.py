@@ -293,11 +293,11 @@ class Generator(nn.Module):
     def _head_depth(self, verts: torch.Tensor, c2w: torch.Tensor, k: torch.Tensor,
                     reuse: DecodeReuse | None,
                     still: tuple[torch.Tensor, torch.Tensor] | None) -> torch.Tensor:
-        """The head's screen depth; with ``still`` (from :meth:`_still`), the triangles no
-        expression moves are drawn once per camera and the others over them each frame
-        (the same depth)."""
+        """The head's screen depth; with ``still`` (from :meth:`_still`) and ``reuse``,
+        the triangles no expression moves are drawn once per camera and the others over
+        them each frame (the same depth)."""
         res = self.cfg.render_res
-        if still is None:
+        if still is None or reuse is None:
             return screen_depth(verts, self.faces, c2w, k, res)
         faces, pos = still
         under = reuse.kept("head_depth_under", (pos, c2w[0], k[0]), lambda: screen_depth(
@@ -352,7 +352,8 @@ class Generator(nn.Module):
             jitter: Stratified random sample positions (training).
             reuse: Decoded points kept from the previous frame of an animation (a
                 one-item batch, no gradients): the decoders run only on points whose
-                input changed (see :class:`~head360cli.model.reuse.DecodeReuse`).
+                input changed (see :class:`~head360cli.model.reuse.DecodeReuse`); with
+                ``camera_moves``, only the head planes' still triangles are kept.
             plane_raster: :meth:`plane_raster` of these ``verts``, when the caller renders
                 the same mesh many times; without it the mesh is rasterized here. An
                 animation's ``reuse`` keeps its own (its still triangles) and ignores it.
@@ -384,6 +385,9 @@ class Generator(nn.Module):
         k = intrinsics.expand(b, 3, 3).clone()
         k[:, :2] *= c.render_res / c.image_res
         still = self._still(verts, reuse)  # once a frame, for the depth and the planes
+        planes_reuse = reuse
+        if reuse is not None and reuse.camera_moves:  # only the planes: camera-free
+            reuse = None
         depth = self._head_depth(verts, c2w, k, reuse, still)
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
                                                if m is not None]
@@ -423,7 +427,8 @@ class Generator(nn.Module):
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
         if head_planes is None:
-            head_planes = self._head_planes(verts, texture, reuse, still, plane_raster)
+            head_planes = self._head_planes(verts, texture, planes_reuse, still,
+                                            plane_raster)
         feats = sample_planes(points, head_planes,
                               self.plane_names,
                               c.plane_centre, c.plane_half_size, c.surface_tau)

@@ -49,8 +49,10 @@ class HeadRenderer:
             fast_bfloat16`), else fp32.
         reuse: Tolerance of frame-to-frame reuse of decoded points when frames are
             rendered one by one by a still camera (an animation without head pose): a
-            point whose decoder input moved by at most this keeps its last output.
-            ``None`` decodes every point of every frame.
+            point whose decoder input moved by at most this keeps its last output (a
+            moving camera reuses only the head planes' still triangles, which gives
+            the same planes). ``None`` decodes every point of every frame and reuses
+            nothing.
         hair_offset: ``(3,)`` metres, in the head's frame, that the hair is moved by
             (a head file's ``hair_offset``; default none).
         lid_change: ``(C, R, R)`` the texture's change with both eyes closed
@@ -262,8 +264,9 @@ class HeadRenderer:
         weights ``weights[i] (52,)`` (driving weights, see :meth:`drive`; with
         ``drive=False`` the mesh's own), ``batch`` frames per generator call (default: 1 on
         CPU, where larger batches measured slower; 32 on a GPU, 2.3x the frames/s of 8
-        with hair on an H100). One frame at a time with one camera for all, decoded
-        points are reused between frames (see ``reuse``).
+        with hair on an H100). One frame at a time, the head planes' still triangles
+        are drawn once, and with one camera for all decoded points are reused between
+        frames (see ``reuse``).
 
         Yields:
             Per batch, ``(b, H, W, 3)`` uint8 frames (or ``(b, 3, H, W)`` float tensors in
@@ -306,9 +309,9 @@ class HeadRenderer:
             return
         from head360cli.model.reuse import DecodeReuse
 
-        still = len(c2w) > 1 and bool((c2w == c2w[:1]).all())
-        reuse = (DecodeReuse(self.reuse, self._still_vertices)
-                 if self.reuse is not None and batch == 1 and still else None)
+        moves = not bool((c2w == c2w[:1]).all())
+        reuse = (DecodeReuse(self.reuse, self._still_vertices, camera_moves=moves)
+                 if self.reuse is not None and batch == 1 and len(c2w) > 1 else None)
         self.last_reuse = reuse
         for i in range(0, len(c2w), batch):
             cams = c2w[i:i + batch].to(self.device)

@@ -1,4 +1,4 @@
-"""Reuse of one frame's work in the next frame of an animation seen by a still camera.
+"""Reuse of one frame's work in the next frame of an animation.
 
 With a still camera, most of a head does not change between frames of an expression
 stream: the back of the head, the hair, much of the face. The points there reach the
@@ -14,7 +14,8 @@ It also keeps, for the same camera, the RefineNet's last output (recomputed on a
 around the pixels whose input changed, :meth:`DecodeReuse.refine`), results that depend
 only on still inputs such as the hair's screen depth (:meth:`DecodeReuse.kept`), and the
 depth tests of the triangles no expression moves (drawn once, the others drawn over
-them each frame).
+them each frame). A moving camera keeps only the last of these for the head's planes,
+which do not depend on the camera.
 
 Holds tensors, no parameters; the generator consults it when one is passed to
 :meth:`~head360cli.model.generator.Generator.forward`.
@@ -46,23 +47,30 @@ class _Slot:
 
 
 class DecodeReuse:
-    """What a frame leaves for the next frame of one head seen by one camera.
+    """What a frame leaves for the next frame of one head, seen by one camera (or by a
+    moving one, ``camera_moves``).
 
     Args:
         tol: Largest change of any input feature (absolute) for which a point keeps its
             previous output; 0 reuses only inputs equal to the last decoded ones.
         still_vertices: Optional ``(V,)`` bool, the vertices no expression moves.
+        camera_moves: The camera changes from frame to frame (an animation with the
+            stream's head pose): only what does not depend on it is kept, the depth
+            test of the head planes' still triangles; points are decoded afresh, and the
+            RefineNet runs on the whole image, every frame (comparing every point with
+            its last input cost what reusing the 13 % that matched saved).
 
     Attributes:
         points: Points asked for so far.
         decoded: Of those, how many were decoded (the rest were reused).
     """
 
-    def __init__(self, tol: float = 0.0, still_vertices: torch.Tensor | None = None
-                 ) -> None:
+    def __init__(self, tol: float = 0.0, still_vertices: torch.Tensor | None = None,
+                 camera_moves: bool = False) -> None:
         if not tol >= 0.0:
             raise ValueError(f"expected a tolerance >= 0, found {tol}")
         self.tol = float(tol)
+        self.camera_moves = bool(camera_moves)
         self.still_vertices = still_vertices
         """``(V,)`` bool: the head's vertices that no expression moves (their triangles
         are rasterized once, the others drawn over them each frame), or ``None``."""

@@ -183,8 +183,8 @@ def test_reuse_decodes_fewer_points_and_only_for_a_still_camera(renderer, monkey
     made = []
     real = reuse_mod.DecodeReuse
 
-    def spy(*args):
-        made.append(real(*args))
+    def spy(*args, **kwargs):
+        made.append(real(*args, **kwargs))
         return made[-1]
 
     monkeypatch.setattr(reuse_mod, "DecodeReuse", spy)
@@ -192,8 +192,15 @@ def test_reuse_decodes_fewer_points_and_only_for_a_still_camera(renderer, monkey
     _frames(renderer, w, view_cameras(0.0, 0.0).expand(5, 4, 4), 1e-3)
     assert len(made) == 1
     assert 0 < made[0].decoded < 0.7 * made[0].points
-    _frames(renderer, w, view_cameras(np.linspace(0, 40, 5), 0.0), 1e-3)
-    assert len(made) == 1  # a moving camera: every point decoded, nothing kept
+    moving = view_cameras(np.linspace(0, 40, 5), 0.0)
+    got = _frames(renderer, w, moving, 1e-3)
+    # a moving camera: every point decoded, only the planes' still triangles kept, and
+    # the frames are those of no reuse at all
+    assert len(made) == 2 and made[1].camera_moves
+    assert made[1].points == made[1].decoded == 0
+    assert sorted(made[1]._kept) == ["planes_under"]
+    assert torch.equal(got, _frames(renderer, w, moving, None))
+    assert len(made) == 2  # no reuse: nothing made
 
 
 def test_generator_refuses_reuse_for_batches_and_training(renderer):
