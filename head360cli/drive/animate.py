@@ -3,7 +3,8 @@
 Per frame only the mesh changes (``HeadRenderer.frames`` recomputes the mesh, its
 hex-planes and the volume render; the neural texture and the hair planes are made once).
 With a still camera, frames also reuse the previous frame's work where the expression
-left it unchanged (:class:`~head360cli.model.reuse.DecodeReuse`).
+left it unchanged (:class:`~head360cli.model.reuse.DecodeReuse`). On a CPU, long takes are
+rendered by one process per core (:mod:`head360cli.drive.parallel`).
 The stream's head rotation, when asked for, moves the camera instead of the head: the same
 image on a white background, and the hair planes stay valid. Frames go to the encoder as
 they are made, so memory does not grow with the length of the take.
@@ -52,6 +53,10 @@ class AnimateConfig:
     where decoded points are then reused from frame to frame, eight on a GPU)."""
     hair: bool = True
     """Render the hair (False: the bald head)."""
+    workers: int | None = None
+    """Processes that render frames on a CPU (``None``: one per usable core, at most 4,
+    when there are enough frames: :func:`~head360cli.drive.parallel.auto_workers`);
+    1 renders in this process alone."""
 
 
 def head_motion(rotation: np.ndarray, pivot=HEAD_PIVOT) -> np.ndarray:
@@ -147,20 +152,38 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
             progress=progress))
         result["mesh_seconds"] = time.perf_counter() - t0
     if out is not None:
+        from head360cli.drive.parallel import auto_workers, parallel_frames
+
         t0 = time.perf_counter()
-        done = 0
+        k = view_intrinsics(renderer.size)
+        workers = 1
+        if getattr(renderer, "runner", None) is None and cfg.batch in (None, 1) and \
+                renderer.device.type == "cpu":
+            workers = cfg.workers or auto_workers(n, "cpu")
+        counts: dict[str, Any] = {}
+        if workers > 1:
+            frames = parallel_frames(renderer, cams, stream.weights, k, hair=cfg.hair,
+                                     workers=workers, counts=counts)
+        else:
+            frames = (f for batch in renderer.frames(cams, stream.weights, k,
+                                                     hair=cfg.hair, batch=cfg.batch)
+                      for f in batch)
         with VideoWriter(out, fps=stream.fps) as video:
-            for frames in renderer.frames(cams, stream.weights, view_intrinsics(renderer.size),
-                                          hair=cfg.hair, batch=cfg.batch):
-                for frame in frames:
-                    video.write(frame)
-                done += len(frames)
+            for done, frame in enumerate(frames, 1):
+                video.write(frame)
                 if progress:
                     progress("animate", done, n)
         seconds = time.perf_counter() - t0
-        result.update(render_seconds=seconds, render_fps=n / seconds)
-        reuse = getattr(renderer, "last_reuse", None)
-        if reuse is not None and reuse.points:  # the share of points decoded afresh
-            result["decoded_share"] = round(reuse.decoded / reuse.points, 4)
+        result.update(render_seconds=seconds, render_fps=n / seconds, workers=workers)
+        if workers == 1:
+            reuse = getattr(renderer, "last_reuse", None)
+            if reuse is not None:
+                counts = {"points": reuse.points, "decoded": reuse.decoded}
+        if counts.get("warnings"):
+            result["warnings"] = counts["warnings"]
+        if counts.get("peaks"):  # the rendering processes' own peak memory, summed
+            result["worker_peak_rss_mib"] = round(sum(counts["peaks"].values()), 1)
+        if counts.get("points"):  # the share of points decoded afresh
+            result["decoded_share"] = round(counts["decoded"] / counts["points"], 4)
         result["files"]["video"] = str(out)
     return result

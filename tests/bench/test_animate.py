@@ -144,8 +144,11 @@ def test_the_turning_capture_is_the_one_whose_head_turns_most(tmp_path):
                     "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
                              "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0},
                     "head_pose": {"capture": "turn.csv", "head_turn_deg": 30.0, "frames": 5,
-                                  "fps_head_pose": 12.04, "fps_still": 14.9}})
-    assert "| `--head-pose` (every point decoded) | 12.0 |" in md
+                                  "workers": 2, "fps_head_pose": 12.04, "fps_still": 14.9,
+                                  "fps_head_pose_one_process": 9.02,
+                                  "fps_still_one_process": 11.5}})
+    assert "| `--head-pose` (every point decoded) | 12.0 | 9.0 |" in md
+    assert "(2 processes, the default)" in md
     assert "turns through 30 degrees" in md
 
 
