@@ -105,19 +105,6 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
     return r
 
 
-def _workers_option(f):
-    return click.option(
-        "--workers", type=int, default=None,
-        help="Processes that render frames on a CPU (default: one per core, at most 4, "
-        "for 64 frames or more; 1: this process alone). On 2 cores two one-thread "
-        "processes render 1.3-1.5x the frames of one.")(f)
-
-
-def _check_workers(workers: int | None) -> None:
-    if workers is not None and not 1 <= workers <= 64:
-        raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
-
-
 @cli.command()
 @click.argument("head", type=_HEAD)
 @click.option("-o", "--out", required=True, type=click.Path(),
@@ -134,14 +121,13 @@ def _check_workers(workers: int | None) -> None:
 @click.option("--expr", default=None,
               help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1' (default neutral; "
                    "a fitted head's eyes rest at the photo's openness and blink from it).")
-@_workers_option
 @_quality_options
 @_backend_options
 @common_options
 def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: float,
-           pitch: float, views: str | None, expr: str | None, workers: int | None,
-           samples: int | None, size: int | None, precision: str, no_hair: bool,
-           backend: str, onnx_path: str) -> None:
+           pitch: float, views: str | None, expr: str | None, samples: int | None,
+           size: int | None, precision: str, no_hair: bool, backend: str,
+           onnx_path: str) -> None:
     """Render a head: one view, a grid of views, or a turntable.
 
     \b
@@ -172,14 +158,13 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         raise BadInputError("expected --turntable or --views, found both")
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
-    _check_workers(workers)
     if not turntable and Path(out).suffix.lower() != ".png":
         raise BadInputError(f"expected a .png output for a view, found {out!r} (use "
                             "--turntable for a video)")
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
-                        progress=_progress_printer(), workers=workers)
+                        progress=_progress_printer())
         _emit({"out": out, "frames": frames}, f"wrote {out} ({frames} frames)")
         return
     from PIL import Image
@@ -224,7 +209,10 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
               "(no --head-pose), points whose inputs moved by at most 1e-3 since the "
               "last frame keep their colour: on a real capture, frames within 5e-4 of "
               "exact and about 1.7x faster on CPU.")
-@_workers_option
+@click.option("--workers", type=int, default=None,
+              help="Processes that render frames on a CPU (default: one per core, at "
+              "most 4, for takes of 64 frames or more; 1: this process alone). On 2 "
+              "cores two one-thread processes render 1.3-1.5x the frames of one.")
 @_quality_options
 @_backend_options
 @common_options
@@ -258,7 +246,8 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         raise BadInputError(f"expected --fps between 1 and 240, found {fps}")
     if not 0 <= smooth <= 5:
         raise BadInputError(f"expected --smooth between 0 and 5 seconds, found {smooth}")
-    _check_workers(workers)
+    if workers is not None and not 1 <= workers <= 64:
+        raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
     if arkit != "-" and not Path(arkit).is_file():
         raise BadInputError(f"ARKit stream {arkit!r} does not exist")
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)

@@ -152,21 +152,33 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
             progress=progress))
         result["mesh_seconds"] = time.perf_counter() - t0
     if out is not None:
-        from head360cli.drive.parallel import render_frames
+        from head360cli.drive.parallel import auto_workers, parallel_frames
 
         t0 = time.perf_counter()
+        k = view_intrinsics(renderer.size)
+        workers = 1
+        if getattr(renderer, "runner", None) is None and cfg.batch in (None, 1) and \
+                renderer.device.type == "cpu":
+            workers = cfg.workers or auto_workers(n, "cpu")
         counts: dict[str, Any] = {}
-        frames = render_frames(renderer, cams, stream.weights, view_intrinsics(renderer.size),
-                               hair=cfg.hair, workers=cfg.workers, batch=cfg.batch,
-                               counts=counts)
+        if workers > 1:
+            frames = parallel_frames(renderer, cams, stream.weights, k, hair=cfg.hair,
+                                     workers=workers, counts=counts)
+        else:
+            frames = (f for batch in renderer.frames(cams, stream.weights, k,
+                                                     hair=cfg.hair, batch=cfg.batch)
+                      for f in batch)
         with VideoWriter(out, fps=stream.fps) as video:
             for done, frame in enumerate(frames, 1):
                 video.write(frame)
                 if progress:
                     progress("animate", done, n)
         seconds = time.perf_counter() - t0
-        result.update(render_seconds=seconds, render_fps=n / seconds,
-                      workers=counts["workers"])
+        result.update(render_seconds=seconds, render_fps=n / seconds, workers=workers)
+        if workers == 1:
+            reuse = getattr(renderer, "last_reuse", None)
+            if reuse is not None:
+                counts = {"points": reuse.points, "decoded": reuse.decoded}
         if counts.get("warnings"):
             result["warnings"] = counts["warnings"]
         if counts.get("peaks"):  # the rendering processes' own peak memory, summed

@@ -1,4 +1,4 @@
-"""Frames of an animation or a turntable rendered by several processes on a CPU, in order.
+"""Frames of an animation rendered by several processes on a CPU, written in order.
 
 One torch process with two threads keeps two cores only partly busy: much of a frame is
 small operations and Python between them. Two one-thread processes, each rendering its
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["BLOCK", "MIN_FRAMES", "auto_workers", "parallel_frames", "peak_rss_mib",
-           "render_frames", "usable_cpus"]
+           "usable_cpus"]
 
 BLOCK = 16
 """Frames per block: long enough that a still camera's reuse of decoded points (which
@@ -110,29 +110,6 @@ def _worker(renderer, c2w, weights, intrinsics, hair, block, threads, counter, w
             results.put((i, *frames, (os.getpid(), peak_rss_mib())))
     except BaseException:  # reported to the caller, which renders the rest itself
         results.put((-1, traceback.format_exc(), 0, 0))
-
-
-def render_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool = True,
-                  workers: int | None = None, batch: int | None = None,
-                  counts: dict[str, Any] | None = None) -> Iterator[np.ndarray]:
-    """``(H, W, 3)`` uint8 frames in order, by :func:`parallel_frames` where several
-    processes pay (a torch renderer on a CPU, one frame per generator call, ``workers``
-    or else :func:`auto_workers` above 1), else by the renderer's own :meth:`frames`
-    (``batch`` frames per call). ``counts`` gets ``workers``, the processes used, and
-    what :func:`parallel_frames` adds."""
-    n = 1
-    if getattr(renderer, "runner", None) is None and batch in (None, 1) and \
-            renderer.device.type == "cpu":
-        n = workers if workers is not None else auto_workers(len(c2w), "cpu")
-    if counts is not None:
-        counts["workers"] = max(n, 1)
-    if n > 1:
-        yield from parallel_frames(renderer, c2w, weights, intrinsics, hair=hair,
-                                   workers=n, counts=counts)
-        return
-    for frames in renderer.frames(c2w, weights, intrinsics, hair=hair, batch=batch):
-        yield from frames
-    _count(counts, *_reuse_counts(renderer))
 
 
 def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool = True,

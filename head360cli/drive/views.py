@@ -125,12 +125,10 @@ def grid_image(images: np.ndarray, labels: list[str] | None = None, cols: int | 
 
 def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 0.0,
                     fps: float = 24.0, expression: np.ndarray | None = None,
-                    progress: Any = None, workers: int | None = None) -> Path:
+                    progress: Any = None) -> Path:
     """Render ``frames`` views turning once around a head (neutral expression unless one
     is given) into a video (mp4, GIF or PNG folder by name), streaming frames to the
-    encoder; on a CPU by ``workers`` processes (default: one per core for 64 frames or
-    more, see :func:`~head360cli.drive.parallel.render_frames`)."""
-    from head360cli.drive.parallel import render_frames
+    encoder."""
     from head360cli.io.video import VideoWriter
 
     if frames < 1:
@@ -138,11 +136,13 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
     yaws = np.arange(frames) * (360.0 / frames)
     cams = view_cameras(yaws, np.full(frames, pitch))
     w = np.zeros(52) if expression is None else np.asarray(expression)
+    done = 0
     with VideoWriter(out, fps=fps) as video:
-        for done, frame in enumerate(render_frames(
-                renderer, cams, np.broadcast_to(w, (frames, 52)),
-                view_intrinsics(renderer.size), workers=workers), 1):
-            video.write(frame)
+        for batch in renderer.frames(cams, np.broadcast_to(w, (frames, 52)),
+                                     view_intrinsics(renderer.size)):
+            for frame in batch:
+                video.write(frame)
+            done += len(batch)
             if progress:
                 progress("turntable", done, frames)
     return Path(out)

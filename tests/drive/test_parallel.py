@@ -131,21 +131,3 @@ def test_cli_animate_with_two_processes(run_cli, head_file, tmp_path):
     r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
                 tmp_path / "x.mp4", "--workers", "0")
     assert r.code == 3 and "--workers" in r.err and not (tmp_path / "x.mp4").exists()
-
-
-def test_cli_turntable_with_two_processes(run_cli, head_file, tmp_path):
-    import imageio.v3 as iio
-
-    got = {}
-    for workers in (1, 2):
-        out = tmp_path / f"turn{workers}"
-        r = run_cli("render", head_file, "--turntable", "--frames", "36", "-o", out,
-                    "--size", "64", "--samples", "2", "--precision", "fp32", "--workers",
-                    workers)
-        assert r.code == 0, r.err
-        got[workers] = np.stack([iio.imread(p) for p in sorted(out.iterdir())])
-    assert got[2].shape == (36, 64, 64, 3)
-    assert np.abs(got[2].astype(int) - got[1]).max() <= 1
-    r = run_cli("render", head_file, "--turntable", "-o", tmp_path / "t.mp4",
-                "--workers", "100")
-    assert r.code == 3 and "--workers" in r.err
