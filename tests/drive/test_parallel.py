@@ -29,14 +29,21 @@ def _one_process(renderer, cams, w, k):
     return np.stack([f for batch in renderer.frames(cams, w, k) for f in batch])
 
 
-def test_spawned_processes_give_the_frames_of_one_process_in_order(renderer):
+def _turning(renderer, n, spread, pitch):
+    """``(weights, intrinsics, cameras, one process's frames)`` of ``n`` frames whose
+    camera turns from -``spread`` to ``spread`` degrees of yaw."""
     from head360cli.drive.views import view_cameras, view_intrinsics
 
+    w, k = _weights(n), view_intrinsics(64)
+    cams = view_cameras(np.linspace(-spread, spread, n), pitch)
+    return w, k, cams, _one_process(renderer, cams, w, k)
+
+
+def test_spawned_processes_give_the_frames_of_one_process_in_order(renderer):
+    from head360cli.drive.views import view_cameras
+
     n = 11
-    w = _weights(n)
-    k = view_intrinsics(64)
-    moving = view_cameras(np.linspace(-30.0, 30.0, n), 5.0)
-    ref = _one_process(renderer, moving, w, k)
+    w, k, moving, ref = _turning(renderer, n, 30.0, 5.0)
     counts = {}
     # every block rendered by the spawned process (blocks of 3: 4 blocks, the last short)
     got = np.stack(list(parallel_frames(renderer, moving, w, k, workers=2, block=3,
@@ -71,13 +78,8 @@ class _LoadsNowhereElse:
 def test_a_process_that_fails_leaves_its_frames_to_this_one(renderer):
     import copy
 
-    from head360cli.drive.views import view_cameras, view_intrinsics
-
     n = 7
-    w = _weights(n)
-    k = view_intrinsics(64)
-    cams = view_cameras(np.linspace(-20.0, 20.0, n), 0.0)
-    ref = _one_process(renderer, cams, w, k)
+    w, k, cams, ref = _turning(renderer, n, 20.0, 0.0)
     broken = copy.copy(renderer)
     broken.poison = _LoadsNowhereElse()
     counts = {}
