@@ -2,7 +2,7 @@
 
 One torch process with two threads keeps two cores only partly busy: much of a frame is
 small operations and Python between them. Two one-thread processes, each rendering its
-own frames, got 1.3 to 1.6 times the frames of one two-thread process on 2 cores (the
+own frames, got 1.3 to 1.5 times the frames of one two-thread process on 2 cores (the
 fitted astronaut on a turning capture, 256 px). :func:`parallel_frames` splits the frames
 into blocks; the calling process and ``workers - 1`` spawned ones each take the next
 block not yet taken, render it with :meth:`~head360cli.model.head_render.HeadRenderer.
