@@ -161,24 +161,16 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
                 renderer.device.type == "cpu":
             workers = cfg.workers or auto_workers(n, "cpu")
         counts: dict[str, Any] = {}
-        if workers > 1:
-            frames = parallel_frames(renderer, cams, stream.weights, k, hair=cfg.hair,
-                                     workers=workers, counts=counts)
-        else:
-            frames = (f for batch in renderer.frames(cams, stream.weights, k,
-                                                     hair=cfg.hair, batch=cfg.batch)
-                      for f in batch)
+        frames = parallel_frames(renderer, cams, stream.weights, k, hair=cfg.hair,
+                                 workers=workers, batch=cfg.batch, counts=counts)
         with VideoWriter(out, fps=stream.fps) as video:
             for done, frame in enumerate(frames, 1):
                 video.write(frame)
                 if progress:
                     progress("animate", done, n)
         seconds = time.perf_counter() - t0
-        result.update(render_seconds=seconds, render_fps=n / seconds, workers=workers)
-        if workers == 1:
-            reuse = getattr(renderer, "last_reuse", None)
-            if reuse is not None:
-                counts = {"points": reuse.points, "decoded": reuse.decoded}
+        result.update(render_seconds=seconds, render_fps=n / seconds,
+                      workers=counts["workers"])
         if counts.get("warnings"):
             result["warnings"] = counts["warnings"]
         if counts.get("peaks"):  # the rendering processes' own peak memory, summed

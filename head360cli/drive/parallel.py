@@ -106,15 +106,16 @@ def _worker(renderer, c2w, weights, intrinsics, hair, block, threads, counter, w
         while (i := _take(counter)) < len(blocks):
             while i >= written.value + limit:
                 time.sleep(0.005)
-            frames = _render_block(renderer, c2w, weights, intrinsics, hair, blocks[i])
-            results.put((i, *frames, (os.getpid(), peak_rss_mib())))
+            made = _render_block(renderer, c2w, weights, intrinsics, hair, blocks[i])
+            results.put((i, *made, (os.getpid(), peak_rss_mib())))
     except BaseException:  # reported to the caller, which renders the rest itself
         results.put((-1, traceback.format_exc(), 0, 0))
 
 
 def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool = True,
                     workers: int = 2, counts: dict[str, Any] | None = None,
-                    block: int = BLOCK, render_here: bool = True) -> Iterator[np.ndarray]:
+                    block: int = BLOCK, render_here: bool = True,
+                    batch: int | None = None) -> Iterator[np.ndarray]:
     """:meth:`HeadRenderer.frames` (one frame at a time, uint8) by ``workers`` processes.
 
     Args:
@@ -124,7 +125,8 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
             ``(3, 3)``; hair: as :meth:`HeadRenderer.frames`.
         workers: Processes in all, the caller included; the cores are shared out among
             them as torch threads.
-        counts: If given, ``points`` and ``decoded`` are added to it (the points asked
+        counts: If given, ``workers`` is set to the processes used, and ``points`` and
+            ``decoded`` are added to it (the points asked
             for and decoded afresh where frames reused decoded points), and
             ``spawned_blocks``, the blocks the spawned processes rendered; ``peaks``
             maps each spawned process's id to its peak resident memory (MiB) as of its
@@ -132,6 +134,9 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
         block: Frames per block.
         render_here: This process renders blocks too while it waits (with False it
             only collects and yields them).
+        batch: Frames per generator call where this process renders alone (fewer than
+            2 workers or blocks; the renderer's default for ``None``); several processes
+            render one frame per call.
 
     Yields:
         ``(H, W, 3)`` uint8 frames in order.
@@ -145,8 +150,11 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
 
     n = len(c2w)
     blocks = _blocks(n, block)
-    if workers < 2 or len(blocks) < 2:  # one process: one run, reuse over all frames
-        for frames in renderer.frames(c2w, weights, intrinsics, hair=hair, batch=1):
+    alone = workers < 2 or len(blocks) < 2
+    if counts is not None:
+        counts["workers"] = 1 if alone else workers
+    if alone:  # one process: one run, reuse over all frames
+        for frames in renderer.frames(c2w, weights, intrinsics, hair=hair, batch=batch):
             yield from frames
         _count(counts, *_reuse_counts(renderer))
         return

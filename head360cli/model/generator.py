@@ -236,8 +236,8 @@ class Generator(nn.Module):
         """``net(feats)`` for a decoder, ``feats (B, N, D)`` -> ``(B, N)`` and
         ``(B, N, C)``, padded to :data:`DECODE_BLOCK` points where oneDNN runs it."""
         n = feats.shape[1]
-        onednn = feats.device.type == "cpu" and (self.network_dtype is not None
-                                                 or onednn_decodes(feats))
+        onednn = onednn_decodes(feats) or (self.network_dtype is not None
+                                           and feats.device.type == "cpu")
         if not onednn or n % DECODE_BLOCK == 0:
             return self._net(net, feats)
         pad = feats.new_zeros(feats.shape[0], DECODE_BLOCK - n % DECODE_BLOCK,
