@@ -14,6 +14,7 @@ memory) and die with the caller.
 
 from __future__ import annotations
 
+import copy
 import os
 import queue as queue_module
 import threading
@@ -165,8 +166,18 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
     results = ctx.Queue()
     c2w = c2w.detach().cpu().contiguous()
     weights = np.ascontiguousarray(weights, np.float32)
+    # The processes are started (the renderer pickled) from another thread while this
+    # one renders. Pickling moves each tensor's storage into shared memory, and
+    # rendering replaces the renderer's last_reuse, whose tensors were then freed under
+    # the pickler ("bad value(s) in fds_to_keep", once a crash): the spawned ones get a
+    # copy made now, without it, whose tensors are moved to shared memory here, before
+    # this thread uses them again
+    shipped = copy.copy(renderer)
+    shipped.last_reuse = None
+    _share(vars(shipped))
+    c2w.share_memory_()
     procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(renderer, c2w, weights, intrinsics, hair, block, threads,
+                         args=(shipped, c2w, weights, intrinsics, hair, block, threads,
                                counter, written, AHEAD * workers, results))
              for _ in range(workers - 1)]
     own_threads = torch.get_num_threads()
@@ -216,6 +227,27 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
         torch.set_num_threads(own_threads)
         _stop(starter, procs)
         results.close()
+
+
+def _share(obj: Any) -> None:
+    """Move the tensors in ``obj`` (a module, a dataclass, or containers of them) into
+    shared memory, as pickling them for another process would."""
+    import dataclasses
+
+    import torch
+
+    if isinstance(obj, torch.Tensor):
+        obj.share_memory_()
+    elif isinstance(obj, torch.nn.Module):
+        obj.share_memory()
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            _share(v)
+    elif isinstance(obj, list | tuple):
+        for v in obj:
+            _share(v)
+    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        _share(vars(obj))
 
 
 def _start(procs) -> None:

@@ -10,6 +10,11 @@ import pytest
 from head360cli.drive.parallel import MIN_FRAMES, auto_workers, parallel_frames
 from head360cli.mesh.arkit52 import INDEX
 
+# the processes start from a thread while this one renders: an error there (a race on
+# the renderer's tensors once crashed this file) fails the test, not just a warning
+pytestmark = pytest.mark.filterwarnings(
+    "error::pytest.PytestUnhandledThreadExceptionWarning")
+
 
 @pytest.fixture(scope="module")
 def renderer(head_file):
