@@ -253,14 +253,22 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
     for warning in stream.warnings:
         _warn(warning)
-    r = _backend_renderer(head, backend, onnx_path,
-                          samples or (None if backend == "onnx" else ANIMATE_SAMPLES), size,
-                          precision)
-    if exact:
-        r.reuse = None
+
+    def load():
+        r = _backend_renderer(head, backend, onnx_path,
+                              samples or (None if backend == "onnx" else ANIMATE_SAMPLES),
+                              size, precision)
+        if exact:
+            r.reuse = None
+        return r
+
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
                         yaw=yaw, pitch=pitch, hair=not no_hair, workers=workers)
-    res = run(r, stream, out, cfg, mesh_dir=mesh_dir, progress=_progress_printer())
+    # given the loader, run() starts the processes that render frames on a CPU before
+    # it loads the head (with --device auto on a GPU machine they end unused)
+    on_cpu = backend == "torch" and not _settings().device.strip().lower().startswith("cuda")
+    res = run(load if on_cpu else load(), stream, out, cfg, mesh_dir=mesh_dir,
+              progress=_progress_printer())
     for warning in res.get("warnings", []):
         _warn(warning)
     text = (f"animated {res['frames']} frames ({res['duration_s']:.2f} s at "

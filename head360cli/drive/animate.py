@@ -118,7 +118,10 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
     """Render a head driven by an ARKit stream.
 
     Args:
-        renderer: The head.
+        renderer: The head, or a function of no arguments that loads it: on a CPU,
+            the processes that will render a long take's frames (see
+            :class:`AnimateConfig` ``workers``) are then started before it is called,
+            so that their start (seconds each: they import torch) overlaps the loading.
         stream: An :class:`~head360cli.io.arkit.ArkitStream`.
         out: Video path (mp4, gif, or a folder for PNG frames), or ``None`` for no video.
         cfg: Options.
@@ -129,13 +132,33 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
         A summary: frames, duration, fps, render seconds and frames per second, the share
         of points decoded when frames reused the previous ones (``decoded_share``), paths.
     """
-    from head360cli.drive.views import view_cameras, view_intrinsics
-    from head360cli.io.video import VideoWriter
+    from head360cli.drive.parallel import Workers, auto_workers
 
     cfg = cfg or AnimateConfig()
     if out is None and mesh_dir is None:
         raise BadInputError("expected a video output or a mesh folder, found neither")
     stream = prepare_stream(stream, cfg)
+    pool = None
+    if not hasattr(renderer, "frames"):  # a loader: start the processes first
+        workers = cfg.workers or auto_workers(stream.num_frames, "cpu")
+        if out is not None and cfg.batch in (None, 1) and workers > 1:
+            pool = Workers(workers)
+    try:
+        if not hasattr(renderer, "frames"):
+            renderer = renderer()
+        return _animate(renderer, stream, out, cfg, mesh_dir, progress, pool)
+    finally:
+        if pool is not None:
+            pool.close()
+
+
+def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress,
+             pool) -> dict[str, Any]:
+    """:func:`animate` once the head is loaded and the stream prepared; ``pool``:
+    processes started for the frames, or ``None``."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.io.video import VideoWriter
+
     n = stream.num_frames
     base = view_cameras(cfg.yaw, cfg.pitch)[0]
     cams = (head_pose_cameras(stream.head_rotation, base) if cfg.head_pose
@@ -160,9 +183,13 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
         if getattr(renderer, "runner", None) is None and cfg.batch in (None, 1) and \
                 renderer.device.type == "cpu":
             workers = cfg.workers or auto_workers(n, "cpu")
+        if pool is not None and workers < 2:  # not on a CPU after all
+            pool.close()
+            pool = None
         counts: dict[str, Any] = {}
         frames = parallel_frames(renderer, cams, stream.weights, k, hair=cfg.hair,
-                                 workers=workers, batch=cfg.batch, counts=counts)
+                                 workers=workers, batch=cfg.batch, counts=counts,
+                                 pool=pool)
         with VideoWriter(out, fps=stream.fps) as video:
             for done, frame in enumerate(frames, 1):
                 video.write(frame)

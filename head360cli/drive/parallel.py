@@ -9,23 +9,26 @@ block not yet taken, render it with :meth:`~head360cli.model.head_render.HeadRen
 frames` (a still camera reuses decoded points within a block) and the caller yields the
 frames in order. At most a few blocks wait to be written, so memory does not grow with
 the length of the take. The spawned processes get the renderer (its tensors in shared
-memory) and die with the caller.
+memory) and die with the caller. Spawning one costs seconds (it imports torch), so a
+caller that knows early that it will render many frames starts them with :class:`Workers`
+before it loads the head (as ``head360 animate`` does), and their start overlaps the
+loading.
 """
 
 from __future__ import annotations
 
 import copy
 import os
+import pickle
 import queue as queue_module
-import threading
 import traceback
 from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
-__all__ = ["BLOCK", "MIN_FRAMES", "auto_workers", "parallel_frames", "peak_rss_mib",
-           "usable_cpus"]
+__all__ = ["BLOCK", "MIN_FRAMES", "TAIL", "Workers", "auto_workers", "parallel_frames",
+           "peak_rss_mib", "usable_cpus"]
 
 BLOCK = 16
 """Frames per block: long enough that a still camera's reuse of decoded points (which
@@ -68,8 +71,18 @@ def auto_workers(frames: int, device: str, cpus: int | None = None) -> int:
     return max(1, min(4, usable_cpus() if cpus is None else cpus))
 
 
-def _blocks(n: int, size: int) -> list[tuple[int, int]]:
-    return [(i, min(i + size, n)) for i in range(0, n, size)]
+TAIL = 4
+"""Frames per block over a take's last ``workers x block`` frames, so that the processes
+finish within a few frames of each other rather than one waiting while another renders
+a whole block (16 frames: 3 s of a turning head on one core)."""
+
+
+def _blocks(n: int, size: int, workers: int) -> list[tuple[int, int]]:
+    """``(first, end)`` frames of each block: ``size`` frames, then :data:`TAIL`."""
+    tail = max(0, n - workers * size)
+    small = min(size, TAIL)
+    return ([(i, min(i + size, tail)) for i in range(0, tail, size)]
+            + [(i, min(i + small, n)) for i in range(tail, n, small)])
 
 
 def _render_block(renderer, c2w, weights, intrinsics, hair, block) -> tuple[Any, ...]:
@@ -93,17 +106,23 @@ def _take(counter) -> int:
     return i
 
 
-def _worker(renderer, c2w, weights, intrinsics, hair, block, threads, counter, written,
-            limit, results) -> None:
-    """A spawned process: render the blocks it takes until none is left, none more
-    than ``limit`` blocks beyond the ``written`` ones."""
+def _worker(jobs, counter, written, results) -> None:
+    """A spawned process: import torch and the renderer's modules (the seconds a start
+    costs), wait for the job (:meth:`Workers.send`), then render the blocks it takes until
+    none is left, none more than the job's ``limit`` blocks beyond the ``written`` ones."""
     import time
 
     import torch
 
-    torch.set_num_threads(threads)
-    blocks = _blocks(len(c2w), block)
+    import head360cli.model.head_render  # noqa: F401  (what unpickling the job needs)
+
     try:
+        job = jobs.get()
+        if job is None:  # closed unused
+            return
+        renderer, c2w, weights, intrinsics, hair, block, workers, limit = pickle.loads(job)
+        torch.set_num_threads(max(1, usable_cpus() // workers))
+        blocks = _blocks(len(c2w), block, workers)
         while (i := _take(counter)) < len(blocks):
             while i >= written.value + limit:
                 time.sleep(0.005)
@@ -113,10 +132,72 @@ def _worker(renderer, c2w, weights, intrinsics, hair, block, threads, counter, w
         results.put((-1, traceback.format_exc(), 0, 0))
 
 
+class Workers:
+    """Processes spawned to render frames before the frames are known.
+
+    Each imports torch at once and then waits for the job :func:`parallel_frames` sends
+    it; the set serves one call of :func:`parallel_frames`, which closes it. A caller that
+    will render a long take on a CPU starts them before loading the head, so that their
+    start (seconds each) overlaps the loading; :meth:`close` ends them if they are not
+    needed after all.
+
+    Args:
+        workers: Processes in all, the caller included (``workers - 1`` are spawned).
+    """
+
+    def __init__(self, workers: int) -> None:
+        import multiprocessing
+
+        if workers < 2:
+            raise ValueError(f"expected at least 2 workers, found {workers}")
+        ctx = multiprocessing.get_context("spawn")
+        self.workers = workers
+        self.counter = ctx.Value("i", 0)  # the next block not yet taken
+        self.written = ctx.Value("i", 0)  # blocks yielded so far
+        self.results = ctx.Queue()
+        self.jobs = ctx.Queue()
+        self.procs = [ctx.Process(target=_worker, daemon=True, args=(
+            self.jobs, self.counter, self.written, self.results))
+            for _ in range(workers - 1)]
+        self.closed = False
+        for p in self.procs:  # returns at once: the arguments are small
+            p.start()
+
+    def send(self, job: tuple[Any, ...]) -> None:
+        """Give every process the job. It is pickled here, in the calling thread (a
+        tensor's storage is moved into shared memory as it is pickled, which must not
+        happen while another thread renders with it); the queue's thread only sends the
+        bytes. One pickle per process: each carries its own file descriptors."""
+        from multiprocessing.reduction import ForkingPickler
+
+        for _ in self.procs:
+            self.jobs.put(bytes(ForkingPickler.dumps(job)))
+
+    def close(self) -> None:
+        """End the processes, whatever they are doing."""
+        if self.closed:
+            return
+        self.closed = True
+        for p in self.procs:
+            if p.is_alive():
+                p.terminate()
+            p.join(timeout=5)
+        for q in (self.results, self.jobs):
+            q.close()
+            q.cancel_join_thread()
+
+    def __enter__(self) -> Workers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool = True,
                     workers: int = 2, counts: dict[str, Any] | None = None,
                     block: int = BLOCK, render_here: bool = True,
-                    batch: int | None = None) -> Iterator[np.ndarray]:
+                    batch: int | None = None,
+                    pool: Workers | None = None) -> Iterator[np.ndarray]:
     """:meth:`HeadRenderer.frames` (one frame at a time, uint8) by ``workers`` processes.
 
     Args:
@@ -132,12 +213,15 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
             ``spawned_blocks``, the blocks the spawned processes rendered; ``peaks``
             maps each spawned process's id to its peak resident memory (MiB) as of its
             last block.
-        block: Frames per block.
+        block: Frames per block (over the last ``workers x block`` frames,
+            :data:`TAIL`).
         render_here: This process renders blocks too while it waits (with False it
             only collects and yields them).
         batch: Frames per generator call where this process renders alone (fewer than
             2 workers or blocks; the renderer's default for ``None``); several processes
             render one frame per call.
+        pool: Processes started beforehand (their count replaces ``workers``); closed
+            here, used or not. ``None``: they are started here.
 
     Yields:
         ``(H, W, 3)`` uint8 frames in order.
@@ -147,48 +231,37 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
     an error of the frames themselves is then raised here, as one process would.
     """
     import torch
-    import torch.multiprocessing as mp
 
     n = len(c2w)
-    blocks = _blocks(n, block)
-    alone = workers < 2 or len(blocks) < 2
+    if pool is not None:
+        workers = pool.workers
+    alone = workers < 2 or n <= block
+    blocks = _blocks(n, block, workers)
     if counts is not None:
         counts["workers"] = 1 if alone else workers
     if alone:  # one process: one run, reuse over all frames
+        if pool is not None:
+            pool.close()
         for frames in renderer.frames(c2w, weights, intrinsics, hair=hair, batch=batch):
             yield from frames
         _count(counts, *_reuse_counts(renderer))
         return
-    ctx = mp.get_context("spawn")
-    threads = max(1, usable_cpus() // workers)
-    counter = ctx.Value("i", 0)  # the next block not yet taken
-    written = ctx.Value("i", 0)  # blocks yielded so far
-    results = ctx.Queue()
-    c2w = c2w.detach().cpu().contiguous()
-    weights = np.ascontiguousarray(weights, np.float32)
-    # The processes are started (the renderer pickled) from another thread while this
-    # one renders. Pickling moves each tensor's storage into shared memory, and
-    # rendering replaces the renderer's last_reuse, whose tensors were then freed under
-    # the pickler ("bad value(s) in fds_to_keep", once a crash): the spawned ones get a
-    # copy made now, without it, whose tensors are moved to shared memory here, before
-    # this thread uses them again
-    shipped = copy.copy(renderer)
-    shipped.last_reuse = None
-    _share(vars(shipped))
-    c2w.share_memory_()
-    procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(shipped, c2w, weights, intrinsics, hair, block, threads,
-                               counter, written, AHEAD * workers, results))
-             for _ in range(workers - 1)]
     own_threads = torch.get_num_threads()
+    threads = max(1, usable_cpus() // workers)
     done: dict[int, np.ndarray] = {}
     failed = None  # why the spawned processes are no longer used
-    # Process.start() returns only once the child has read the renderer, which it does
-    # after importing torch (seconds): started from a thread, this process renders
-    # meanwhile
-    starter = threading.Thread(target=_start, args=(procs,), daemon=True)
     try:
-        starter.start()
+        if pool is None:  # they import torch while this process renders
+            pool = Workers(workers)
+        c2w = c2w.detach().cpu().contiguous().share_memory_()
+        weights = np.ascontiguousarray(weights, np.float32)
+        # the spawned processes get a copy of the renderer without its last run's reuse
+        # (which this process replaces as it renders), its tensors in shared memory
+        shipped = copy.copy(renderer)
+        shipped.last_reuse = None
+        _share(vars(shipped))
+        pool.send((shipped, c2w, weights, intrinsics, hair, block, workers,
+                   AHEAD * workers))
         torch.set_num_threads(threads)
         for i in range(len(blocks)):
             while i not in done:
@@ -198,18 +271,18 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
                     done[i] = frames
                     _count(counts, points, decoded)
                     break
-                got = _poll(results, block=False)
+                got = _poll(pool.results, block=False)
                 if got is None and render_here and len(done) < AHEAD:
-                    j = _take(counter)  # nothing ready: render a block here
+                    j = _take(pool.counter)  # nothing ready: render a block here
                     if j < len(blocks):
                         got = (j, *_render_block(renderer, c2w, weights, intrinsics, hair,
                                                  blocks[j]))
                 if got is None:
-                    got = _poll(results, block=True, procs=procs)
+                    got = _poll(pool.results, block=True, procs=pool.procs)
                 if got is None or got[0] < 0:
                     failed = ("they ended without their frames" if got is None
                               else got[1].strip().splitlines()[-1])
-                    _stop(starter, procs)
+                    pool.close()
                     torch.set_num_threads(own_threads)
                     if counts is not None:
                         counts.setdefault("warnings", []).append(
@@ -222,11 +295,11 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
                 if len(got) > 4 and counts is not None:  # (pid, its peak memory)
                     counts.setdefault("peaks", {})[got[4][0]] = got[4][1]
             yield from done.pop(i)
-            written.value = i + 1
+            pool.written.value = i + 1
     finally:
         torch.set_num_threads(own_threads)
-        _stop(starter, procs)
-        results.close()
+        if pool is not None:
+            pool.close()
 
 
 def _share(obj: Any) -> None:
@@ -248,22 +321,6 @@ def _share(obj: Any) -> None:
             _share(v)
     elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         _share(vars(obj))
-
-
-def _start(procs) -> None:
-    for p in procs:
-        p.start()
-
-
-def _stop(starter: threading.Thread, procs) -> None:
-    """End the spawned processes (once they have all been started)."""
-    starter.join()
-    for p in procs:
-        if p.pid is None:  # never started (starting it failed)
-            continue
-        if p.is_alive():
-            p.terminate()
-        p.join(timeout=5)
 
 
 def _count(counts: dict[str, Any] | None, points: int, decoded: int,

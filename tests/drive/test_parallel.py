@@ -7,11 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from head360cli.drive.parallel import MIN_FRAMES, auto_workers, parallel_frames
+from head360cli.drive.parallel import MIN_FRAMES, Workers, auto_workers, parallel_frames
 from head360cli.mesh.arkit52 import INDEX
 
-# the processes start from a thread while this one renders: an error there (a race on
-# the renderer's tensors once crashed this file) fails the test, not just a warning
+# the job is sent by a queue's thread while this one renders: an error there (a race on
+# the renderer's tensors, when it was pickled there, once crashed this file) fails the
+# test, not just a warning
 pytestmark = pytest.mark.filterwarnings(
     "error::pytest.PytestUnhandledThreadExceptionWarning")
 
@@ -103,6 +104,65 @@ def test_a_process_that_fails_leaves_its_frames_to_this_one(renderer):
         list(parallel_frames(renderer, cams, bad, k, workers=2, block=2, counts=counts,
                              render_here=False))
     assert type(alone.value).__name__ in counts["warnings"][0]
+
+
+def test_animate_starts_the_processes_before_it_loads_the_head(renderer, tmp_path):
+    import multiprocessing
+
+    import imageio.v3 as iio
+
+    from head360cli.drive.animate import AnimateConfig, animate
+    from head360cli.io.arkit import ArkitStream
+
+    n = 20  # two blocks
+    stream = ArkitStream(_weights(n), np.arange(n) / 30.0, 30.0)
+    started = []
+
+    def load():
+        started.append(len(multiprocessing.active_children()))
+        return renderer
+
+    res = animate(load, stream, tmp_path / "two", AnimateConfig(workers=2))
+    assert started == [1] and res["workers"] == 2 and res["frames"] == n
+    assert not multiprocessing.active_children()  # ended with the frames
+    alone = animate(renderer, stream, tmp_path / "one", AnimateConfig(workers=1))
+    assert alone["workers"] == 1
+    two, one = (np.stack([iio.imread(p) for p in sorted((tmp_path / d).iterdir())])
+                for d in ("two", "one"))
+    assert two.shape == one.shape == (n, 64, 64, 3)
+    # a still camera: reuse restarts with each block in the spawned process
+    assert np.abs(two.astype(int) - one).max() <= 2
+
+    def fails():
+        raise RuntimeError("no such head")
+
+    with pytest.raises(RuntimeError, match="no such head"):
+        animate(fails, stream, tmp_path / "none", AnimateConfig(workers=2))
+    assert not multiprocessing.active_children()  # ended, unused
+    assert not (tmp_path / "none").exists()
+
+
+def test_blocks_cover_the_frames_and_end_small():
+    from head360cli.drive.parallel import TAIL, _blocks
+
+    for n, size, workers in ((187, 16, 2), (64, 16, 4), (11, 3, 2), (5, 16, 2), (1, 16, 3)):
+        blocks = _blocks(n, size, workers)
+        assert [a for a, _ in blocks] == [0] + [b for _, b in blocks[:-1]]  # in order
+        assert blocks[-1][1] == n and all(b > a for a, b in blocks)
+        # the last workers x size frames go in blocks of at most TAIL
+        assert all(b - a <= min(size, TAIL) for a, b in blocks if b > n - workers * size)
+    assert [b - a for a, b in _blocks(187, 16, 2)] == [16] * 9 + [11] + [4] * 8
+
+
+def test_workers_closed_unused_end():
+    pool = Workers(3)
+    procs = list(pool.procs)
+    assert len(procs) == 2 and all(p.is_alive() for p in procs)
+    pool.close()
+    assert not any(p.is_alive() for p in procs)
+    pool.close()  # twice: nothing more to do
+    with pytest.raises(ValueError, match="at least 2"):
+        Workers(1)
 
 
 def test_auto_workers():
