@@ -165,6 +165,25 @@ def test_workers_closed_unused_end():
         Workers(1)
 
 
+def test_processes_that_cannot_start_leave_the_frames_to_this_one(renderer, monkeypatch):
+    import multiprocessing.context
+
+    def refuse(self):
+        raise OSError("Resource temporarily unavailable")
+
+    monkeypatch.setattr(multiprocessing.context.SpawnProcess, "start", refuse)
+    n = 6
+    w, k, cams, ref = _turning(renderer, n, 20.0, 0.0)
+    pool = Workers(2)
+    assert pool.error == "OSError: Resource temporarily unavailable" and pool.closed
+    counts = {}
+    got = np.stack(list(parallel_frames(renderer, cams, w, k, workers=2, block=2,
+                                        counts=counts)))
+    assert "Resource temporarily unavailable" in counts["warnings"][0]
+    assert counts.get("spawned_blocks", 0) == 0
+    assert np.abs(got.astype(int) - ref).max() <= 1
+
+
 def test_auto_workers():
     assert auto_workers(MIN_FRAMES - 1, "cpu", cpus=8) == 1  # too short to pay
     assert auto_workers(MIN_FRAMES, "cpu", cpus=2) == 2
