@@ -356,7 +356,8 @@ class Generator(nn.Module):
             reuse: Decoded points kept from the previous frame of an animation (a
                 one-item batch, no gradients): the decoders run only on points whose
                 input changed (see :class:`~head360cli.model.reuse.DecodeReuse`); with
-                ``camera_moves``, only the head planes' still triangles are kept.
+                ``camera_moves``, only the head planes' still triangles and the
+                RefineNet's output where its input did not change are kept.
             plane_raster: :meth:`plane_raster` of these ``verts``, when the caller renders
                 the same mesh many times; without it the mesh is rasterized here. An
                 animation's ``reuse`` keeps its own (its still triangles) and ignores it.
@@ -388,8 +389,10 @@ class Generator(nn.Module):
         k = intrinsics.expand(b, 3, 3).clone()
         k[:, :2] *= c.render_res / c.image_res
         still = self._still(verts, reuse)  # once a frame, for the depth and the planes
-        planes_reuse = reuse
-        if reuse is not None and reuse.camera_moves:  # only the planes: camera-free
+        # a moving camera keeps what depends on the frame's own inputs alone: the head
+        # planes' still triangles and the RefineNet's output where its input is unchanged
+        camera_free = reuse
+        if reuse is not None and reuse.camera_moves:
             reuse = None
         depth = self._head_depth(verts, c2w, k, reuse, still)
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
@@ -430,7 +433,7 @@ class Generator(nn.Module):
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
         if head_planes is None:
-            head_planes = self._head_planes(verts, texture, planes_reuse, still,
+            head_planes = self._head_planes(verts, texture, camera_free, still,
                                             plane_raster)
         feats = sample_planes(points, head_planes,
                               self.plane_names,
@@ -507,10 +510,12 @@ class Generator(nn.Module):
         alpha = alpha.view(b, 1, *shape[1:])
         rgb_low = image[:, :3] + (1.0 - alpha)  # on white
         scale = c.image_res / c.render_res
-        if self.refine is not None and reuse is not None:
-            rgb, alpha_hi = reuse.refine(lambda *a: self._net(self.refine, *a), image,
-                                         alpha, rgb_low, self.refine.scale,
-                                         self.refine.reach)
+        if self.refine is not None and camera_free is not None:
+            # its input is the frame's own image, so a moving camera reuses it too:
+            # around the head, where the empty background stays as it was
+            rgb, alpha_hi = camera_free.refine(lambda *a: self._net(self.refine, *a),
+                                               image, alpha, rgb_low, self.refine.scale,
+                                               self.refine.reach)
         elif self.refine is not None:
             rgb, alpha_hi = self._net(self.refine, image, alpha, rgb_low)
         else:

@@ -14,8 +14,9 @@ It also keeps, for the same camera, the RefineNet's last output (recomputed on a
 around the pixels whose input changed, :meth:`DecodeReuse.refine`), results that depend
 only on still inputs such as the hair's screen depth (:meth:`DecodeReuse.kept`), and the
 depth tests of the triangles no expression moves (drawn once, the others drawn over
-them each frame). A moving camera keeps only the last of these for the head's planes,
-which do not depend on the camera.
+them each frame). A moving camera keeps the last of these for the head's planes, which
+do not depend on the camera, and the RefineNet's output where its input did not change
+(the empty background around the head).
 
 Holds tensors, no parameters; the generator consults it when one is passed to
 :meth:`~head360cli.model.generator.Generator.forward`.
@@ -56,9 +57,11 @@ class DecodeReuse:
         still_vertices: Optional ``(V,)`` bool, the vertices no expression moves.
         camera_moves: The camera changes from frame to frame (an animation with the
             stream's head pose): only what does not depend on it is kept, the depth
-            test of the head planes' still triangles; points are decoded afresh, and the
-            RefineNet runs on the whole image, every frame (comparing every point with
-            its last input cost what reusing the 13 % that matched saved).
+            test of the head planes' still triangles and the RefineNet's output where
+            its input is unchanged (the RefineNet runs on a crop around the head, two
+            thirds of the image on a fitted head at 256 px: 24.1 -> 18.9 ms a frame on
+            one core); points are decoded afresh (comparing every point with its last
+            input cost what reusing the 13 % that matched saved).
 
     Attributes:
         points: Points asked for so far.

@@ -194,11 +194,15 @@ def test_reuse_decodes_fewer_points_and_only_for_a_still_camera(renderer, monkey
     assert 0 < made[0].decoded < 0.7 * made[0].points
     moving = view_cameras(np.linspace(0, 40, 5), 0.0)
     got = _frames(renderer, w, moving, 1e-3)
-    # a moving camera: every point decoded, only the planes' still triangles kept, and
-    # the frames are those of no reuse at all
+    # a moving camera: every point decoded, only the planes' still triangles and the
+    # RefineNet's output around the head (the background stays as it was) kept, and the
+    # frames are those of no reuse at all
     assert len(made) == 2 and made[1].camera_moves
     assert made[1].points == made[1].decoded == 0
     assert sorted(made[1]._kept) == ["planes_under"]
+    # the RefineNet went through the reuse's crops (at this size they hold the whole
+    # image: the head fills it; the crops' values are checked above)
+    assert made[1].refined_pixels > 0
     assert torch.equal(got, _frames(renderer, w, moving, None))
     assert len(made) == 2  # no reuse: nothing made
 
