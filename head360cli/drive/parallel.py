@@ -195,12 +195,6 @@ class Workers:
             q.close()
             q.cancel_join_thread()
 
-    def __enter__(self) -> Workers:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool = True,
                     workers: int = 2, counts: dict[str, Any] | None = None,
@@ -264,17 +258,17 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
             pool = Workers(workers)
         if pool.error is not None:
             failed = _failed(counts, pool.error)
-        c2w = c2w.detach().cpu().contiguous().share_memory_()
-        weights = np.ascontiguousarray(weights, np.float32)
-        # the spawned processes get a copy of the renderer without its last run's reuse
-        # (which this process replaces as it renders), its tensors in shared memory, and
-        # without the bilinear model and float64 deltas it was made from, which frames
-        # do not read (74 MB pickled by value; 600 frames: peaks 663 -> 595 MiB here,
-        # 623 -> 478 MiB in the spawned process)
-        shipped = copy.copy(renderer)
-        shipped.last_reuse = shipped.model = shipped.deltas = None
-        _share(vars(shipped))
-        if failed is None:
+        else:
+            c2w = c2w.detach().cpu().contiguous().share_memory_()
+            weights = np.ascontiguousarray(weights, np.float32)
+            # the spawned processes get a copy of the renderer without its last run's
+            # reuse (which this process replaces as it renders), its tensors in shared
+            # memory, and without the bilinear model and float64 deltas it was made
+            # from, which frames do not read (74 MB pickled by value; 600 frames: peaks
+            # 663 -> 595 MiB here, 623 -> 478 MiB in the spawned process)
+            shipped = copy.copy(renderer)
+            shipped.last_reuse = shipped.model = shipped.deltas = None
+            _share(vars(shipped))
             pool.send((shipped, c2w, weights, intrinsics, hair, block, workers,
                        AHEAD * workers))
             torch.set_num_threads(threads)
