@@ -138,24 +138,25 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
     if out is None and mesh_dir is None:
         raise BadInputError("expected a video output or a mesh folder, found neither")
     stream = prepare_stream(stream, cfg)
-    pool = None
-    if not hasattr(renderer, "frames"):  # a loader: start the processes first
-        workers = cfg.workers or auto_workers(stream.num_frames, "cpu")
-        if out is not None and cfg.batch in (None, 1) and workers > 1:
-            pool = Workers(workers)
+    # processes for the frames on a CPU (one-frame batches only)
+    workers = (cfg.workers or auto_workers(stream.num_frames, "cpu")
+               if out is not None and cfg.batch in (None, 1) else 1)
+    loader = not hasattr(renderer, "frames")
+    pool = Workers(workers) if loader and workers > 1 else None  # before the loading
     try:
-        if not hasattr(renderer, "frames"):
+        if loader:
             renderer = renderer()
-        return _animate(renderer, stream, out, cfg, mesh_dir, progress, pool)
+        return _animate(renderer, stream, out, cfg, mesh_dir, progress, workers, pool)
     finally:
         if pool is not None:
             pool.close()
 
 
-def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress,
+def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress, workers: int,
              pool) -> dict[str, Any]:
-    """:func:`animate` once the head is loaded and the stream prepared; ``pool``:
-    processes started for the frames, or ``None``."""
+    """:func:`animate` once the head is loaded and the stream prepared: ``workers``
+    processes render the frames if the renderer is torch's on a CPU (``pool``: those
+    started already, or ``None``)."""
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.io.video import VideoWriter
 
@@ -175,17 +176,15 @@ def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress,
             progress=progress))
         result["mesh_seconds"] = time.perf_counter() - t0
     if out is not None:
-        from head360cli.drive.parallel import auto_workers, parallel_frames
+        from head360cli.drive.parallel import parallel_frames
 
         t0 = time.perf_counter()
         k = view_intrinsics(renderer.size)
-        workers = 1
-        if getattr(renderer, "runner", None) is None and cfg.batch in (None, 1) and \
-                renderer.device.type == "cpu":
-            workers = cfg.workers or auto_workers(n, "cpu")
-        if pool is not None and workers < 2:  # not on a CPU after all
-            pool.close()
-            pool = None
+        if getattr(renderer, "runner", None) is not None or renderer.device.type != "cpu":
+            workers = 1  # onnxruntime or a GPU: this process batches frames
+            if pool is not None:
+                pool.close()
+                pool = None
         counts: dict[str, Any] = {}
         frames = parallel_frames(renderer, cams, stream.weights, k, hair=cfg.hair,
                                  workers=workers, batch=cfg.batch, counts=counts,

@@ -63,6 +63,11 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+def _threads(workers: int) -> int:
+    """Torch threads for each of ``workers`` processes sharing the usable cores."""
+    return max(1, usable_cpus() // workers)
+
+
 def auto_workers(frames: int, device: str, cpus: int | None = None) -> int:
     """Processes for rendering ``frames`` frames: one per usable core (at most 4) on a
     CPU when there are at least :data:`MIN_FRAMES` frames, else 1."""
@@ -122,7 +127,7 @@ def _worker(jobs, counter, written, results) -> None:
             return
         renderer, c2w, weights, intrinsics, hair, block, workers, limit = pickle.loads(job)
         del job  # the bytes: not needed once unpickled
-        torch.set_num_threads(max(1, usable_cpus() // workers))
+        torch.set_num_threads(_threads(workers))
         blocks = _blocks(len(c2w), block, workers)
         while (i := _take(counter)) < len(blocks):
             while i >= written.value + limit:
@@ -250,7 +255,7 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
         _count(counts, *_reuse_counts(renderer))
         return
     own_threads = torch.get_num_threads()
-    threads = max(1, usable_cpus() // workers)
+    threads = _threads(workers)
     done: dict[int, np.ndarray] = {}
     failed = None  # why the spawned processes are no longer used
     try:
@@ -262,13 +267,13 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
             c2w = c2w.detach().cpu().contiguous().share_memory_()
             weights = np.ascontiguousarray(weights, np.float32)
             # the spawned processes get a copy of the renderer without its last run's
-            # reuse (which this process replaces as it renders), its tensors in shared
-            # memory, and without the bilinear model and float64 deltas it was made
-            # from, which frames do not read (74 MB pickled by value; 600 frames: peaks
-            # 663 -> 595 MiB here, 623 -> 478 MiB in the spawned process)
+            # reuse (which this process replaces as it renders) and without the
+            # bilinear model and float64 deltas it was made from, which frames do not
+            # read (74 MB pickled by value; 600 frames: peaks 663 -> 595 MiB here, 623
+            # -> 478 MiB in the spawned process); pickling it here moves its tensors
+            # into shared memory
             shipped = copy.copy(renderer)
             shipped.last_reuse = shipped.model = shipped.deltas = None
-            _share(vars(shipped))
             pool.send((shipped, c2w, weights, intrinsics, hair, block, workers,
                        AHEAD * workers))
             torch.set_num_threads(threads)
@@ -314,27 +319,6 @@ def _failed(counts: dict[str, Any] | None, why: str) -> str:
             f"a process rendering frames failed ({why}); the rest were rendered in this "
             f"process")
     return why
-
-
-def _share(obj: Any) -> None:
-    """Move the tensors in ``obj`` (a module, a dataclass, or containers of them) into
-    shared memory, as pickling them for another process would."""
-    import dataclasses
-
-    import torch
-
-    if isinstance(obj, torch.Tensor):
-        obj.share_memory_()
-    elif isinstance(obj, torch.nn.Module):
-        obj.share_memory()
-    elif isinstance(obj, dict):
-        for v in obj.values():
-            _share(v)
-    elif isinstance(obj, list | tuple):
-        for v in obj:
-            _share(v)
-    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        _share(vars(obj))
 
 
 def _count(counts: dict[str, Any] | None, points: int, decoded: int,
