@@ -145,3 +145,49 @@ def test_decoder_renders_on_cpu_through_onednn_linear_with_the_same_values(monke
     monkeypatch.setattr(networks, "_HAS_CPU_LINEAR", True)
     dec(x)
     assert len(calls) == 6
+
+
+def test_render_softplus_looks_up_torch_bfloat16_softplus_bit_for_bit():
+    """Renders on a CPU look bfloat16 softplus values up in a table of every bfloat16
+    value: the same bits as ``F.softplus``, infinities and NaN included, at any shape
+    and layout; other dtypes go to ``F.softplus`` itself."""
+    from head360cli.model.networks import render_softplus, softplus_table
+
+    every = torch.arange(-32768, 32768, dtype=torch.int32).to(torch.int16).view(torch.bfloat16)
+    got, ref = render_softplus(every), F.softplus(every)
+    nan = torch.isnan(ref)
+    assert nan.sum() > 0 and torch.equal(torch.isnan(got), nan)
+    assert torch.equal(got[~nan].view(torch.int16), ref[~nan].view(torch.int16))
+    assert got[every == float("inf")].item() == float("inf")
+    assert got[every == float("-inf")].item() == 0.0
+    # a slice of a larger tensor (not contiguous) keeps its shape
+    torch.manual_seed(0)
+    x = (torch.randn(40, 9) * 8).bfloat16()[:, 1:4]
+    assert not x.is_contiguous()
+    assert torch.equal(render_softplus(x), F.softplus(x))
+    assert render_softplus(x).shape == (40, 3)
+    assert softplus_table("cpu") is softplus_table(torch.device("cpu"))  # made once
+    y = torch.randn(50) * 5
+    assert torch.equal(render_softplus(y), F.softplus(y))  # float32: torch's own
+    assert torch.equal(render_softplus(y.double()), F.softplus(y.double()))
+
+
+def test_decoder_renders_bfloat16_through_the_table_as_through_torch(monkeypatch):
+    """The render path's softplus lookups give the frames torch's softplus gives."""
+    from head360cli.model import networks
+
+    torch.manual_seed(0)
+    dec = Decoder(GeneratorConfig(hidden=32), planes=6)
+    x = torch.randn(2, 900, dec.net[0].in_features) * 3.0
+    x[0, :5] *= 40.0  # beyond the threshold
+    calls = []
+    real = networks.render_softplus
+    monkeypatch.setattr(networks, "render_softplus",
+                        lambda z: calls.append(z.dtype) or real(z))
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        density, colour = dec(x)
+        assert calls == [torch.bfloat16] * 3  # both hidden layers and the density
+        monkeypatch.setattr(networks, "render_softplus", F.softplus)
+        ref_density, ref_colour = dec(x)
+    assert torch.equal(density, ref_density) and torch.equal(colour, ref_colour)
+    assert density.abs().mean() > 0 and colour.abs().mean() > 0.1
