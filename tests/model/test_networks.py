@@ -151,6 +151,7 @@ def test_render_softplus_looks_up_torch_bfloat16_softplus_bit_for_bit():
     """Renders on a CPU look bfloat16 softplus values up in a table of every bfloat16
     value: the same bits as ``F.softplus``, infinities and NaN included, at any shape
     and layout; other dtypes go to ``F.softplus`` itself."""
+    from head360cli.model import networks
     from head360cli.model.networks import render_softplus, softplus_table
 
     every = torch.arange(-32768, 32768, dtype=torch.int32).to(torch.int16).view(torch.bfloat16)
@@ -166,6 +167,9 @@ def test_render_softplus_looks_up_torch_bfloat16_softplus_bit_for_bit():
     assert not x.is_contiguous()
     assert torch.equal(render_softplus(x), F.softplus(x))
     assert render_softplus(x).shape == (40, 3)
+    # more values than one lookup takes at a time (the chunks' seams)
+    big = (torch.randn(3, networks._LOOKUP_CHUNK + 77) * 6).bfloat16()
+    assert torch.equal(render_softplus(big), F.softplus(big))
     assert softplus_table("cpu") is softplus_table(torch.device("cpu"))  # made once
     y = torch.randn(50) * 5
     assert torch.equal(render_softplus(y), F.softplus(y))  # float32: torch's own
