@@ -317,6 +317,12 @@ def _aligned(img, fit, model, res: int):
     return c2w, k, affine, crop, posed, neutral
 
 
+INNER_EYES = np.isin(np.arange(17, 68), np.arange(36, 48))
+"""``(51,)`` bool: the eyes (iBUG 36-47) among :func:`_inner_landmarks`' points, which
+the inversion's camera refinement holds closer than the rest
+(:attr:`~head360cli.fitting.texture.InvertConfig.held_slack`)."""
+
+
 def _inner_landmarks(model, posed: np.ndarray, detected: np.ndarray, affine: np.ndarray,
                      device) -> tuple:
     """The inner-face landmarks (17-67: brows, nose, eyes, mouth; not the jaw contour,
@@ -586,7 +592,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         torch.tensor(target, dtype=torch.float32, device=dev).permute(2, 0, 1) / 255.0,
         torch.tensor(mask, device=dev)[None], start, cfg,
         progress=lambda s, n, loss: say("texture", s, n),
-        landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev))
+        landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev),
+        held=torch.as_tensor(INNER_EYES, device=dev))
     timings["invert"] = inv.seconds + mirror_s  # its mirror grid was made beside the parse
     lids = None
     if closed_lids:
