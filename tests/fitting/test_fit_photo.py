@@ -228,3 +228,19 @@ def test_a_known_camera_distance_is_kept(run_cli, astronaut, tmp_path):
     assert abs(free - 0.8) > 0.05  # the option changed the fit
     r = run_cli("fit", "--stage", "shape", astronaut, "-o", tmp_path, "--distance", "-1")
     assert r.code == 2 and "distance" in r.err.lower()
+
+
+def test_the_fit_holds_the_eyes_landmarks():
+    """The camera refinement's held landmarks are iBUG 36-47 (the eyes) among the 51
+    inner-face points ``fit`` anchors it with."""
+    from head360cli.fitting.pipeline import INNER_EYES, _inner_landmarks
+    from head360cli.mesh.bilinear import load_bilinear
+
+    model = load_bilinear()
+    posed = model.vertices(np.zeros(model.rank), np.zeros(52))
+    detected = np.arange(136, dtype=np.float64).reshape(68, 2)
+    points, pixels = _inner_landmarks(model, posed, detected, np.eye(2, 3), "cpu")
+    assert INNER_EYES.shape == (51,) and INNER_EYES.sum() == 12
+    np.testing.assert_allclose(points.numpy()[INNER_EYES],
+                               model.landmark_points(posed)[36:48], atol=1e-6)
+    np.testing.assert_allclose(pixels.numpy()[INNER_EYES], detected[36:48])
