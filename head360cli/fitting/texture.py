@@ -137,8 +137,10 @@ class InvertConfig:
     them (front view, blinks 0 to 1), the jaw's from 0.87 to 0.97 (six), face PSNR 24.46
     -> 24.67 dB; held-out synthetic heads, where the refinement corrects the pitch that
     dlib's landmarks leave, lost 0.2 dB over 72 views (17.22 -> 17.02, ten heads of
-    corpus seeds 1 and 2) and gained 0.1 at the input view (19.85 -> 19.95). Holding all
-    the landmarks, or their mean, within 1 pixel cost those heads 0.8 to 1.2 dB."""
+    corpus seeds 1 and 2) and gained 0.1 at the input view (19.85 -> 19.95); the bench's
+    two heads lost 1.05 dB with the fast preset and none with the quality preset's 40
+    code steps. Holding all the landmarks within 1.3 pixels, or their mean within 1,
+    cost the ten heads 0.9 and 1.0 dB."""
     coverage: float = 0.5
     """Weight of the face pixels the render leaves uncovered (1 - alpha on the mask)."""
     preview_samples: int | None = 6
