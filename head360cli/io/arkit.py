@@ -362,7 +362,8 @@ def read_arkit_csv(
         timestamps = np.arange(n, dtype=np.float64) / rate
     else:
         # checked from zero: times near 2**53 seconds apart lose their steps to rounding
-        timestamps = _check_monotonic(times - times[0], lines, label)
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked there
+            timestamps = _check_monotonic(times - times[0], lines, label)
     effective = _effective_fps(timestamps, nominal if nominal else (fps or DEFAULT_FPS))
 
     head = layout.gather_rotation(values, 0)
@@ -401,14 +402,20 @@ def _fill_times(times: np.ndarray, bad: np.ndarray) -> np.ndarray:
     if good.size == 0:
         return np.arange(len(times), dtype=np.float64) / DEFAULT_FPS
     idx = np.arange(len(times), dtype=np.float64)
-    step = float(np.median(np.diff(times[good]) / np.diff(good))) if good.size > 1 else 1 / 60
-    out = np.interp(idx, good.astype(np.float64), times[good])
-    out[: good[0]] = times[good[0]] - (good[0] - idx[: good[0]]) * step
-    out[good[-1] + 1 :] = times[good[-1]] + (idx[good[-1] + 1 :] - good[-1]) * step
+    with np.errstate(over="ignore", invalid="ignore"):  # :func:`_check_monotonic` refuses
+        step = float(np.median(np.diff(times[good]) / np.diff(good))) if good.size > 1 \
+            else 1 / 60
+        out = np.interp(idx, good.astype(np.float64), times[good])
+        out[: good[0]] = times[good[0]] - (good[0] - idx[: good[0]]) * step
+        out[good[-1] + 1 :] = times[good[-1]] + (idx[good[-1] + 1 :] - good[-1]) * step
     return out
 
 
 def _check_monotonic(times: np.ndarray, lines: list[int], label: str) -> np.ndarray:
+    if not np.isfinite(times).all():  # stamps near the float limit, once offset or filled
+        i = int(np.argmin(np.isfinite(times)))
+        raise BadInputError(f"{label}, line {lines[i]}: expected a time stamp within "
+                            f"float range of the first, found one that overflows")
     times = times.copy()
     # Timecodes wrap at midnight: a drop of more than 12 hours is a new day.
     for i in np.nonzero(np.diff(times) < -43200.0)[0]:

@@ -229,6 +229,19 @@ def test_times_too_far_apart_to_tell_frames_apart_are_an_error(tmp_path):
     assert read_arkit_csv(write_rows(tmp_path / "near.csv", header, rows)).num_frames == 4
 
 
+def test_times_that_overflow_are_an_error(tmp_path):
+    """Found by hypothesis: a good time of 9e307 s after 0, with a bad first row held
+    under ``hold``, was extrapolated and offset past the float range (an infinite time
+    stamp was returned); times that overflow once offset from the first are refused."""
+    header = ["time", "jawOpen", "eyeBlinkLeft"]
+    rows = [["", "0.0", "0.0"], ["0.0"], ["8.98846567431158e+307"]]
+    with pytest.raises(BadInputError, match="line 4: expected a time stamp within float"):
+        read_arkit_csv(write_rows(tmp_path / "held.csv", header, rows), on_bad="hold")
+    rows = [["-1.7e308", "0"], ["1.7e308", "0"]]
+    with pytest.raises(BadInputError, match="line 3: expected a time stamp within float"):
+        read_arkit_csv(write_rows(tmp_path / "far.csv", header[:2], rows))
+
+
 def test_structural_errors(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("")
