@@ -97,6 +97,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
     import torch
 
     from head360cli.fitting.hair_class import (
+        HAIR_AREA_CM2,
         classify_hair,
         hair_colour,
         hidden_by_body,
@@ -136,7 +137,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
         alone.append(mask_iou(masks["parsed_no_prior"], masks["true_mask"]))
         valid = ~hidden_by_body(lm, (res, res))
         for key, mask in masks.items():
-            guess = classify_hair(mask, sil, valid, faces[key])
+            guess = classify_hair(mask, sil, valid, faces[key], HAIR_AREA_CM2)
             rank = guess.ranking
             hits[key][0] += rank[0] == head.hair_style
             hits[key][1] += head.hair_style in rank[:3]

@@ -117,6 +117,33 @@ def test_styles_with_the_same_silhouette_are_flagged():
     assert np.flatnonzero(classify_hair(hair, sil).same_as_first).tolist() == [19]
 
 
+def test_styles_that_tie_rank_least_hair_first():
+    """With ``hair_area`` the styles a view cannot tell apart rank by how much hair they
+    add (least first); without it, the lower id first. Styles that do not tie keep
+    their order whatever their area."""
+    from head360cli.fitting.hair_class import HAIR_AREA_CM2
+
+    hair = np.zeros((10, 10), bool)
+    hair[:4] = True
+    sil = np.zeros((30, 10, 10), bool)
+    sil[[19, 20, 21, 23], :4] = True  # the ponytails, the bun and the braid: one view
+    sil[1, :3] = True  # the buzz cut, less hair but a worse fit
+    assert classify_hair(hair, sil).ranking[:4] == [19, 20, 21, 23]
+    guess = classify_hair(hair, sil, hair_area=HAIR_AREA_CM2)
+    assert guess.ranking[:4] == [21, 19, 20, 23] and guess.ranking[4] == 1
+    assert np.flatnonzero(guess.same_as_first).tolist() == [19, 20, 21, 23]
+    area = np.arange(30, 0, -1.0)  # any order of areas: highest id least hair
+    assert classify_hair(hair, sil, hair_area=area).ranking[:5] == [23, 21, 20, 19, 1]
+
+
+def test_hair_area_table_is_what_the_meshes_measure():
+    from head360cli.fitting.hair_class import HAIR_AREA_CM2, measure_hair_areas
+
+    np.testing.assert_allclose(measure_hair_areas(), HAIR_AREA_CM2, atol=0.2)
+    assert HAIR_AREA_CM2[0] == 0.0  # bald
+    assert HAIR_AREA_CM2[21] < HAIR_AREA_CM2[19] == HAIR_AREA_CM2[20] < HAIR_AREA_CM2[23]
+
+
 def test_no_hair_pixels_rank_bald_first():
     sil = np.zeros((30, 8, 8), bool)
     sil[1:, 2:5, 2:5] = True
