@@ -38,6 +38,8 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
                                        "side part", "bangs"}
     assert s["hair_color_name"] in {"blonde", "light brown", "brown", "auburn"}
     assert s["hair_color_chosen_by"] == "render"  # she has hair, and it shows
+    # the style worn is the first of the ranking reported (made from the refined camera)
+    assert s["hair_candidates"][0]["id"] == s["hair_style"]["id"]
     from head360cli.synth.hair import HAIR_COLOURS
 
     np.testing.assert_allclose(s["hair_color"], HAIR_COLOURS[s["hair_color_name"]], atol=1e-4)
