@@ -388,37 +388,6 @@ def _hair_guess(img, parse, fit, model, landmarks: np.ndarray,
     return guess, estimate, name, np.asarray(HAIR_COLOURS[name], np.float32)
 
 
-def _hair_guess_refined(img, parse, fit, model, landmarks: np.ndarray, neutral: np.ndarray,
-                        posed: np.ndarray, c2w: np.ndarray, first, res: int = CLASSIFY_RES):
-    """The hairstyle ranking again, the styles seen from the inversion's refined camera
-    ``c2w (4, 4)`` instead of the landmark fit's (same parse, crop and scoring as
-    :func:`_hair_guess`); ``first``, that function's guess, when this one matches no
-    style.
-
-    The landmark fit leaves the camera a few degrees off (synthetic renders: +11 degrees
-    of pitch, +4 to +5 after the refinement), which is enough to change which style's
-    silhouette fits the parsed hair best. Held-out synthetic heads of corpus seeds 1, 2
-    and 3 (not the bench's seed 0), fast preset: the refined camera raised the chosen
-    style's IoU with the parsed hair on every head with hair and changed the style on
-    five of 13, four of them to the true style or one with its silhouette (crew cuts the
-    first camera had taken for a ponytail or the braid: +2.5 to +6.1 dB over 24 rig
-    views). Costs one set of silhouettes, about 0.5 s."""
-    from head360cli.fitting.hair_class import (
-        HAIR_AREA_CM2,
-        classify_hair,
-        style_silhouettes,
-    )
-    from head360cli.fitting.texture import crop_mask, photo_camera
-
-    k, affine = photo_camera(fit.rotation, fit.translation, fit.focal, fit.centre, res)[1:]
-    silhouettes = style_silhouettes(neutral, posed, model.faces, c2w, k, res)
-    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
-    valid &= _outside_body(landmarks, affine, res)
-    guess = classify_hair(crop_mask(parse.hair, affine, res), silhouettes, valid,
-                          crop_mask(parse.face, affine, res), HAIR_AREA_CM2)
-    return guess if guess.matched else first
-
-
 COLOUR_RENDER_SIZE = 128
 """Image size of the renders that compare candidate hair colours with the photo."""
 
@@ -505,10 +474,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     Stages: detection and shape fit; hair parsing; hairstyle classification and hair
     colour; the bald target (hair replaced by the model's bald render, Poisson-blended);
     neural-texture inversion; closed lids (a texture change that the blinks bring in, so
-    closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); the hairstyle
-    ranked again from the inversion's refined camera (:func:`_hair_guess_refined`); hair
-    placement (the style's mesh shifted to match the parsed hair from that camera);
-    preview.
+    closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); hair placement
+    (the style's mesh shifted to match the parsed hair from the fitted camera); preview.
     The parse runs in a second thread while the hairstyles' silhouettes and the
     inversion's mirror grid are made, so the summary's stage times add up to more than
     its total by that overlap. Writes ``out`` (``.h360``), ``<out stem>_preview.png``
@@ -642,13 +609,6 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         lids = head_lids(gen, model, fit.shape, inv.texture)
     timings["lids"] = 0.0 if lids is None else lids.seconds
 
-    t0 = time.perf_counter()
-    if hair_style is None and guess.matched:
-        # the style again, from the refined camera (the parse and colour stay)
-        guess = _hair_guess_refined(img, parse, fit, model, found.landmarks, neutral, posed,
-                                    inv.c2w.cpu().numpy(), guess)
-        style = guess.ranking[0]
-    timings["classify"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     offset, placed_iou, plain_iou = np.zeros(3), None, None
     if style != 0 and hair_placement:

@@ -38,7 +38,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
                                        "side part", "bangs"}
     assert s["hair_color_name"] in {"blonde", "light brown", "brown", "auburn"}
     assert s["hair_color_chosen_by"] == "render"  # she has hair, and it shows
-    # the style worn is the first of the ranking reported (made from the refined camera)
+    # the style worn is the first of the ranking reported
     assert s["hair_candidates"][0]["id"] == s["hair_style"]["id"]
     from head360cli.synth.hair import HAIR_COLOURS
 
