@@ -323,6 +323,9 @@ def classify_hair(hair: np.ndarray, silhouettes: np.ndarray,
     """
     from head360cli.fitting.hair_parse import mask_iou
 
+    if hair_area is not None and np.shape(hair_area) != (len(silhouettes),):
+        raise ValueError(f"expected hair_area of shape ({len(silhouettes)},), one per "
+                         f"silhouette, found {np.shape(hair_area)}")
     if valid is not None:
         hair, silhouettes = hair[valid], silhouettes[:, valid]
         face = None if face is None else face[valid]

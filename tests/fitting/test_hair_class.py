@@ -134,6 +134,8 @@ def test_styles_that_tie_rank_least_hair_first():
     assert np.flatnonzero(guess.same_as_first).tolist() == [19, 20, 21, 23]
     area = np.arange(30, 0, -1.0)  # any order of areas: highest id least hair
     assert classify_hair(hair, sil, hair_area=area).ranking[:5] == [23, 21, 20, 19, 1]
+    with pytest.raises(ValueError, match=r"hair_area of shape \(30,\).*found \(29,\)"):
+        classify_hair(hair, sil, hair_area=area[:29])
 
 
 def test_hair_area_table_is_what_the_meshes_measure():
