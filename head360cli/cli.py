@@ -785,11 +785,14 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--no-sweep", is_flag=True, help="Skip the inversion-steps sweep.")
 @click.option("--stability", default=3, show_default=True,
               help="Noisy copies of the first photo fitted again (0: none).")
+@click.option("--corpus-seed", default=0, show_default=True,
+              help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
+                   "for development).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
-                  stability: int, out_dir: str) -> None:
+                  stability: int, corpus_seed: int, out_dir: str) -> None:
     """Single-image fitting: hair parsing IoU, hairstyle accuracy, 72-view PSNR/SSIM of
     synthetic fits, face PSNR and dlib descriptor distance on real photos, time, and how
     far a fit moves when the photo moves by one grey level.
@@ -798,6 +801,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
     Examples:
       head360 bench fit
       head360 bench fit --preset fast --identities 1 --no-sweep --stability 0
+      head360 bench fit --preset fast --identities 6 --corpus-seed 1 --no-sweep
     """
     from head360cli.bench.fit import bench_fit
     from head360cli.bench.report import save
@@ -807,8 +811,11 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
         raise BadInputError(f"expected --identities >= 1, found {identities}")
     if stability < 0:
         raise BadInputError(f"expected --stability >= 0, found {stability}")
+    if corpus_seed < 0:
+        raise BadInputError(f"expected --corpus-seed >= 0, found {corpus_seed}")
     result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),
                            sweep=() if no_sweep else (5, 10, 20, 40), stability=stability,
+                           corpus_seed=corpus_seed,
                            progress=None if _settings().quiet else
                            (lambda t: click.echo(f"bench fit: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "fit")

@@ -228,6 +228,11 @@ def test_cpu_benches_say_that_device_is_not_used(run_cli):
     assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
 
 
+def test_bench_fit_refuses_a_negative_corpus_seed(run_cli):
+    r = run_cli("bench", "fit", "--corpus-seed", "-1")
+    assert r.code == 3 and "expected --corpus-seed >= 0, found -1" in r.err
+
+
 def test_bench_animate_refuses_a_fidelity_size_out_of_range(run_cli):
     r = run_cli("bench", "animate", "--fidelity-size", "32")
     assert r.code == 3

@@ -93,7 +93,7 @@ def _figaro_classes(data: Path) -> dict[str, Any]:
     return {"photos": len(labels), "with_face": len(rows), "agree": agree, "rows": rows}
 
 
-def _hair_style(views: int = 30) -> dict[str, Any]:
+def _hair_style(views: int = 30, seed: int = 0) -> dict[str, Any]:
     import torch
 
     from head360cli.fitting.hair_class import (
@@ -112,7 +112,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
 
     model = load_bilinear()
     res = 256
-    data = Views(views, split="test", size=res)
+    data = Views(views, split="test", seed=seed, size=res)
     c2w = camera_on_sphere(torch.tensor([10.0]), torch.tensor([5.0]), RIG_DISTANCE)
     # top-1, top-3, and top-1 counting a style whose silhouette is the true style's
     # (some styles differ only behind the head: nothing in the input view tells them apart)
@@ -156,7 +156,7 @@ def _hair_style(views: int = 30) -> dict[str, Any]:
                                                                       4)}
 
 
-def _hair_parse_no_face(heads: int = 30) -> dict[str, Any]:
+def _hair_parse_no_face(heads: int = 30, seed: int = 0) -> dict[str, Any]:
     """Hair IoU of the parse without a face on held-out corpus heads: back views (yaw 180,
     pitch 10) and close-ups (a crop of 0.6 times the hair's extent around its middle,
     seen from yaw 150, pitch 20), on four plain backdrops, at 256 x 256."""
@@ -167,7 +167,7 @@ def _hair_parse_no_face(heads: int = 30) -> dict[str, Any]:
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
     from head360cli.model.data import Views
 
-    data = Views(heads, split="test", size=384)
+    data = Views(heads, split="test", seed=seed, size=384)
     cams = camera_on_sphere(torch.tensor([180.0, 150.0]), torch.tensor([10.0, 20.0]),
                             RIG_DISTANCE)
     backdrops = np.array([(255, 255, 255), (40, 40, 40), (120, 140, 160), (200, 180, 150)])
@@ -195,7 +195,8 @@ def _hair_parse_no_face(heads: int = 30) -> dict[str, Any]:
             for k, v in ious.items()}
 
 
-def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
+def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0
+                   ) -> dict[str, Any]:
     import torch
     from PIL import Image
 
@@ -214,9 +215,9 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
     from head360cli.model.train import load_generator
 
     size = 512
-    data = Views(identities, split="test", size=size)  # the photos
+    data = Views(identities, split="test", seed=seed, size=size)  # the photos
     res = load_generator()[0].cfg.image_res
-    truth = Views(identities, split="test", size=res)  # ground truth at the output size
+    truth = Views(identities, split="test", seed=seed, size=res)  # ground truth, output size
     k = intrinsics_from_fov(RIG_FOV_DEG, res, res)
     rig, _, _ = rig72()
     k_in = intrinsics_from_fov(RIG_FOV_DEG, size, size)
@@ -259,7 +260,8 @@ def _synthetic_fit(identities: int, preset: str, work: Path) -> dict[str, Any]:
                                "pitch_landmarks", "pitch_refined", "seconds")}}
 
 
-def _known_geometry(identities: int, preset: str, every: int = 1) -> dict[str, Any]:
+def _known_geometry(identities: int, preset: str, every: int = 1, seed: int = 0
+                    ) -> dict[str, Any]:
     """The synthetic fit's heads with their true mesh, camera and hair: only the neural
     texture is inverted from the frontal render (preset ``preset``, no camera refinement,
     the photo's face pixels: the head's bald coverage less its hair), then PSNR over the 72
@@ -281,7 +283,7 @@ def _known_geometry(identities: int, preset: str, every: int = 1) -> dict[str, A
 
     gen, codes = load_generator()
     res = gen.cfg.image_res
-    views = Views(identities, split="test", size=res)
+    views = Views(identities, split="test", seed=seed, size=res)
     k = intrinsics_from_fov(RIG_FOV_DEG, res, res)
     rig, _, _ = rig72()
     cam_in = camera_on_sphere(torch.tensor([0.0]), torch.tensor([0.0]), RIG_DISTANCE)
@@ -472,8 +474,11 @@ def _stability(photo: Path, work: Path, draws: int) -> dict[str, Any]:
 
 def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"),
               sweep: tuple[int, ...] = (5, 10, 20, 40), stability: int = 3,
-              progress=None) -> tuple[dict, str]:
-    """Run every part that its data allows; returns ``(result, markdown)``."""
+              progress=None, corpus_seed: int = 0) -> tuple[dict, str]:
+    """Run every part that its data allows; returns ``(result, markdown)``. The
+    synthetic parts use the held-out heads of corpus seed ``corpus_seed`` (0: the
+    bench's; other seeds are for development, so that choices are not tuned on the
+    heads the bench reports)."""
     import torch
 
     from head360cli.paths import shared_data_dir
@@ -481,7 +486,7 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
     torch.manual_seed(0)
     say = progress or (lambda text: None)
     data = shared_data_dir()
-    result: dict[str, Any] = {"threads": torch.get_num_threads()}
+    result: dict[str, Any] = {"threads": torch.get_num_threads(), "corpus_seed": corpus_seed}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -490,16 +495,17 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
             result["hair_parse"] = _hair_parse(data)
             result["figaro_classes"] = _figaro_classes(data)
         say("hairstyle accuracy on held-out SynHead-P heads")
-        result["hair_style"] = _hair_style()
+        result["hair_style"] = _hair_style(seed=corpus_seed)
         say("hair parsing without a face on held-out SynHead-P heads")
-        result["hair_parse_no_face"] = _hair_parse_no_face()
+        result["hair_parse_no_face"] = _hair_parse_no_face(seed=corpus_seed)
         result["synthetic_fit"] = {}
         for preset in presets:
             say(f"synthetic fit, {preset}")
-            result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work)
+            result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work,
+                                                             corpus_seed)
             say(f"synthetic heads, true mesh, camera and hair, {preset}")
             result["synthetic_fit"][preset]["known_geometry"] = _known_geometry(
-                identities, preset)
+                identities, preset, seed=corpus_seed)
         if data is not None:
             photos = [data / "faces" / "astronaut.png",
                       data / "faces" / "Tom_Cruise_avp_2014_4.jpg",
@@ -540,6 +546,9 @@ def _pct(value: float | None) -> str:
 
 def _markdown(r: dict[str, Any]) -> str:
     lines = ["# head360 bench fit", ""]
+    if r.get("corpus_seed", 0) != 0:
+        lines += [f"Synthetic heads: held-out heads of corpus seed {r['corpus_seed']} "
+                  "(development heads, not the bench's seed 0).", ""]
     if "hair_parse" in r:
         lines += ["## Hair parsing (IoU of the hair mask)", "", "| data | photos | with a "
                   "face found | mean IoU | without the learned prior |", "|---|---|---|---|---|"]

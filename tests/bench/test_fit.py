@@ -145,3 +145,35 @@ def test_cold_fit_reports_the_commands_error(tmp_path):
     assert "no face found" in row["error"]
     slow = _cold_fit(photo, "fast", tmp_path, timeout=0.01)  # not even Python starts
     assert slow == {"photo": "blank.png", "error": "no result within 0 s"}
+
+
+def test_every_synthetic_part_uses_the_corpus_seed_asked_for(monkeypatch):
+    """``--corpus-seed`` reaches the hairstyle, no-face parse, synthetic-fit and
+    known-geometry parts (development heads, not the bench's), and the report says so."""
+    import head360cli.bench.fit as bench
+    import head360cli.paths
+
+    seen = []
+    monkeypatch.setattr(head360cli.paths, "shared_data_dir", lambda: None)
+    monkeypatch.setattr(bench, "_hair_style", lambda seed: seen.append(("style", seed)))
+    monkeypatch.setattr(bench, "_hair_parse_no_face",
+                        lambda seed: seen.append(("no_face", seed)))
+    monkeypatch.setattr(bench, "_synthetic_fit", lambda n, preset, work, seed: {
+        "seen": seen.append(("fit", seed))})
+    monkeypatch.setattr(bench, "_known_geometry",
+                        lambda n, preset, seed: seen.append(("known", seed)))
+    monkeypatch.setattr(bench, "_markdown", lambda r: f"seed {r['corpus_seed']}")
+    result, md = bench.bench_fit(identities=1, presets=("fast",), corpus_seed=2)
+    assert seen == [("style", 2), ("no_face", 2), ("fit", 2), ("known", 2)]
+    assert result["corpus_seed"] == 2 and md == "seed 2"
+
+
+def test_markdown_names_a_development_seed():
+    """A run on another corpus seed says its synthetic rows are not the bench's."""
+    r = {"corpus_seed": 1,
+         "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0}, "parsed_iou": 0.9},
+         "hair_parse_no_face": {"back_view": {"mean_iou": 0.9, "views": 2},
+                                "close_up": {"mean_iou": 0.9, "views": 2}},
+         "synthetic_fit": {}}
+    assert "held-out heads of corpus seed 1" in _markdown(r)
+    assert "corpus seed" not in _markdown({**r, "corpus_seed": 0})
