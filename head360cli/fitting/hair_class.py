@@ -277,9 +277,10 @@ least hair first (``hair_area`` of :func:`classify_hair`): the photo shows none 
 sets them apart, so the fit adds the least hair it cannot see. Before, the lowest id won
 such ties (ponytail high); on held-out synthetic heads of corpus seeds 1 and 2 (not the
 bench's) wearing short styles that the fit took for that group, the bun scored 1.2 to
-3.2 dB above a ponytail over 24 rig views (five heads), and in ``head360 fit`` over 18
-heads of seeds 1 to 3 the two that had worn ponytail high gained 3.2 and 2.0 dB over 72
-views (16.79 -> 17.08 dB for all 18; none of the development photos wears that group)."""
+3.2 dB above a ponytail over 24 rig views (five heads), and in ``head360 bench fit
+--corpus-seed 1`` (2, 3; six heads each) the two that had worn ponytail high gained 2.7
+and 1.7 dB over 72 views (17.00 -> 17.24 dB for all 18; none of the development photos
+wears that group)."""
 
 
 def measure_hair_areas() -> tuple[float, ...]:
