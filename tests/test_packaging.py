@@ -76,10 +76,10 @@ def _slug(heading: str) -> str:
     return text.replace(" ", "-")
 
 
-def test_readme_and_docs_links_resolve():
-    """Every relative link and picture in the README and docs/ names a file that exists,
-    and every #anchor one of that file's headings."""
-    pages = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+def test_readme_links_resolve():
+    """Every relative link and picture in the README and the model card names a file
+    that exists, and every #anchor one of that file's headings."""
+    pages = [REPO / "README.md", REPO / "models" / "MODEL_CARD.md"]
     checked = 0
     for page in pages:
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
