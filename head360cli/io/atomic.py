@@ -13,7 +13,38 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "commit_dir", "temp_dir_beside"]
+__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "commit_dir", "current_umask",
+           "temp_dir_beside", "temp_name_beside"]
+
+
+def current_umask() -> int:
+    """The process's file-creation mask (``0o022`` on most systems).
+
+    Read from ``/proc/self/status`` where Linux has it; elsewhere ``os.umask`` is set and
+    put back at once (the only portable way to read it).
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def temp_name_beside(target: Path) -> Path:
+    """A fresh temporary file name in ``target``'s folder, keeping its suffix; the file
+    does not exist, so whatever writes it creates it with the usual permissions (a
+    reserved ``mkstemp`` file would stay readable by its owner only)."""
+    parent = target.parent if str(target.parent) else Path(".")
+    fd, name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}",
+                                dir=parent)
+    os.close(fd)
+    os.unlink(name)
+    return Path(name)
 
 
 @contextlib.contextmanager
@@ -35,12 +66,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         from head360cli.errors import BadInputError
 
         raise BadInputError(f"output folder {str(parent)!r} does not exist")
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}", dir=parent
-    )
-    os.close(fd)
-    tmp = Path(tmp_name)
-    tmp.unlink()
+    tmp = temp_name_beside(target)
     try:
         yield tmp
         if not tmp.exists():
@@ -67,9 +93,13 @@ def check_dir_target(target: Path, overwrite: bool) -> None:
 
 
 def temp_dir_beside(target: Path) -> Path:
-    """A new empty temporary folder in the same parent as ``target``."""
+    """A new empty temporary folder in the same parent as ``target``, with the
+    permissions a plain ``mkdir`` would give it (``mkdtemp`` makes it private, and the
+    folder it becomes would stay so)."""
     parent = target.parent if str(target.parent) else Path(".")
-    return Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    os.chmod(tmp, 0o777 & ~current_umask())
+    return tmp
 
 
 def commit_dir(tmp: Path, target: Path) -> None:

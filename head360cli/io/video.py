@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
@@ -115,12 +114,9 @@ class VideoWriter:
             check_dir_target(self.path, self.overwrite)
             self._tmp = temp_dir_beside(self.path)
         else:
-            fd, name = tempfile.mkstemp(
-                prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}",
-                dir=self.path.parent,
-            )
-            os.close(fd)
-            self._tmp = Path(name)
+            from head360cli.io.atomic import temp_name_beside
+
+            self._tmp = temp_name_beside(self.path)
         return self
 
     def __exit__(

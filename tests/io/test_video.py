@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 import tracemalloc
 
 import numpy as np
@@ -159,3 +161,30 @@ def test_atomic_path_and_dir(tmp_path):
     with pytest.raises(BadInputError, match="does not exist"):
         atomic_path(tmp_path / "no" / "x").__enter__()
     assert not (tmp_path / "no").exists()
+
+
+@pytest.fixture
+def umask_027():
+    """Run with a umask that a shared machine might set, then put the old one back."""
+    old = os.umask(0o027)
+    yield 0o027
+    os.umask(old)
+
+
+@pytest.mark.parametrize("name", ["clip.mp4", "clip.gif", "frames/"])
+def test_outputs_get_the_usual_permissions(tmp_path, umask_027, name):
+    """Videos, GIFs and frame folders are created as a plain write would create them
+    (the temporary file or folder they start as is private): 0o640 files, 0o750
+    folders under umask 027."""
+    from head360cli.io.atomic import current_umask
+
+    assert current_umask() == umask_027
+    write_video(frames(3), tmp_path / name, fps=10)
+    out = tmp_path / name.rstrip("/")
+    assert stat.S_IMODE(out.stat().st_mode) == (0o750 if out.is_dir() else 0o640)
+    with atomic_dir(tmp_path / "d") as d:
+        (d / "x").write_text("1")
+    assert stat.S_IMODE((tmp_path / "d").stat().st_mode) == 0o750
+    with atomic_path(tmp_path / "a.txt") as tmp:
+        tmp.write_text("done")
+    assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o640
