@@ -153,9 +153,10 @@ class ArkitStream:
         if end is not None:
             keep &= t < end
         if not keep.any():
+            span = (f"from {start} s" if end is None else f"before {end} s" if start is None
+                    else f"from {start} s to {end} s")
             raise BadInputError(
-                f"expected frames between {start} s and {end} s, found none "
-                f"(the stream lasts {self.duration:.3f} s)"
+                f"expected frames {span}, found none (the stream lasts {self.duration:.3f} s)"
             )
         return self._take(keep)
 
