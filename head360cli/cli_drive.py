@@ -108,8 +108,8 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
 @cli.command()
 @click.argument("head", type=_HEAD)
 @click.option("-o", "--out", required=True, type=click.Path(),
-              help="Output: .png for a view or a grid; .mp4, .gif or a folder for "
-              "--turntable.")
+              help="Output: .png (or .jpg) for a view or a grid; .mp4, .gif or a folder "
+              "for --turntable.")
 @click.option("--turntable", is_flag=True, help="A video turning once around the head.")
 @click.option("--frames", default=48, show_default=True, help="Turntable frames.")
 @click.option("--fps", default=24.0, show_default=True, help="Turntable frame rate.")
@@ -158,8 +158,10 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         raise BadInputError("expected --turntable or --views, found both")
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
-    if not turntable and Path(out).suffix.lower() != ".png":
-        raise BadInputError(f"expected a .png output for a view, found {out!r} (use "
+    image_format = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(
+        Path(out).suffix.lower())
+    if not turntable and image_format is None:
+        raise BadInputError(f"expected a .png or .jpg output for a view, found {out!r} (use "
                             "--turntable for a video)")
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
@@ -178,7 +180,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     image = frames_[0] if len(pairs) == 1 else grid_image(
         frames_, [f"{y:g}/{p:g}" for y, p in pairs], cols=min(len(pairs), 6))
     with atomic_path(out) as tmp:
-        Image.fromarray(image).save(tmp, format="PNG")
+        Image.fromarray(image).save(tmp, format=image_format,
+                                    **({"quality": 95} if image_format == "JPEG" else {}))
     _emit({"out": out, "views": [list(p) for p in pairs]},
           f"wrote {out} ({len(pairs)} view{'s' if len(pairs) > 1 else ''})")
 

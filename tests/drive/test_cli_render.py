@@ -24,6 +24,13 @@ def test_render_view_grid_and_expression(run_cli, head_file, tmp_path):
             "--expr", "JawOpen=1", "-o", tmp_path / "jaw.png")
     jaw = np.asarray(Image.open(tmp_path / "jaw.png")).astype(int)
     assert np.abs(jaw - neutral).max() > 40  # the mouth opened
+    # a JPEG of the same view: the same picture to compression's error
+    r = run_cli("render", head_file, "--yaw", "30", "--size", "64", "--samples", "4",
+                "-o", tmp_path / "v.jpg")
+    assert r.code == 0, r.err
+    jpeg = Image.open(tmp_path / "v.jpg")
+    assert jpeg.format == "JPEG" and jpeg.size == (64, 64)
+    assert np.abs(np.asarray(jpeg).astype(int) - neutral).mean() < 3
 
 
 def test_render_turntable_and_errors(run_cli, head_file, tmp_path):
