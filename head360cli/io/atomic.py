@@ -39,9 +39,8 @@ def temp_name_beside(target: Path) -> Path:
     """A fresh temporary file name in ``target``'s folder, keeping its suffix; the file
     does not exist, so whatever writes it creates it with the usual permissions (a
     reserved ``mkstemp`` file would stay readable by its owner only)."""
-    parent = target.parent if str(target.parent) else Path(".")
     fd, name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}",
-                                dir=parent)
+                                dir=target.parent)
     os.close(fd)
     os.unlink(name)
     return Path(name)
@@ -61,7 +60,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         The temporary path to write to. It does not exist yet.
     """
     target = Path(target)
-    parent = target.parent if str(target.parent) else Path(".")
+    parent = target.parent
     if not parent.is_dir():
         from head360cli.errors import BadInputError
 
@@ -81,7 +80,7 @@ def check_dir_target(target: Path, overwrite: bool) -> None:
     """Refuse a folder target that is a file or a non-empty folder (unless ``overwrite``)."""
     from head360cli.errors import BadInputError
 
-    parent = target.parent if str(target.parent) else Path(".")
+    parent = target.parent
     if not parent.is_dir():
         raise BadInputError(f"output folder {str(parent)!r} does not exist")
     if target.exists() and not target.is_dir():
@@ -96,8 +95,7 @@ def temp_dir_beside(target: Path) -> Path:
     """A new empty temporary folder in the same parent as ``target``, with the
     permissions a plain ``mkdir`` would give it (``mkdtemp`` makes it private, and the
     folder it becomes would stay so)."""
-    parent = target.parent if str(target.parent) else Path(".")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
     os.chmod(tmp, 0o777 & ~current_umask())
     return tmp
 
