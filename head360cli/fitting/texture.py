@@ -54,7 +54,19 @@ class InvertConfig:
     refinement had not settled in 20 steps. The fast preset takes 30 at ``code_samples``
     4 (see there)."""
     steps: int = 16
-    """Most steps optimising the neural texture."""
+    """Most steps optimising the neural texture. The stopping rule rarely ends a fast fit
+    early, so more steps cost time in proportion (stop 57, nine development photos: five
+    AFLW2000-3D, three VOC, dlib's bald_guys; every fit ran all its steps). 16 -> 20 ->
+    24 took their face PSNR from 24.87 to 25.42 and 25.82 dB (every photo up at 24) and
+    the dlib descriptor distance of the frontal render from 0.446 to 0.424 and 0.420
+    (five of eight renders closer at 20), for 0.5 and 1.1 s more inversion, but the
+    eyes' detail that buys it costs the blinks: dlib's eye opening over a blink ramp of
+    0 to 1 (front view, eight heads) followed it at a mean r of -0.90 / -0.90 with 16
+    steps and -0.86 / -0.84 with 20 (five heads worse, two better; the jaw 0.81 ->
+    0.84), and holding the eyes' texels near the generated texture (``near`` 25 times
+    over them) lost the descriptor gain (0.449) and turned one head's blink the wrong
+    way. A faster rate at 16 steps (``lr_texture`` 0.4) gained nothing (24.95 dB,
+    0.448). Both presets keep their counts."""
     samples: int = 6
     """Samples per ray while fitting (the generator's own count is used for output)."""
     code_samples: int | None = None
