@@ -23,6 +23,7 @@ from types import TracebackType
 import numpy as np
 
 from head360cli.errors import BadInputError
+from head360cli.io.atomic import check_dir_target, commit_dir, temp_dir_beside, temp_name_beside
 
 __all__ = ["VIDEO_SUFFIXES", "VideoWriter", "output_kind", "write_video"]
 
@@ -109,13 +110,9 @@ class VideoWriter:
     # -- context management
     def __enter__(self) -> VideoWriter:
         if self.kind == "png":
-            from head360cli.io.atomic import check_dir_target, temp_dir_beside
-
             check_dir_target(self.path, self.overwrite)
             self._tmp = temp_dir_beside(self.path)
         else:
-            from head360cli.io.atomic import temp_name_beside
-
             self._tmp = temp_name_beside(self.path)
         return self
 
@@ -137,8 +134,6 @@ class VideoWriter:
                 raise BadInputError(f"no frames were given for {str(self.path)!r}")
             if not failed and self._tmp is not None:
                 if self.kind == "png":
-                    from head360cli.io.atomic import commit_dir
-
                     commit_dir(self._tmp, self.path)
                 else:
                     os.replace(self._tmp, self.path)
