@@ -584,7 +584,7 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
 @click.option("--rounds", default=3, show_default=True,
               help="Timed blocks per row, the backends taking turns.")
 @click.option("--onnx", "graph", default=None, type=click.Path(dir_okay=False),
-              help="Use this exported graph (default: export one, about 3 minutes on "
+              help="Use this exported graph (default: export one, about 80 seconds on "
                    "2 CPU cores).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
