@@ -101,11 +101,13 @@ def _tidy(model) -> None:
 
     These are the parts of torch's default post-export optimisation (onnxscript's
     optimizer) that shrink the graph; its pattern rewriter, which took about 23 s of the
-    65 s a 256-pixel hair graph took to export on 2 CPU cores, is left out. Measured at
-    stop 58 on that graph: onnxruntime renders the same pixels (largest difference 0) at
-    the same speed (225-233 ms a frame, medians of 8 interleaved blocks, all three within
-    the noise), and without the folding onnxruntime warns that it cannot fold ``CastLike``
-    nodes each time it loads the graph."""
+    65 s a 256-pixel hair graph took to export on 2 CPU cores, is left out (both graphs
+    at 256 pixels and 8 samples: 73-80 s instead of 143 s). Measured at stop 58 on the
+    hair graph: onnxruntime renders the same pixels as from the fully optimised one
+    (largest difference 0) at the same speed (medians of 16 interleaved blocks of 4
+    frames, two runs: 255 and 287 ms a frame against 251 and 281 ms, within this
+    machine's noise). Without the folding, onnxruntime warns that it cannot fold
+    ``CastLike`` nodes each time it loads the graph."""
     from onnx_ir.passes.common import DeduplicateInitializersPass, LiftConstantsToInitializersPass
     from onnxscript.optimizer import fold_constants, remove_unused_nodes
 
