@@ -66,8 +66,8 @@ class LidConfig:
     what dlib reads as a closed lid: at stop 58, on eight development heads (fast-preset
     fits of AFLW2000-3D 01322, 02283, 02545, 03614, VOC 2008_001322, 2008_002506,
     2009_004587 and bald_guys; front view, blink ramps of 21 frames, dlib's eye opening
-    against the blink) the mean correlation over blinks 0 to 0.6 was -0.81 / -0.83
-    (left / right) at 0.25, -0.86 / -0.84 at 0.1, -0.87 / -0.84 at 0, and fell to
+    against the blink, both eyes) the mean correlation over blinks 0 to 0.6 was -0.81 /
+    -0.83 at 0.25, -0.86 / -0.84 at 0.1, -0.87 / -0.84 at 0, and fell to
     -0.60 / -0.58 at 0.5; over 0 to 1 it was -0.90 / -0.91 at 0.25 and -0.91 / -0.90 at
     0.1. A thinner line (2 pixels) lost as much as a lighter one (-0.60 / -0.56), a 4-pixel
     one gained nothing (-0.81 / -0.81)."""
