@@ -189,8 +189,8 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     gen = renderer.gen
     t0 = time.perf_counter()
     files = []
-    # torch 2.6 and later optimise the graph after the export unless told not to; _tidy
-    # does the part of that which matters here, faster.
+    # An exporter with an ``optimize`` argument (torch 2.13 here) optimises the graph
+    # afterwards unless told not to; _tidy does the part of that which matters, faster.
     tidy = "optimize" in inspect.signature(torch.onnx.export).parameters
     kwargs = {"optimize": False} if tidy else {}
     from head360cli.fitting.pipeline import generator_hash
