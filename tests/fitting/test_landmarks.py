@@ -104,3 +104,50 @@ def test_only_the_chosen_face_is_averaged():
     for rank in [0, *range(2, len(chosen))]:
         np.testing.assert_array_equal(chosen[rank].landmarks, plain[rank].landmarks)
     assert not np.array_equal(every[0].landmarks, plain[0].landmarks)
+
+
+def test_auto_falls_back_to_the_cnn_detector_on_a_cut_face():
+    """The astronaut cut off above the brows (as hair close-ups cut faces): HOG finds no
+    face, ``auto`` finds it with the CNN detector, and its landmarks land where the
+    whole photo's do (measured 1.1 px mean); a whole face never reaches the fallback."""
+    import skimage.data
+
+    from head360cli.fitting.landmarks import LandmarkDetector
+
+    img = skimage.data.astronaut()
+    whole = LandmarkDetector("hog").detect(img)
+    assert whole and LandmarkDetector().detect(img)[0].detector == "hog"
+    cut = np.ascontiguousarray(img[100:350, 100:340])
+    assert LandmarkDetector("hog").detect(cut) == []
+    found = LandmarkDetector().detect_one(cut)
+    assert found.detector == "cnn"
+    err = np.linalg.norm(found.landmarks - (whole[0].landmarks - [100, 100]), axis=1).mean()
+    assert err < 3.0, err
+
+
+def test_scaled_detection_boxes_are_in_the_images_pixels():
+    """``max_side`` detects on a smaller copy; its boxes are mapped back to the image
+    (HOG's box sizes come in steps, so the box moves by up to 7 px of its 90, measured;
+    boxes left at the copy's scale would be 58 px off) and the landmarks stay put."""
+    import skimage.data
+
+    from head360cli.fitting.landmarks import LandmarkDetector
+
+    img = skimage.data.astronaut()
+    full = LandmarkDetector("hog", average=False).detect_one(img)
+    half = LandmarkDetector("hog", average=False, max_side=384).detect_one(img)
+    assert np.abs(np.subtract(full.box, half.box)).max() < 0.12 * (full.box[2] - full.box[0])
+    assert np.linalg.norm(full.landmarks - half.landmarks, axis=1).mean() < 3.0
+
+
+def test_bad_detector_names_and_no_face_hints():
+    from head360cli.errors import BadInputError, NoFaceError
+    from head360cli.fitting.landmarks import LandmarkDetector
+
+    with pytest.raises(BadInputError, match="expected detector auto, hog or cnn, found 'x'"):
+        LandmarkDetector("x")
+    wall = np.full((120, 160, 3), 128, np.uint8)
+    with pytest.raises(NoFaceError, match="neither HOG nor"):
+        LandmarkDetector().detect_one(wall)
+    with pytest.raises(NoFaceError, match="try --detector cnn"):
+        LandmarkDetector("hog").detect_one(wall)
