@@ -443,7 +443,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 @click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
               type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
-@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="auto",
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
               show_default=True, help=DETECTOR_HELP)
 @NO_PRIOR
 @common_options

@@ -180,20 +180,6 @@ SMALL_FACE_PX = 60
 """Faces narrower than this are fitted with a warning (blurry texture): the fit's 256-pixel
 crop shows a face about 90 pixels wide, so such a face is upsampled 1.5 times or more."""
 
-PARSE_DETECTOR = "auto"
-"""The default face detector of ``parse-hair`` (``fit`` and ``classify-hair`` use
-``hog``). Hair photos often cut the face at the frame's edge, where HOG misses it, and a
-photo parsed without a face seeds the hair with the colours of its centre, which there are
-the face's. On development close-ups (corpus seed 1, 10 held-out heads, three views each,
-cropped to 0.56 of the head's extent, over plain and photographic backdrops; stop 60) HOG
-found 14 of 27 faces and the CNN detector the other 13, whose hair IoU went from 0.067
-(parsed without a face) to 0.915, all views' from 0.521 to 0.929; neither detector found a
-face in 87 back and three-quarter-back views of the same heads. ``fit`` does not fall
-back by default: the faces only the CNN detector finds include profiles whose landmarks
-dlib's predictor cannot place (AFLW2000-3D image00251, turned 55 degrees: found, its
-landmarks 42 % of the face's size off, the fit frontal), and a fit refuses rather than
-fitting a wrong face; for a parse a roughly placed face still beats none."""
-
 CONFIDENT_FACE = 0.5
 """HOG detector score from which a face counts for the several-faces warning (the
 astronaut's mission patch scores 0.12; the faces of dlib's example photos 0.4 to 3)."""
@@ -274,8 +260,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
 
 
 def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
-                detector: str = PARSE_DETECTOR, learned_prior: bool = True
-                ) -> dict[str, Any]:
+                detector: str = "hog", learned_prior: bool = True) -> dict[str, Any]:
     """``head360 parse-hair``: hair and face masks of a photo (PNG, 255 inside, at the
     photo's size on disk) and an overlay (hair red, face blue).
 
@@ -509,9 +494,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         face: Face number (0 = largest).
         detector: ``hog`` (for photos up to 2000 pixels, again at twice the size when
             it finds none), ``cnn``, or ``auto``: ``hog``, then the CNN detector on a
-            copy at most ``FALLBACK_SIDE`` pixels long. Not ``auto`` by default: the
-            faces only the CNN detector finds are often turned beyond what dlib's
-            landmark predictor can place (see :data:`PARSE_DETECTOR`).
+            copy at most ``FALLBACK_SIDE`` pixels long (not the default: see
+            :mod:`head360cli.fitting.landmarks`).
         focal: Focal length in pixels of the photo on disk (default: EXIF or 50 mm).
         device: Torch device for the generator.
         hair_style: Force a hairstyle id instead of the classifier's choice.

@@ -53,8 +53,9 @@ def test_known_geometry_inverts_the_texture_alone():
 
 def test_markdown_lists_every_part():
     r = {"hair_parse": {"figaro": {"photos": 2, "with_face": 0, "mean_iou": 0.5},
-                        "celebamask": {"photos": 3, "with_face": 3, "mean_iou": 0.7,
-                                       "mean_iou_no_prior": 0.6}},
+                        "celebamask": {"photos": 3, "with_face": 2, "mean_iou": 0.7,
+                                       "mean_iou_no_prior": 0.6, "mean_iou_auto": 0.65,
+                                       "face_by_cnn": 1}},
          "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0,
                                       "top1_same_silhouette": 0.95},
                         "parsed_mask": {"top1": 0.5, "top3": 0.8},
@@ -81,7 +82,8 @@ def test_markdown_lists_every_part():
                                 {"seed": 1, "psnr_face": 20.5, "psnr_face_bald": 25.25,
                                  "hair": "lob", "colour": "black"}]}}
     md = _markdown(r)
-    for text in ("| figaro | 2 | 0 | 0.500 | - |", "| celebamask | 3 | 3 | 0.700 | 0.600 |",
+    for text in ("| figaro | 2 | 0 | 0.500 | - | - |",
+                 "| celebamask | 3 | 2 | 0.700 | 0.600 | 0.650 (1) |",
                  "| true | 90.00% | 100.00% | 95.00% | - |",
                  "| parsed without the learned prior | 40.00% | 70.00% | - | - |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 | +9.9 / +4.5 | 27.00 | 26.00 |",

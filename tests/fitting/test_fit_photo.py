@@ -121,10 +121,11 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
 
 
 def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):
-    """The astronaut cut off below the nose, as hair close-ups cut faces: HOG finds no
-    face, parse-hair's default finds it with the CNN detector, and its hair mask agrees
-    with the whole photo's parse over the same window (measured IoU 0.973); parsed by
-    colour alone (``--detector hog``) it agrees less (0.669: the face's colours seed it)."""
+    """The astronaut cut off below the nose, as hair close-ups cut faces: HOG (the
+    default) finds no face and parses by colour alone, which agrees with the whole
+    photo's parse over the same window at IoU 0.669 (measured: the face's colours seed
+    the hair); ``--detector auto`` finds the face with the CNN detector and agrees at
+    0.973."""
     from skimage import data
 
     from head360cli.fitting.hair_parse import mask_iou
@@ -143,12 +144,12 @@ def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):
 
     out, ref = parse(whole)
     assert out["face_detector"] == "hog"
-    out, found = parse(cut)
-    assert out["seeded"] is True and out["face_detector"] == "cnn"
-    assert mask_iou(found, ref[:140, 80:360]) > 0.9
-    out, alone = parse(cut, "--detector", "hog")
+    out, alone = parse(cut)
     assert out["seeded"] is False and out["face_detector"] is None
     assert mask_iou(alone, ref[:140, 80:360]) < 0.8
+    out, found = parse(cut, "--detector", "auto")
+    assert out["seeded"] is True and out["face_detector"] == "cnn"
+    assert mask_iou(found, ref[:140, 80:360]) > 0.9
 
 
 def test_demo_writes_a_turntable(run_cli, tmp_path):

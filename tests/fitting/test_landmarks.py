@@ -116,10 +116,10 @@ def test_auto_falls_back_to_the_cnn_detector_on_a_cut_face():
 
     img = skimage.data.astronaut()
     whole = LandmarkDetector("hog").detect(img)
-    assert whole and LandmarkDetector().detect(img)[0].detector == "hog"
+    assert whole and LandmarkDetector("auto").detect(img)[0].detector == "hog"
     cut = np.ascontiguousarray(img[100:350, 100:340])
     assert LandmarkDetector("hog").detect(cut) == []
-    found = LandmarkDetector().detect_one(cut)
+    found = LandmarkDetector("auto").detect_one(cut)
     assert found.detector == "cnn"
     err = np.linalg.norm(found.landmarks - (whole[0].landmarks - [100, 100]), axis=1).mean()
     assert err < 3.0, err
@@ -148,6 +148,6 @@ def test_bad_detector_names_and_no_face_hints():
         LandmarkDetector("x")
     wall = np.full((120, 160, 3), 128, np.uint8)
     with pytest.raises(NoFaceError, match="neither HOG nor"):
-        LandmarkDetector().detect_one(wall)
+        LandmarkDetector("auto").detect_one(wall)
     with pytest.raises(NoFaceError, match="try --detector cnn"):
         LandmarkDetector("hog").detect_one(wall)
