@@ -86,7 +86,8 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     """
     from PIL import Image
 
-    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting.landmarks import TURNED_SIDE, LandmarkDetector, no_face_hint
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
@@ -101,16 +102,21 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     fitter = ShapeFitter(model)
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    if face != "all" and int(face) < 0:
+        raise BadInputError(f"expected a face number >= 0, found {face}")
     det = LandmarkDetector(detector)
+    faces = det.detect(img.pixels, only=None if face == "all" else int(face))
+    if not faces and detector != "cnn":  # a face tilted in the photo: turned copies
+        faces = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(img.pixels)
+    if not faces:
+        raise NoFaceError(f"no face found in the image{no_face_hint(detector)}")
     if face == "all":
-        faces = det.detect(img.pixels)
-        if not faces:
-            det.detect_one(img.pixels)  # raises the no-face error
         chosen = list(enumerate(faces))
     else:
-        if int(face) < 0:
-            raise BadInputError(f"expected a face number >= 0, found {face}")
-        chosen = [(int(face), det.detect_one(img.pixels, int(face)))]
+        if int(face) >= len(faces):
+            raise NoFaceError(f"expected a face number {face}, found only {len(faces)} "
+                              "face(s)")
+        chosen = [(int(face), faces[int(face)])]
     timings["detect"] = time.perf_counter() - t0
 
     full_w, full_h = img.source_size
@@ -122,7 +128,8 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     results = []
     for index, found in chosen:
         t0 = time.perf_counter()
-        fit = fitter.fit(found.landmarks, img.size, focal=f_disk * scale, distance=distance)
+        fit = fitter.fit(found.landmarks, img.size, focal=f_disk * scale, distance=distance,
+                         turn=found.turn)
         t_fit = time.perf_counter() - t0
         t0 = time.perf_counter()
         verts = model.vertices(fit.shape, fit.expression)
@@ -148,6 +155,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
             "face": index,
             "image_size": [full_w, full_h],
             "face_box": [round(c / scale, 2) for c in found.box],
+            "face_turn_degrees": found.turn,
             "landmarks_detected": (found.landmarks / scale).round(2).tolist(),
             "landmarks_fitted": (fit.landmarks_fitted / scale).round(2).tolist(),
             "shape": fit.shape.round(6).tolist(),
@@ -204,11 +212,17 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
 
     Raises:
         NoFaceError: No face (after a second try with the image upsampled, for small
-            images), or fewer faces than ``face + 1``.
+            images, and, unless ``detector`` is ``cnn``, in copies of it turned by
+            ``TURNS``), or fewer faces than ``face + 1``.
         BadInputError: A face narrower than :data:`MIN_FACE_PX`.
     """
     from head360cli.errors import BadInputError, NoFaceError
-    from head360cli.fitting.landmarks import FALLBACK_SIDE, LandmarkDetector, no_face_hint
+    from head360cli.fitting.landmarks import (
+        FALLBACK_SIDE,
+        TURNED_SIDE,
+        LandmarkDetector,
+        no_face_hint,
+    )
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.images import load_image
     from head360cli.mesh.bilinear import load_bilinear
@@ -226,6 +240,8 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     if not faces and detector == "auto":  # large hard faces: the CNN detector, scaled
         faces = LandmarkDetector("cnn", upsample=0, max_side=FALLBACK_SIDE).detect(
             img.pixels, only=face)
+    if not faces and detector != "cnn":  # a face tilted in the photo: turned copies
+        faces = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(img.pixels)
     timings["detect"] = time.perf_counter() - t0
     if not faces:
         raise NoFaceError(f"no face found in the image{no_face_hint(detector)}")
@@ -249,7 +265,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     full_w, full_h = img.source_size
     f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
     fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale,
-                                 distance=distance)
+                                 distance=distance, turn=found.turn)
     timings["shape"] = time.perf_counter() - t0
     yaw = fit.euler_degrees()["yaw"]
     if abs(yaw) > PROFILE_YAW:
@@ -705,6 +721,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "image_size": list(img.source_size),
         "face_width": round(float(found.box[2] - found.box[0]) / img.scale, 1),
         "face_detector": found.detector,
+        "face_turn_degrees": found.turn,
         "warnings": warnings,
         "timings": {k_: round(v, 3) for k_, v in timings.items()},
         "files": {k_: str(v) for k_, v in paths.items()},

@@ -354,7 +354,7 @@ class ShapeFitter:
     # ----------------------------------------------------------------- public
     def fit(self, landmarks2d: np.ndarray, image_size: tuple[int, int],
             focal: float | None = None, weights: np.ndarray | None = None,
-            distance: float | None = None) -> ShapeFit:
+            distance: float | None = None, turn: float = 0.0) -> ShapeFit:
         """Fit pose, identity and expression to 68 landmarks.
 
         Args:
@@ -368,6 +368,14 @@ class ShapeFitter:
                 known. Landmarks alone hardly tell a small head near the camera from a
                 large one further away (the perspective cue is weak at a metre); a known
                 distance fixes the head's size. ``None``: free.
+            turn: Degrees (counter-clockwise on screen) that turn the image so that the
+                face is about upright (a face found in a turned copy,
+                :attr:`~head360cli.fitting.landmarks.DetectedFace.turn`). The fit runs on
+                the landmarks turned so about the principal point, which is the same
+                camera rolled about its axis, and its pose is rolled back: the jawline's
+                sliding reads the outline across the image's rows, so a head lying on
+                its side fitted as it lies gets the wrong outline (the astronaut turned
+                90 degrees: yaw 6.8 degrees instead of -3.4).
 
         Raises:
             BadInputError: Landmarks of the wrong shape, non-finite, or degenerate (all in
@@ -377,6 +385,8 @@ class ShapeFitter:
         t0 = time.perf_counter()
         uv_in = np.asarray(landmarks2d, dtype=np.float64)
         self._check(uv_in)
+        if turn:
+            return self._fit_turned(uv_in, image_size, focal, weights, distance, turn)
         if distance is not None and not (np.isfinite(distance) and distance > 0):
             raise BadInputError(f"expected a positive camera distance in metres, found "
                                 f"{distance}")
@@ -447,6 +457,21 @@ class ShapeFitter:
         return ShapeFit(shape=s, expression=w, rotation=rot, translation=t, focal=f,
                         centre=centre, landmarks_fitted=fitted[self.unorder],
                         landmark_vertices=vertices[self.unorder], timings=timings)
+
+    def _fit_turned(self, uv: np.ndarray, image_size: tuple[int, int], focal, weights,
+                    distance, turn: float) -> ShapeFit:
+        """:meth:`fit` of ``uv`` turned by ``turn`` degrees about the principal point,
+        rolled back: a roll ``q`` of the camera about its axis turns every projection by
+        the same angle about the principal point, so ``R = q^T R'`` and ``t = q^T t'``."""
+        centre = np.array([image_size[0] / 2.0, image_size[1] / 2.0])
+        c, s_ = np.cos(np.radians(turn)), np.sin(np.radians(turn))
+        a = np.array([[c, s_], [-s_, c]])  # cv2's turn: x right, y down, counter-clockwise
+        fit = self.fit((uv - centre) @ a.T + centre, image_size, focal, weights, distance)
+        q = np.eye(3)
+        q[:2, :2] = a
+        return dataclasses.replace(
+            fit, rotation=q.T @ fit.rotation, translation=q.T @ fit.translation,
+            landmarks_fitted=(fit.landmarks_fitted - centre) @ a + centre)
 
     @staticmethod
     def _at_distance(rot: np.ndarray, t: np.ndarray, distance: float | None) -> np.ndarray:

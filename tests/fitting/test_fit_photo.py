@@ -152,6 +152,29 @@ def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):
     assert mask_iou(found, ref[:140, 80:360]) > 0.9
 
 
+def test_a_face_lying_on_its_side_fits_like_the_upright_one(run_cli, astronaut, tmp_path):
+    """The astronaut turned a quarter turn (the same square image): HOG finds no face as
+    it lies, the fit finds it in a turned copy and fits it in that frame, so its yaw and
+    pitch are the upright photo's and its roll a quarter turn away (to rounding: the
+    quarter turn moves no pixel's value)."""
+    from head360cli.fitting.landmarks import turned_image
+
+    lying = tmp_path / "lying.png"
+    Image.fromarray(turned_image(np.array(Image.open(astronaut).convert("RGB")), -90.0)[0]
+                    ).save(lying)
+
+    def shape(photo):
+        r = run_cli("fit", "--stage", "shape", photo, "-o", tmp_path / photo.stem, "--json")
+        assert r.code == 0, r.err
+        return json.loads(r.out)
+
+    a, b = shape(astronaut), shape(lying)
+    assert a["face_turn_degrees"] == 0.0 and b["face_turn_degrees"] == 90.0
+    assert abs(a["pose"]["yaw"] - b["pose"]["yaw"]) < 0.01
+    assert abs(a["pose"]["pitch"] - b["pose"]["pitch"]) < 0.01
+    assert abs(b["pose"]["roll"] - a["pose"]["roll"] - 90.0) < 0.01
+
+
 def test_demo_writes_a_turntable(run_cli, tmp_path):
     import imageio
 
