@@ -38,14 +38,10 @@ __all__ = ["bench_fit", "noisy_copy"]
 def _hair_parse(data: Path) -> dict[str, Any]:
     import cv2
 
-    from head360cli.errors import NoFaceError
     from head360cli.fitting.hair_parse import mask_iou, parse_hair
-    from head360cli.fitting.landmarks import FALLBACK_SIDE, LandmarkDetector
+    from head360cli.fitting.pipeline import face_to_parse
     from head360cli.io.images import load_image
 
-    det = LandmarkDetector("hog")  # parse-hair's default
-    # --detector auto: the CNN detector, scaled, where HOG finds no face
-    fallback = LandmarkDetector("cnn", upsample=0, max_side=FALLBACK_SIDE)
     out: dict[str, Any] = {}
     for name, pattern, truth in (("figaro", "*-org.jpg", lambda p: p.with_name(
             p.name.replace("-org.jpg", "-gt.pbm"))), ("celebamask", "*.jpg", lambda p:
@@ -55,16 +51,16 @@ def _hair_parse(data: Path) -> dict[str, Any]:
             img = load_image(photo).pixels
             gt = cv2.imread(str(truth(photo)), 0)
             gt = cv2.resize(gt, img.shape[1::-1], interpolation=cv2.INTER_NEAREST) > 127
-            try:
-                lm = det.detect_one(img).landmarks
-                seeded += 1
-            except NoFaceError:
-                lm = None
+            found = face_to_parse(img)  # as parse-hair: HOG, then turned copies
+            lm = None if found is None else found.landmarks
+            seeded += lm is not None
             ious.append(mask_iou(parse_hair(img, lm).hair, gt))
-            found = fallback.detect(img, only=0) if lm is None else []
-            by_cnn += bool(found)
-            auto.append(mask_iou(parse_hair(img, found[0].landmarks).hair, gt) if found
-                        else ious[-1])
+            # parse-hair --detector auto: the CNN detector where HOG finds no face
+            auto_found = face_to_parse(img, detector="auto") if lm is None else found
+            by_cnn += auto_found is not None and auto_found.detector == "cnn"
+            auto.append(ious[-1] if auto_found is found else
+                        mask_iou(parse_hair(img, auto_found.landmarks if auto_found
+                                            else None).hair, gt))
             # without the learned prior (it is only used with a face)
             alone.append(ious[-1] if lm is None else
                          mask_iou(parse_hair(img, lm, prior=None).hair, gt))

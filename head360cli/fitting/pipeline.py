@@ -275,33 +275,51 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     return img, found, fit, model
 
 
+def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "hog"):
+    """The face ``parse-hair`` seeds its parse with: face ``face`` of ``detector``, or,
+    when it finds none (and is not ``cnn``), the face in a turned copy
+    (:meth:`~head360cli.fitting.landmarks.LandmarkDetector.detect_turned`, as ``fit``);
+    ``None`` when there is none (the photo is parsed without a face).
+
+    Raises:
+        NoFaceError: ``face`` > 0 and there are not that many faces.
+    """
+    from head360cli.errors import NoFaceError
+    from head360cli.fitting.landmarks import TURNED_SIDE, LandmarkDetector
+
+    try:
+        return LandmarkDetector(detector).detect_one(rgb, face)
+    except NoFaceError:
+        if face:
+            raise
+    if detector == "cnn":
+        return None
+    turned = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(rgb)
+    return turned[0] if turned else None
+
+
 def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
                 detector: str = "hog", learned_prior: bool = True) -> dict[str, Any]:
     """``head360 parse-hair``: hair and face masks of a photo (PNG, 255 inside, at the
     photo's size on disk) and an overlay (hair red, face blue).
 
-    A photo without a detectable face is parsed without landmarks (``"seeded": false``,
-    ``"face_detector": null``; else the detector that found it, ``hog`` or ``cnn``).
+    A photo without a detectable face (:func:`face_to_parse`) is parsed without
+    landmarks (``"seeded": false``, ``"face_detector": null``; else the detector that
+    found it, ``hog`` or ``cnn``, and ``face_turn_degrees``).
     ``learned_prior=False`` parses by colour and landmarks alone (no hair-prior network).
     """
     import cv2
     from PIL import Image
 
-    from head360cli.errors import NoFaceError
     from head360cli.fitting.hair_parse import parse_hair
-    from head360cli.fitting.landmarks import LandmarkDetector
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
 
     t0 = time.perf_counter()
     img = load_image(photo)
-    try:
-        found = LandmarkDetector(detector).detect_one(img.pixels, face)
-        landmarks, found_by = found.landmarks, found.detector
-    except NoFaceError:
-        if face:
-            raise
-        landmarks = found_by = None
+    found = face_to_parse(img.pixels, face, detector)
+    landmarks = None if found is None else found.landmarks
+    found_by = None if found is None else found.detector
     parse = parse_hair(img.pixels, landmarks, prior="learned" if learned_prior else None)
     w, h = img.source_size
     out = Path(out_dir)
@@ -321,6 +339,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     with atomic_path(paths["overlay"]) as tmp:
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
+            "face_turn_degrees": None if found is None else found.turn,
             "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),
             "face_fraction": round(float(parse.face.mean()), 4),
