@@ -256,7 +256,7 @@ class LandmarkDetector:
         taken, from the turn where it is most nearly upright (by the line through its
         eyes), and its landmarks and box are mapped back to ``rgb``. At most one face
         (empty when no turn shows one)."""
-        seen = []  # (score, centre in rgb, tilt, turn, copy, forward map, box)
+        seen = []  # (score, centre in rgb, tilt, turn, copy, map back to rgb, face)
         for degrees in TURNS:
             copy, forward = turned_image(rgb, degrees)
             inverse = np.linalg.inv(np.vstack([forward, [0.0, 0.0, 1.0]]))[:2]
