@@ -35,8 +35,8 @@ import numpy as np
 
 from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
-__all__ = ["DETECTORS", "FALLBACK_SIDE", "MIRROR_68", "TURNED_SIDE", "TURNS", "DetectedFace",
-           "LandmarkDetector", "turned_image"]
+__all__ = ["DETECTORS", "FALLBACK_SIDE", "MIRROR_68", "SMALL_RETRY_SIDE", "TURNED_SIDE",
+           "TURNS", "DetectedFace", "LandmarkDetector", "find_faces", "turned_image"]
 
 DETECTORS = ("auto", "hog", "cnn")
 """The detector kinds :class:`LandmarkDetector` takes."""
@@ -110,6 +110,10 @@ TURNED_SIDE = 1024
 """Longer side in pixels of the copies the turned search detects on (the landmarks are
 still found at full size): six HOG runs on a 1024-pixel copy take about 3 s where a
 4000-pixel photo would take about 30."""
+
+SMALL_RETRY_SIDE = 2000
+"""Images up to this longer side are searched again at twice the size by
+:func:`find_faces` when the first search finds nothing (small faces)."""
 
 MIN_SIDE = 16
 """Images with a shorter side have no face to find (the CNN detector raises an error on
@@ -298,3 +302,30 @@ class LandmarkDetector:
             raise NoFaceError(f"expected a face number {index}, found only {len(faces)} "
                               f"face(s)")
         return faces[index]
+
+
+def find_faces(rgb: np.ndarray, detector: str = "hog", only: int | None = None, *,
+               small: bool = True) -> list[DetectedFace]:
+    """Faces by the whole search the commands make, each step only when the ones before
+    found nothing: ``detector`` (``auto``: HOG alone here); with ``small``, for images up
+    to :data:`SMALL_RETRY_SIDE` pixels, the same at twice the size; for ``auto``, the CNN
+    detector on a copy at most :data:`FALLBACK_SIDE` pixels long; unless ``detector`` is
+    ``cnn``, HOG in turned copies (:meth:`LandmarkDetector.detect_turned`, at most one
+    face, on copies at most :data:`TURNED_SIDE` pixels long).
+
+    Args:
+        rgb: ``(H, W, 3)`` uint8 image.
+        detector: ``hog``, ``cnn`` or ``auto``.
+        only: Average the landmarks of this face only (see :meth:`LandmarkDetector.detect`).
+        small: Whether to look again at twice the size.
+    """
+    first = "hog" if detector == "auto" else detector
+    faces = LandmarkDetector(first).detect(rgb, only=only)
+    if not faces and small and max(rgb.shape[:2]) <= SMALL_RETRY_SIDE:
+        faces = LandmarkDetector(first, upsample=2).detect(rgb, only=only)
+    if not faces and detector == "auto":
+        faces = LandmarkDetector("cnn", upsample=0, max_side=FALLBACK_SIDE).detect(
+            rgb, only=only)
+    if not faces and detector != "cnn":
+        faces = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(rgb)
+    return faces

@@ -75,7 +75,8 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
         out_dir: Output folder (created).
         face: Face number (0 = largest) or ``"all"``.
         detector: ``hog``, ``cnn`` for hard faces, or ``auto`` (HOG, then the CNN
-            detector when HOG finds none).
+            detector when HOG finds none); the search is ``fit``'s
+            (:func:`~head360cli.fitting.landmarks.find_faces`).
         focal: Focal length in pixels of the image on disk (default: EXIF, else a
             50 mm-equivalent lens).
         distance: The camera's distance to the head in metres, when known.
@@ -87,7 +88,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     from PIL import Image
 
     from head360cli.errors import NoFaceError
-    from head360cli.fitting.landmarks import TURNED_SIDE, LandmarkDetector, no_face_hint
+    from head360cli.fitting.landmarks import find_faces, no_face_hint
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
@@ -104,10 +105,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     t0 = time.perf_counter()
     if face != "all" and int(face) < 0:
         raise BadInputError(f"expected a face number >= 0, found {face}")
-    det = LandmarkDetector(detector)
-    faces = det.detect(img.pixels, only=None if face == "all" else int(face))
-    if not faces and detector != "cnn":  # a face tilted in the photo: turned copies
-        faces = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(img.pixels)
+    faces = find_faces(img.pixels, detector, only=None if face == "all" else int(face))
     if not faces:
         raise NoFaceError(f"no face found in the image{no_face_hint(detector)}")
     if face == "all":
@@ -211,18 +209,12 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     are appended to ``warnings``.
 
     Raises:
-        NoFaceError: No face (after a second try with the image upsampled, for small
-            images, and, unless ``detector`` is ``cnn``, in copies of it turned by
-            ``TURNS``), or fewer faces than ``face + 1``.
+        NoFaceError: No face (by :func:`~head360cli.fitting.landmarks.find_faces`), or
+            fewer faces than ``face + 1``.
         BadInputError: A face narrower than :data:`MIN_FACE_PX`.
     """
     from head360cli.errors import BadInputError, NoFaceError
-    from head360cli.fitting.landmarks import (
-        FALLBACK_SIDE,
-        TURNED_SIDE,
-        LandmarkDetector,
-        no_face_hint,
-    )
+    from head360cli.fitting.landmarks import find_faces, no_face_hint
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.images import load_image
     from head360cli.mesh.bilinear import load_bilinear
@@ -233,15 +225,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     model = load_bilinear()
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    first = "hog" if detector == "auto" else detector
-    faces = LandmarkDetector(first).detect(img.pixels, only=face)
-    if not faces and max(img.size) <= 2000:  # small faces: look again at twice the size
-        faces = LandmarkDetector(first, upsample=2).detect(img.pixels, only=face)
-    if not faces and detector == "auto":  # large hard faces: the CNN detector, scaled
-        faces = LandmarkDetector("cnn", upsample=0, max_side=FALLBACK_SIDE).detect(
-            img.pixels, only=face)
-    if not faces and detector != "cnn":  # a face tilted in the photo: turned copies
-        faces = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(img.pixels)
+    faces = find_faces(img.pixels, detector, only=face)
     timings["detect"] = time.perf_counter() - t0
     if not faces:
         raise NoFaceError(f"no face found in the image{no_face_hint(detector)}")
@@ -276,26 +260,24 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
 
 
 def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "hog"):
-    """The face ``parse-hair`` seeds its parse with: face ``face`` of ``detector``, or,
-    when it finds none (and is not ``cnn``), the face in a turned copy
-    (:meth:`~head360cli.fitting.landmarks.LandmarkDetector.detect_turned`, as ``fit``);
-    ``None`` when there is none (the photo is parsed without a face).
+    """The face ``parse-hair`` seeds its parse with: face ``face`` of
+    :func:`~head360cli.fitting.landmarks.find_faces` (as ``fit``, but without the second
+    search at twice the size); ``None`` when there is none (the photo is parsed without
+    a face).
 
     Raises:
         NoFaceError: ``face`` > 0 and there are not that many faces.
     """
     from head360cli.errors import NoFaceError
-    from head360cli.fitting.landmarks import TURNED_SIDE, LandmarkDetector
+    from head360cli.fitting.landmarks import find_faces
 
-    try:
-        return LandmarkDetector(detector).detect_one(rgb, face)
-    except NoFaceError:
-        if face:
-            raise
-    if detector == "cnn":
+    # no search at twice the size: parse-hair reads hair photos, whose faces are large
+    faces = find_faces(rgb, detector, only=face, small=False)
+    if not faces and not face:
         return None
-    turned = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(rgb)
-    return turned[0] if turned else None
+    if face >= len(faces):
+        raise NoFaceError(f"expected a face number {face}, found only {len(faces)} face(s)")
+    return faces[face]
 
 
 def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
