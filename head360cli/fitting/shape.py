@@ -197,9 +197,9 @@ class ShapeFitter:
         """
         k, n = model.rank, len(verts)
         index = {int(v): i for i, v in enumerate(verts)}
-        a0 = model.neutral_mean.astype(np.float64)[verts]
-        b0 = np.ascontiguousarray(
-            model.neutral_basis.astype(np.float64)[:, verts].transpose(1, 2, 0))
+        a0 = model.neutral_mean[verts].astype(np.float64)
+        b0 = np.ascontiguousarray(  # rows first: widening all of a float16 basis is slow
+            model.neutral_basis[:, verts].astype(np.float64).transpose(1, 2, 0))
         me = np.zeros((n, 3, 52))
         be = np.zeros((n, 3, k, 52), dtype=np.float32)
         sel = np.nonzero(np.isin(model.expr_vertex, verts))[0]

@@ -125,6 +125,28 @@ def test_load_errors(tmp_path):
         load_bilinear(tmp_path / "other.npz")
 
 
+def test_loads_of_one_file_share_read_only_arrays_until_it_changes(corpus, tmp_path):
+    ids, topo = corpus
+    path = tmp_path / "m.npz"
+    first_sha = build_bilinear(ids, 5, topo).save(path)
+    a, b = load_bilinear(path), load_bilinear(path)
+    assert a.neutral_basis is b.neutral_basis  # read once
+    with pytest.raises(ValueError, match="read-only"):
+        a.neutral_mean[0, 0] = 1.0
+    a.meta["note"] = "mine"  # each load has its own metadata
+    assert "note" not in b.meta and b.meta["sha256"] == first_sha
+    s, w = np.linspace(-1, 1, 5) * 1e-3, np.full(52, 0.3)
+    np.testing.assert_array_equal(a.vertices(s, w), b.vertices(s, w))
+    # The float64 bases are numpy's own widening of the float16 ones, value for value.
+    np.testing.assert_array_equal(a.__dict__["_f64"]["eb"],
+                                  a.expr_basis.astype(np.float64).reshape(5, -1))
+    # Rewritten (another rank, so another size), the file is read again.
+    second_sha = build_bilinear(ids, 3, topo).save(path)
+    c = load_bilinear(path)
+    assert c.rank == 3 and c.meta["sha256"] == second_sha != first_sha
+    assert a.rank == 5  # the models loaded before keep their arrays
+
+
 def test_shipped_model_loads_and_has_the_papers_shape():
     model = load_bilinear()
     assert model.rank == 50 and model.meta["identities"] == 100
