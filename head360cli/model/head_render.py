@@ -90,10 +90,7 @@ class HeadRenderer:
         self.shape = np.asarray(shape, np.float64)
         self.expression = (np.zeros(52) if expression is None
                            else np.asarray(expression, np.float64))
-        self.neutral = self.model.vertices(self.shape, np.zeros(52))
-        eye = np.eye(52)
-        deltas = np.stack([self.model.vertices(self.shape, eye[k]) - self.neutral
-                           for k in range(52)])
+        self.neutral, deltas = self.model.deltas(self.shape)
         self.deltas = deltas
         """``(52, V, 3)`` float64: the mesh moves by ``w @ deltas`` for ARKit weights w."""
         self._base = torch.tensor(self.neutral, dtype=torch.float32, device=self.device)

@@ -132,7 +132,9 @@ def test_loads_of_one_file_share_read_only_arrays_until_it_changes(corpus, tmp_p
     a, b = load_bilinear(path), load_bilinear(path)
     assert a.neutral_basis is b.neutral_basis  # read once
     with pytest.raises(ValueError, match="read-only"):
-        a.neutral_mean[0, 0] = 1.0
+        a.expr_basis[0, 0, 0] = 1.0
+    a.neutral_mean[0, 0] = 1.0  # the small arrays are each load's own
+    assert b.neutral_mean[0, 0] != 1.0
     a.meta["note"] = "mine"  # each load has its own metadata
     assert "note" not in b.meta and b.meta["sha256"] == first_sha
     s, w = np.linspace(-1, 1, 5) * 1e-3, np.full(52, 0.3)
@@ -189,3 +191,16 @@ def test_shipped_model_is_what_its_command_builds(shared_data, tmp_path):
             np.testing.assert_allclose(getattr(built, field.name),
                                        getattr(shipped, field.name), rtol=1e-9,
                                        atol=1e-12, err_msg=field.name)
+
+
+def test_deltas_are_each_shapes_move_exactly(corpus):
+    ids, topo = corpus
+    model = build_bilinear(ids, 4, topo)
+    s = np.array([0.4, -0.2, 0.1, 0.05]) * np.sqrt(np.diag(model.code_cov))
+    neutral, deltas = model.deltas(s)
+    np.testing.assert_array_equal(neutral, model.vertices(s, np.zeros(52)))
+    assert deltas.shape == (52, *neutral.shape)
+    for k in (0, 9, 17, 24, 51):  # bit for bit what vertices() gives, shape by shape
+        np.testing.assert_array_equal(deltas[k],
+                                      model.vertices(s, np.eye(52)[k]) - neutral)
+    assert np.abs(deltas).max() > 1e-3  # the shapes do move the mesh
