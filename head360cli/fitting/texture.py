@@ -539,13 +539,15 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
                 delta, size=(side, side), mode="bilinear", align_corners=False)
 
         def texture_loss(texture: torch.Tensor) -> torch.Tensor:
-            loss = photometric(gen(v, cam, k, texture=texture, plane_raster=raster))
+            loss = photometric(gen(v, cam, k, texture=texture, plane_raster=raster,
+                                   view_rays=rays))
             loss = loss + cfg.near * (texture - start).square().mean() \
                 + cfg.symmetry * (texture - _mirror(texture)).abs().mean()
             if fine is not None:
                 loss = loss + cfg.fine_smooth * _laplacian(fine).square().mean()
             return loss
 
+        rays: dict[str, torch.Tensor] = {}  # the camera is fixed now: rasterized once
         best, since = float("inf"), 0
         kept, kept_loss = None, float("inf")  # the best texture seen, and its loss
         for step in range(cfg.steps):

@@ -342,7 +342,8 @@ class Generator(nn.Module):
                 hair: Hair | None = None, jitter: bool = False,
                 reuse: DecodeReuse | None = None,
                 plane_raster: PlaneRaster | None = None,
-                head_planes: torch.Tensor | None = None) -> dict[str, Any]:
+                head_planes: torch.Tensor | None = None,
+                view_rays: dict[str, torch.Tensor] | None = None) -> dict[str, Any]:
         """Render heads.
 
         Args:
@@ -365,6 +366,12 @@ class Generator(nn.Module):
                 (:meth:`planes`, or
                 :func:`~head360cli.model.planes.add_texture_change` of them), rendered
                 instead of the texture's; not with ``reuse``.
+            view_rays: A dict the caller keeps between renders of the same ``verts``, camera
+                and settings that change only the texture (a texture inversion's steps):
+                the first render fills it with the rays' depth and samples, the others
+                read them instead of rasterizing again (the same tensors, so the same
+                result). Bald heads, no jitter, no ``reuse``; nothing in it may need
+                gradients.
 
         Returns:
             ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
@@ -382,6 +389,10 @@ class Generator(nn.Module):
             raise ValueError("expected no hair: this generator was built without a hair "
                              "branch")
         b = verts.shape[0]
+        if view_rays is not None and (hair is not None or jitter or reuse is not None):
+            raise ValueError(f"expected kept rays for a bald head without jitter or reuse, "
+                             f"found hair {hair is not None}, jitter {jitter}, reuse "
+                             f"{reuse is not None}")
         if reuse is not None and (b != 1 or jitter or torch.is_grad_enabled()):
             raise ValueError(f"expected one item, no jitter and no gradients to reuse "
                              f"decoded points, found {b} items, jitter {jitter}, gradients "
@@ -394,7 +405,8 @@ class Generator(nn.Module):
         camera_free = reuse
         if reuse is not None and reuse.camera_moves:
             reuse = None
-        depth = self._head_depth(verts, c2w, k, reuse, still)
+        depth = (view_rays["depth"] if view_rays else
+                 self._head_depth(verts, c2w, k, reuse, still))
         hair_items = [] if hair is None else [i for i, m in enumerate(hair.meshes)
                                                if m is not None]
         if hair_items and hair.planes is None:
@@ -423,13 +435,22 @@ class Generator(nn.Module):
         rays = c.render_res * c.render_res
         noise = (torch.rand(b, rays, c.samples, dtype=verts.dtype, device=verts.device)
                  if jitter else None)
-        # with hair, half the samples stay around the head under it (seen through thin hair)
-        points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise,
-                                              behind=head_depth if hair_items else None)
-        if self.cull_rays:  # decode only the rays that pass near a surface
-            order, _ = near_rays(near)
-            points = torch.gather(points, 1, order[..., None, None].expand(
-                -1, -1, c.samples, 3))
+        if view_rays:
+            points, depths, near = (view_rays[n] for n in ("points", "depths", "near"))
+            order = view_rays.get("order")
+        else:
+            # with hair, half the samples stay around the head under it (seen through thin
+            # hair)
+            points, depths, near = samples_around(depth, c2w, k, c.samples, c.shell, noise,
+                                                  behind=head_depth if hair_items else None)
+            if self.cull_rays:  # decode only the rays that pass near a surface
+                order, _ = near_rays(near)
+                points = torch.gather(points, 1, order[..., None, None].expand(
+                    -1, -1, c.samples, 3))
+            if view_rays is not None:
+                view_rays.update(depth=depth, points=points, depths=depths, near=near)
+                if self.cull_rays:
+                    view_rays["order"] = order
         kept_rays = points.shape[1]
         points = points.reshape(b, -1, 3)
         if head_planes is None:

@@ -101,6 +101,47 @@ def test_a_precomputed_plane_raster_renders_the_same(parts, rastered, monkeypatc
     assert not calls
 
 
+@pytest.mark.parametrize("cull", [True, False])
+def test_kept_view_rays_render_the_same_without_rasterizing(parts, rastered, monkeypatch,
+                                                            cull):
+    """A texture inversion's fixed camera: the rays kept from the first render give the
+    same images and texture gradients, bit for bit, and the screen is not rasterized
+    again; hair, jitter or reuse with kept rays are refused."""
+    import head360cli.model.generator as generator
+
+    _, verts, c2w, k = parts
+    gen, texture, raster = rastered
+    gen.cull_rays = cull
+    kept: dict = {}
+    renders, grads = [], []
+    try:
+        for view_rays in (None, kept, kept):
+            if view_rays is kept and kept:  # the third render: from the kept rays alone
+                monkeypatch.setattr(generator, "screen_depth",
+                                    lambda *a, **kw: pytest.fail("rasterized the screen"))
+                monkeypatch.setattr(generator, "samples_around",
+                                    lambda *a, **kw: pytest.fail("sampled the rays"))
+            tex = (texture + 0.1 * len(renders)).requires_grad_(True)
+            out = gen(verts, c2w, k, texture=tex, plane_raster=raster, view_rays=view_rays)
+            (out["rgb"] * torch.linspace(0, 1, 32)).sum().backward()
+            renders.append(out["rgb"].detach())
+            grads.append(tex.grad)
+            assert not view_rays or {"depth", "points", "depths", "near"} <= set(view_rays)
+        monkeypatch.undo()
+        tex = (texture + 0.2).requires_grad_(True)  # the third texture, rays made afresh
+        out = gen(verts, c2w, k, texture=tex, plane_raster=raster)
+        (out["rgb"] * torch.linspace(0, 1, 32)).sum().backward()
+        assert torch.equal(renders[2], out["rgb"].detach())
+        assert torch.equal(grads[2], tex.grad)
+        assert torch.equal(renders[1], gen(verts, c2w, k, texture=texture + 0.1,
+                                           plane_raster=raster)["rgb"].detach())
+        assert not torch.equal(renders[1], renders[2])  # the texture did change them
+        with pytest.raises(ValueError, match="kept rays"):
+            gen(verts, c2w, k, texture=texture, view_rays={}, jitter=True)
+    finally:
+        gen.cull_rays = True
+
+
 def test_config_round_trip_and_checks():
     cfg = dataclasses.replace(TINY, plane_centre=(0.0, 0.1, 0.0))
     assert GeneratorConfig.from_dict(cfg.to_dict()) == cfg
