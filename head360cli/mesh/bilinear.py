@@ -128,7 +128,8 @@ class BilinearModel:
     def deltas(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The neutral mesh ``(V, 3)`` of code ``s (K,)`` and how each of the 52 ARKit
         shapes at weight 1 moves it, ``(52, V, 3)`` float64: ``vertices(s, e_k) -
-        vertices(s, 0)``, the same values, in one pass instead of 53 (0.26 -> 0.03 s)."""
+        vertices(s, 0)``, the same values, in one pass instead of 53 (0.14-0.19 s -> about
+        0.01 s on 2 cores once the bases are widened)."""
         neutral = self.vertices(s, np.zeros(52))
         cache = self.__dict__["_f64"]
         d = self.expr_mean + (np.asarray(s, np.float64) @ cache["eb"]).reshape(-1, 3)
@@ -187,8 +188,8 @@ def content_hash(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> str:
 
 _LOADED: dict[tuple[str, int, int, int], tuple[dict[str, np.ndarray], dict[str, Any], dict]] = {}
 """The latest model file read, by (resolved path, inode, modification time in ns, size): its
-arrays (read-only), metadata and float64 cache. A fit loads the model in four places
-(0.22 s each on 2 cores, stop 61)."""
+arrays (the :data:`_SHARED` ones read-only), metadata and float64 cache. A fit loads the
+model in four places (0.22 s each on 2 cores, stop 61)."""
 
 
 _SHARED = ("neutral_basis", "expr_basis")
