@@ -133,12 +133,12 @@ def test_loads_of_one_file_share_read_only_arrays_until_it_changes(corpus, tmp_p
     assert a.neutral_basis is b.neutral_basis  # read once
     with pytest.raises(ValueError, match="read-only"):
         a.expr_basis[0, 0, 0] = 1.0
+    s, w = np.linspace(-1, 1, 5) * 1e-3, np.full(52, 0.3)
+    np.testing.assert_array_equal(a.vertices(s, w), b.vertices(s, w))
     a.neutral_mean[0, 0] = 1.0  # the small arrays are each load's own
     assert b.neutral_mean[0, 0] != 1.0
     a.meta["note"] = "mine"  # each load has its own metadata
     assert "note" not in b.meta and b.meta["sha256"] == first_sha
-    s, w = np.linspace(-1, 1, 5) * 1e-3, np.full(52, 0.3)
-    np.testing.assert_array_equal(a.vertices(s, w), b.vertices(s, w))
     # The float64 bases are numpy's own widening of the float16 ones, value for value.
     np.testing.assert_array_equal(a.__dict__["_f64"]["eb"],
                                   a.expr_basis.astype(np.float64).reshape(5, -1))
