@@ -36,7 +36,8 @@ import numpy as np
 from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
 __all__ = ["DETECTORS", "FALLBACK_SIDE", "MIRROR_68", "SMALL_RETRY_SIDE", "TURNED_SIDE",
-           "TURNS", "DetectedFace", "LandmarkDetector", "find_faces", "turned_image"]
+           "TURNS", "DetectedFace", "LandmarkDetector", "find_faces", "pick_face",
+           "turned_image"]
 
 DETECTORS = ("auto", "hog", "cnn")
 """The detector kinds :class:`LandmarkDetector` takes."""
@@ -151,6 +152,20 @@ def no_face_hint(kind: str) -> str:
             "auto": " (neither HOG nor, on a copy at most "
                     f"{FALLBACK_SIDE} pixels long, the CNN detector found one; "
                     "try --detector cnn for small or hard faces)"}.get(kind, "")
+
+
+def pick_face(faces: list[DetectedFace], index: int, kind: str) -> DetectedFace:
+    """Face ``index`` of ``faces`` (largest first) found by detector ``kind``.
+
+    Raises:
+        NoFaceError: No face (with :func:`no_face_hint`), or fewer than ``index + 1``.
+    """
+    if not faces:
+        raise NoFaceError(f"no face found in the image{no_face_hint(kind)}")
+    if index >= len(faces):
+        raise NoFaceError(f"expected a face number {index}, found only {len(faces)} "
+                          f"face(s)")
+    return faces[index]
 
 
 def _points(predictor, img: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
@@ -295,13 +310,7 @@ class LandmarkDetector:
         Raises:
             NoFaceError: No face, or fewer than ``index + 1`` faces.
         """
-        faces = self.detect(rgb, only=index)
-        if not faces:
-            raise NoFaceError(f"no face found in the image{no_face_hint(self.kind)}")
-        if index >= len(faces):
-            raise NoFaceError(f"expected a face number {index}, found only {len(faces)} "
-                              f"face(s)")
-        return faces[index]
+        return pick_face(self.detect(rgb, only=index), index, self.kind)
 
 
 def find_faces(rgb: np.ndarray, detector: str = "hog", only: int | None = None, *,

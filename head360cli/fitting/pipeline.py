@@ -87,8 +87,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     """
     from PIL import Image
 
-    from head360cli.errors import NoFaceError
-    from head360cli.fitting.landmarks import find_faces, no_face_hint
+    from head360cli.fitting.landmarks import find_faces, pick_face
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
@@ -106,15 +105,11 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     if face != "all" and int(face) < 0:
         raise BadInputError(f"expected a face number >= 0, found {face}")
     faces = find_faces(img.pixels, detector, only=None if face == "all" else int(face))
-    if not faces:
-        raise NoFaceError(f"no face found in the image{no_face_hint(detector)}")
     if face == "all":
+        pick_face(faces, 0, detector)  # raises the no-face error
         chosen = list(enumerate(faces))
     else:
-        if int(face) >= len(faces):
-            raise NoFaceError(f"expected a face number {face}, found only {len(faces)} "
-                              "face(s)")
-        chosen = [(int(face), faces[int(face)])]
+        chosen = [(int(face), pick_face(faces, int(face), detector))]
     timings["detect"] = time.perf_counter() - t0
 
     full_w, full_h = img.source_size
@@ -213,8 +208,8 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
             fewer faces than ``face + 1``.
         BadInputError: A face narrower than :data:`MIN_FACE_PX`.
     """
-    from head360cli.errors import BadInputError, NoFaceError
-    from head360cli.fitting.landmarks import find_faces, no_face_hint
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.landmarks import find_faces, pick_face
     from head360cli.fitting.shape import ShapeFitter, default_focal
     from head360cli.io.images import load_image
     from head360cli.mesh.bilinear import load_bilinear
@@ -227,11 +222,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     t0 = time.perf_counter()
     faces = find_faces(img.pixels, detector, only=face)
     timings["detect"] = time.perf_counter() - t0
-    if not faces:
-        raise NoFaceError(f"no face found in the image{no_face_hint(detector)}")
-    if face >= len(faces):
-        raise NoFaceError(f"expected a face number {face}, found only {len(faces)} face(s)")
-    found = faces[face]
+    found = pick_face(faces, face, detector)
     confident = [f for f in faces if f.score >= CONFIDENT_FACE]
     if len(confident) > 1:
         warnings.append(f"{len(confident)} faces found; fitting face {face} "
@@ -268,16 +259,13 @@ def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "hog"):
     Raises:
         NoFaceError: ``face`` > 0 and there are not that many faces.
     """
-    from head360cli.errors import NoFaceError
-    from head360cli.fitting.landmarks import find_faces
+    from head360cli.fitting.landmarks import find_faces, pick_face
 
     # no search at twice the size: parse-hair reads hair photos, whose faces are large
     faces = find_faces(rgb, detector, only=face, small=False)
     if not faces and not face:
         return None
-    if face >= len(faces):
-        raise NoFaceError(f"expected a face number {face}, found only {len(faces)} face(s)")
-    return faces[face]
+    return pick_face(faces, face, detector)
 
 
 def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
