@@ -163,6 +163,14 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     if not turntable and image_format is None:
         raise BadInputError(f"expected a .png or .jpg output for a view, found {out!r} (use "
                             "--turntable for a video)")
+    if turntable:  # refused now, not after the head is loaded
+        from head360cli.io.video import check_video_target
+
+        check_video_target(out)
+    else:
+        from head360cli.io.atomic import check_file_target
+
+        check_file_target(out)
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
@@ -458,6 +466,9 @@ def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
                             f"{texture_size}")
     if Path(out).suffix.lower() not in (".glb", ".obj"):
         raise BadInputError(f"expected a .glb or .obj output, found {out!r}")
+    from head360cli.io.atomic import check_file_target
+
+    check_file_target(out)  # before the head is loaded
     r = _renderer(head, None, None)
     res = export_head(r, out, texture_size, hair=not no_hair, progress=_progress_printer())
     _emit(res, f"wrote {', '.join(res['files'])} ({res['vertices']} vertices, "

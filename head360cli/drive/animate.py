@@ -137,6 +137,7 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
     cfg = cfg or AnimateConfig()
     if out is None and mesh_dir is None:
         raise BadInputError("expected a video output or a mesh folder, found neither")
+    _check_outputs(out, mesh_dir)
     stream = prepare_stream(stream, cfg)
     # processes for the frames on a CPU (one-frame batches only)
     workers = (cfg.workers or auto_workers(stream.num_frames, "cpu")
@@ -150,6 +151,18 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
     finally:
         if pool is not None:
             pool.close()
+
+
+def _check_outputs(out: str | Path | None, mesh_dir: str | Path | None) -> None:
+    """Refuse outputs that cannot be written before any work (loading the head, baking
+    its texture): see :func:`~head360cli.io.video.check_video_target`."""
+    from head360cli.io.atomic import check_dir_target
+    from head360cli.io.video import check_video_target
+
+    if out is not None:
+        check_video_target(out)
+    if mesh_dir is not None:
+        check_dir_target(Path(mesh_dir), overwrite=False)
 
 
 def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress, workers: int,

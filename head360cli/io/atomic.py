@@ -13,8 +13,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "commit_dir", "current_umask",
-           "temp_dir_beside", "temp_name_beside"]
+__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "check_file_target", "commit_dir",
+           "current_umask", "temp_dir_beside", "temp_name_beside"]
 
 
 def current_umask() -> int:
@@ -74,6 +74,18 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+
+
+def check_file_target(target: str | os.PathLike[str]) -> None:
+    """Refuse a file target whose folder does not exist or which is a folder (what
+    :func:`atomic_path` would find only when it is asked to write)."""
+    from head360cli.errors import BadInputError
+
+    target = Path(target)
+    if not target.parent.is_dir():
+        raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
+    if target.is_dir():
+        raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
 
 
 def check_dir_target(target: Path, overwrite: bool) -> None:

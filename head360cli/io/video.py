@@ -25,7 +25,7 @@ import numpy as np
 from head360cli.errors import BadInputError
 from head360cli.io.atomic import check_dir_target, commit_dir, temp_dir_beside, temp_name_beside
 
-__all__ = ["VIDEO_SUFFIXES", "VideoWriter", "output_kind", "write_video"]
+__all__ = ["VIDEO_SUFFIXES", "VideoWriter", "check_video_target", "output_kind", "write_video"]
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov")
 
@@ -63,6 +63,15 @@ def _as_uint8(frame: np.ndarray) -> np.ndarray:
     if a.shape[2] == 1:
         a = np.repeat(a, 3, axis=2)
     return a
+
+
+def check_video_target(path: str | os.PathLike[str], overwrite: bool = False) -> None:
+    """Refuse, before any frame is made, a video output :class:`VideoWriter` would refuse
+    when it opens: a missing parent folder, a folder given for a file, or a non-empty
+    folder for PNG frames (unless ``overwrite``)."""
+    writer = VideoWriter(path, overwrite=overwrite)  # checks the parent, file vs folder
+    if writer.kind == "png":
+        check_dir_target(writer.path, overwrite)
 
 
 class VideoWriter:

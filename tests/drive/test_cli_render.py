@@ -69,3 +69,44 @@ def test_render_precision_option(run_cli, head_file, tmp_path):
     assert np.abs(images[0] - images[1]).max() <= 12
     assert run_cli("render", head_file, "--precision", "fp16", "-o", tmp_path / "x.png"
                    ).code == 2
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_the_head_loads(
+        run_cli, head_file, tmp_path, monkeypatch):
+    """A missing folder, a folder given for a file or a non-empty frame folder is refused
+    before any work: the loaders here fail the test if they are reached (animating to a
+    taken mesh folder used to load the head and bake its texture, 16 s, first)."""
+    import head360cli.cli_drive as cli_drive
+    from head360cli.io.arkit import ArkitStream, write_arkit_csv
+
+    def loaded(*args, **kwargs):
+        raise AssertionError("the head was loaded before the output was checked")
+
+    monkeypatch.setattr(cli_drive, "_backend_renderer", loaded)
+    monkeypatch.setattr(cli_drive, "_renderer", loaded)
+    stream = tmp_path / "s.csv"
+    write_arkit_csv(ArkitStream(np.zeros((2, 52), np.float32), np.arange(2) / 30, 30.0),
+                    stream)
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "keep.txt").write_text("the user's")
+    cases = [
+        (["render", head_file, "-o", tmp_path / "no" / "v.png"], "does not exist"),
+        (["render", head_file, "-o", tmp_path / "taken.png"], None),
+        (["render", head_file, "--turntable", "-o", taken], "not empty"),
+        (["render", head_file, "--turntable", "-o", tmp_path / "no" / "t.mp4"],
+         "does not exist"),
+        (["export-mesh", head_file, "-o", tmp_path / "no" / "h.glb"], "does not exist"),
+        (["animate", head_file, "--arkit", stream, "-o", taken], "not empty"),
+        (["animate", head_file, "--arkit", stream, "-o", tmp_path / "no" / "a.mp4"],
+         "does not exist"),
+        (["animate", head_file, "--arkit", stream, "--mesh-sequence", taken], "not empty"),
+    ]
+    (tmp_path / "taken.png").mkdir()  # a folder where the view's file should go
+    for args, words in cases:
+        r = run_cli(*args)
+        assert r.code == 3, (args, r.err)
+        assert words is None or words in r.err, (args, r.err)
+    assert "found a folder" in run_cli(*cases[1][0]).err
+    assert [p.name for p in taken.iterdir()] == ["keep.txt"]
+    assert not (tmp_path / "no").exists()
