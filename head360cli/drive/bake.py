@@ -37,6 +37,10 @@ def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """Fill pixels of zero weight from their nearest known neighbours: ring after ring,
     each new pixel takes the mean of the known pixels around it (3 x 3).
 
+    Only each ring's pixels are computed (a 512-pixel UV layout has about 200 rings in
+    its gutters: filtering the whole image for each took 7 s, the rings take a fraction
+    of a second).
+
     Args:
         colour: ``(H, W, C)`` float, meaningful where ``weight > 0``.
         weight: ``(H, W)`` non-negative.
@@ -45,25 +49,34 @@ def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
         ``(H, W, C)`` with the weighted pixels unchanged and the others filled (all of
         them with the mean colour when nothing is known).
     """
-    import torch
-    import torch.nn.functional as F
+    import cv2
 
-    c = torch.as_tensor(colour, dtype=torch.float64).permute(2, 0, 1)[None].clone()
-    known = torch.as_tensor(weight > 0)[None, None].to(c.dtype)
-    if not bool(known.any()):
-        return np.broadcast_to(np.asarray(colour, np.float64).reshape(-1, colour.shape[-1]
-                                                                      ).mean(0),
+    colour = np.asarray(colour, np.float64)
+    known = np.asarray(weight) > 0
+    if not known.any():
+        return np.broadcast_to(colour.reshape(-1, colour.shape[-1]).mean(0),
                                colour.shape).copy()
-    kernel = torch.ones(1, 1, 3, 3, dtype=c.dtype)
-    channels = c.shape[1]
-    while not bool(known.all()):
-        num = F.conv2d((c * known).reshape(channels, 1, *c.shape[-2:]), kernel, padding=1)
-        den = F.conv2d(known, kernel, padding=1)
-        new = (den > 0) & (known == 0)
-        c = torch.where(new, num.reshape(1, channels, *c.shape[-2:]) / den.clamp_min(1e-12),
-                        c)
-        known = known + new.to(c.dtype)
-    return c[0].permute(1, 2, 0).numpy()
+    h, w = known.shape
+    # padded by one pixel of nothing known, so that a ring's 3 x 3 reads stay inside
+    c = np.zeros((h + 2, w + 2, colour.shape[-1]))
+    c[1:-1, 1:-1][known] = colour[known]
+    k = np.zeros((h + 2, w + 2))
+    k[1:-1, 1:-1] = known
+    grow = np.ones((3, 3), np.uint8)
+    ring = (cv2.dilate(known.astype(np.uint8), grow) > 0) & ~known
+    while ring.any():
+        ys, xs = np.nonzero(ring)
+        total = np.zeros((len(ys), c.shape[-1]))
+        count = np.zeros(len(ys))
+        for dy in range(3):
+            for dx in range(3):
+                total += c[ys + dy, xs + dx]  # zero where nothing is known
+                count += k[ys + dy, xs + dx]
+        c[ys + 1, xs + 1] = total / count[:, None]
+        k[ys + 1, xs + 1] = 1.0
+        known[ys, xs] = True
+        ring = (cv2.dilate(ring.astype(np.uint8), grow) > 0) & ~known
+    return c[1:-1, 1:-1].copy()
 
 
 def _texels(renderer, size: int):

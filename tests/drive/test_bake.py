@@ -36,7 +36,11 @@ def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
     w[:, INDEX["jawOpen"]] = [0, 0.5, 1]
     path = tmp_path / "s.csv"
     write_arkit_csv(ArkitStream(w, np.arange(3) / 30, 30.0), path)
-    r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "m")
+    # the texture is baked from renders: small ones keep the test short (the meshes and
+    # files do not depend on the renders' size)
+    small = ("--size", "64", "--samples", "4")
+    r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "m",
+                *small)
     assert r.code == 0, r.err
     names = sorted(p.name for p in (tmp_path / "m").iterdir())
     assert names == ["frame_00000.obj", "frame_00001.obj", "frame_00002.obj", "head.mtl",
@@ -52,7 +56,7 @@ def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
     rot[:, 0] = [0.0, 0.0, 0.5]
     write_arkit_csv(ArkitStream(w, np.arange(3) / 30, 30.0, head_rotation=rot), path)
     r = run_cli("animate", head_file, "--arkit", path, "--mesh-sequence", tmp_path / "p",
-                "--head-pose", "--no-hair")
+                "--head-pose", "--no-hair", *small)
     assert r.code == 0, r.err
     turned = trimesh.load(tmp_path / "p" / "frame_00002.obj", force="mesh", process=False)
     still = trimesh.load(tmp_path / "p" / "frame_00001.obj", force="mesh", process=False)
