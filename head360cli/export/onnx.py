@@ -152,8 +152,8 @@ def _example(renderer, hair: bool) -> tuple:
     return args
 
 
-def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = True
-                ) -> dict[str, Any]:
+def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = True,
+                parallel: bool | None = None) -> dict[str, Any]:
     """Export the generator as it renders ``renderer``'s head (its samples per ray and
     image size) to ``out`` (with hair) and ``<out stem>_bald.onnx``.
 
@@ -161,17 +161,18 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     found with ``NonZero``, so the decoders see a data-dependent number of points);
     without it every ray is decoded (static shapes, slower, for runtimes that need them).
 
+    Tracing is Python work on one core, about a minute a graph on a 2-core CPU, so with
+    ``parallel`` (``None``: where two or more cores are usable) the bald graph is traced
+    in a spawned process while this one traces the hair graph.
+
     Returns:
-        ``{"files": [...], "seconds": ..., "samples": ..., "size": ...}``.
+        ``{"files": [...], "seconds": ..., "samples": ..., "size": ..., "parallel": ...}``.
     """
     import importlib.util
-    import inspect
 
-    import torch
-
+    from head360cli.drive.parallel import usable_cpus
     from head360cli.errors import BadInputError, ModelNotFoundError
-    from head360cli.geometry.rasterize import static_windows
-    from head360cli.io.atomic import atomic_path
+    from head360cli.fitting.pipeline import generator_hash
 
     missing = [m for m in ("onnx", "onnxscript") if importlib.util.find_spec(m) is None]
     if missing:
@@ -188,42 +189,133 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
                             "head has no hair mesh to trace with)")
     gen = renderer.gen
     t0 = time.perf_counter()
-    files = []
-    # An exporter with an ``optimize`` argument (torch 2.13 here) optimises the graph
-    # afterwards unless told not to; _tidy does the part of that which matters, faster.
-    tidy = "optimize" in inspect.signature(torch.onnx.export).parameters
-    kwargs = {"optimize": False} if tidy else {}
-    from head360cli.fitting.pipeline import generator_hash
-
     meta = {"samples": renderer.samples, "size": renderer.size, "cull": bool(cull),
             "generator_sha256": generator_hash(),
             "texture_channels": gen.cfg.texture_channels,
             "texture_res": gen.cfg.texture_res}
+    bald = out.with_name(f"{out.stem}_bald.onnx")
+    parallel = usable_cpus() >= 2 if parallel is None else parallel
+    if progress:
+        progress("export", 0, 2)
+    if parallel:
+        parallel = _export_pair(renderer, out, bald, cull, meta, progress)
+    else:
+        _export_graph(renderer, True, out, cull, meta)
+        if progress:
+            progress("export", 1, 2)
+        _export_graph(renderer, False, bald, cull, meta)
+    return {"files": [str(out), str(bald)], "seconds": time.perf_counter() - t0,
+            "parallel": parallel, **meta}
+
+
+def _export_graph(renderer, hair: bool, path: Path, cull: bool, meta: dict[str, Any]
+                  ) -> None:
+    """Trace one graph (with or without hair) and write it to ``path`` atomically."""
+    import inspect
+
+    import torch
+
+    from head360cli.geometry.rasterize import static_windows
+    from head360cli.io.atomic import atomic_path
+
+    gen = renderer.gen
+    # An exporter with an ``optimize`` argument (torch 2.13 here) optimises the graph
+    # afterwards unless told not to; _tidy does the part of that which matters, faster.
+    tidy = "optimize" in inspect.signature(torch.onnx.export).parameters
+    kwargs = {"optimize": False} if tidy else {}
     own = (gen.cull_rays, gen.hair_rays_only, gen.network_dtype)
     gen.cull_rays, gen.hair_rays_only, gen.network_dtype = cull, cull, None
     try:
-        for hair, path in ((True, out), (False, out.with_name(f"{out.stem}_bald.onnx"))):
-            if progress:
-                progress("export", len(files), 2)
-            model = _frame_model(gen, hair)
-            args = _example(renderer, hair)
-            names = ["verts", "texture", "c2w", "intrinsics"]
-            if hair:
-                names += ["hair_verts", "hair_faces", "hair_planes"]
-            with torch.no_grad(), gen.samples_per_ray(renderer.samples), \
-                    gen.image_size(renderer.size), static_windows(), _quiet_exporter():
-                program = torch.onnx.export(model, args, input_names=names,
-                                            output_names=["rgb"], dynamo=True,
-                                            opset_version=18, verbose=False, **kwargs)
-                if tidy:
-                    _tidy(program.model)
-            program.model.metadata_props[META_KEY] = json.dumps({**meta, "hair": hair})
-            with atomic_path(path) as tmp:
-                program.save(tmp)
-            files.append(str(path))
+        model = _frame_model(gen, hair)
+        args = _example(renderer, hair)
+        names = ["verts", "texture", "c2w", "intrinsics"]
+        if hair:
+            names += ["hair_verts", "hair_faces", "hair_planes"]
+        with torch.no_grad(), gen.samples_per_ray(renderer.samples), \
+                gen.image_size(renderer.size), static_windows(), _quiet_exporter():
+            program = torch.onnx.export(model, args, input_names=names,
+                                        output_names=["rgb"], dynamo=True,
+                                        opset_version=18, verbose=False, **kwargs)
+            if tidy:
+                _tidy(program.model)
+        program.model.metadata_props[META_KEY] = json.dumps({**meta, "hair": hair})
+        with atomic_path(path) as tmp:
+            program.save(tmp)
     finally:
         gen.cull_rays, gen.hair_rays_only, gen.network_dtype = own
-    return {"files": files, "seconds": time.perf_counter() - t0, **meta}
+
+
+def _graph_worker(conn) -> None:
+    """A spawned process: receive a pickled job (renderer, hair, path, cull, meta), trace
+    its graph and send back ``None``, or the exception and its traceback."""
+    import pickle
+    import traceback
+
+    import torch
+
+    try:
+        renderer, hair, path, cull, meta = pickle.loads(conn.recv_bytes())
+        torch.set_num_threads(1)
+        _export_graph(renderer, hair, path, cull, meta)
+        conn.send(None)
+    except BaseException as exc:
+        try:
+            conn.send((exc, traceback.format_exc()))
+        except Exception:  # an exception that does not pickle
+            conn.send((RuntimeError(str(exc)), traceback.format_exc()))
+
+
+def _export_pair(renderer, out: Path, bald: Path, cull: bool, meta: dict[str, Any],
+                 progress: Any) -> bool:
+    """Trace the hair graph here and the bald one in a spawned process at the same time.
+    If the process cannot be started or dies without an answer, the bald graph is traced
+    here afterwards; an error it reports is raised here. Returns whether it made the
+    bald graph."""
+    import copy
+    import multiprocessing
+    from multiprocessing.reduction import ForkingPickler
+
+    ctx = multiprocessing.get_context("spawn")
+    here, there = ctx.Pipe()
+    proc = ctx.Process(target=_graph_worker, args=(there,), daemon=True)
+    done = False
+    try:
+        # the job goes through the pipe after the start, not as the process's argument:
+        # a large argument is written while the child starts, and a child that dies
+        # then would leave that write waiting for ever
+        proc.start()
+        there.close()
+        shipped = copy.copy(renderer)
+        shipped.last_reuse = None  # a render's leftovers, not needed to trace
+        here.send_bytes(bytes(ForkingPickler.dumps((shipped, False, bald, cull, meta))))
+        spawned = True
+    except OSError:  # not started, or gone before it took the job
+        spawned = False
+    try:
+        _export_graph(renderer, True, out, cull, meta)
+        if progress:
+            progress("export", 1, 2)
+        got = None
+        if spawned:
+            try:
+                got = here.recv()
+            except (EOFError, OSError):
+                spawned = False
+        if not spawned:
+            _export_graph(renderer, False, bald, cull, meta)
+        elif got is not None:
+            exc, text = got
+            raise exc from RuntimeError(f"in the process tracing {bald.name}:\n{text}")
+        done = True
+        return spawned
+    finally:
+        if proc.pid is not None:
+            proc.join(timeout=30 if done else 0)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join(timeout=10)
+        here.close()
+        there.close()  # closed at the start; here too if the process never started
 
 
 def head_inputs(renderer) -> dict[str, np.ndarray]:

@@ -39,6 +39,10 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     r, out, code, res = exported
     assert code == 0
     assert [p.split("/")[-1] for p in res["files"]][:2] == ["gen.onnx", "gen_bald.onnx"]
+    from head360cli.drive.parallel import usable_cpus
+
+    # with two cores the bald graph was traced by a spawned process, not by the fallback
+    assert res["parallel"] is (usable_cpus() >= 2)
     # tidied after the export (export_onnx's _tidy): constants folded and lifted to
     # initializers, so no Constant or CastLike node is left for onnxruntime to warn about
     import onnx
