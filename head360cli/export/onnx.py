@@ -162,8 +162,9 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     without it every ray is decoded (static shapes, slower, for runtimes that need them).
 
     Tracing is Python work on one core, about a minute a graph on a 2-core CPU, so with
-    ``parallel`` (``None``: where two or more cores are usable) the bald graph is traced
-    in a spawned process while this one traces the hair graph.
+    ``parallel`` (``None``: for a renderer on the CPU where two or more cores are
+    usable) the bald graph is traced in a spawned process while this one traces the
+    hair graph.
 
     Returns:
         ``{"files": [...], "seconds": ..., "samples": ..., "size": ..., "parallel": ...}``.
@@ -194,7 +195,8 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
             "texture_channels": gen.cfg.texture_channels,
             "texture_res": gen.cfg.texture_res}
     bald = out.with_name(f"{out.stem}_bald.onnx")
-    parallel = usable_cpus() >= 2 if parallel is None else parallel
+    if parallel is None:  # (a GPU renderer's tensors would have to cross by CUDA IPC)
+        parallel = usable_cpus() >= 2 and renderer.device.type == "cpu"
     if progress:
         progress("export", 0, 2)
     if parallel:

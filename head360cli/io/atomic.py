@@ -60,11 +60,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         The temporary path to write to. It does not exist yet.
     """
     target = Path(target)
-    parent = target.parent
-    if not parent.is_dir():
-        from head360cli.errors import BadInputError
-
-        raise BadInputError(f"output folder {str(parent)!r} does not exist")
+    check_file_target(target)
     tmp = temp_name_beside(target)
     try:
         yield tmp
@@ -77,8 +73,9 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
 
 
 def check_file_target(target: str | os.PathLike[str]) -> None:
-    """Refuse a file target whose folder does not exist or which is a folder (what
-    :func:`atomic_path` would find only when it is asked to write)."""
+    """Refuse a file target whose folder does not exist or which is a folder (as
+    :func:`atomic_path` does when it is asked to write; callers with long work before the
+    write check first)."""
     from head360cli.errors import BadInputError
 
     target = Path(target)

@@ -161,6 +161,10 @@ def test_atomic_path_and_dir(tmp_path):
     with pytest.raises(BadInputError, match="does not exist"):
         atomic_path(tmp_path / "no" / "x").__enter__()
     assert not (tmp_path / "no").exists()
+    # so is a folder given for the file, which is left as it was
+    with pytest.raises(BadInputError, match="found a folder"):
+        atomic_path(tmp_path / "d").__enter__()
+    assert (tmp_path / "d" / "x").read_text() == "1"
 
 
 @pytest.fixture
