@@ -36,7 +36,7 @@ def reconstruction_error(model: BilinearModel, identities) -> dict[str, float]:
         # (each (shape, vertex) entry is stored once: the neutral mesh plus that entry)
         base = model.vertices(s, np.zeros(52))
         moved = np.zeros((52, *base.shape))
-        moved[model.expr_shape, model.expr_vertex] = model.expr_mean + (s @ eb).reshape(-1, 3)
+        moved[model.expr_shape, model.expr_vertex] = model.entry_moves(s)
         errs.append(np.linalg.norm(base - neutral, axis=1))
         errs.append(np.linalg.norm((base + moved) - (neutral + deltas), axis=2).reshape(-1))
     e = np.concatenate(errs) * 1000.0
