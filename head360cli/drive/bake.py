@@ -214,14 +214,14 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
     Returns:
         ``{"files": [...], "vertices": V, "faces": F, "morph_targets": 52 or 0}``.
     """
+    from head360cli.io.atomic import check_file_target
     from head360cli.io.mesh import write_glb, write_obj
 
     out = Path(out)
     kind = out.suffix.lower()
     if kind not in (".glb", ".obj"):
         raise BadInputError(f"expected a .glb or .obj output, found {out.name!r}")
-    if not out.parent.is_dir():
-        raise BadInputError(f"output folder {str(out.parent)!r} does not exist")
+    check_file_target(out)
     texture, hair_colours = bake_head(renderer, texture_size, progress=progress)
     if not hair:
         hair_colours = None

@@ -174,6 +174,7 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     from head360cli.drive.parallel import usable_cpus
     from head360cli.errors import BadInputError, ModelNotFoundError
     from head360cli.fitting.pipeline import generator_hash
+    from head360cli.io.atomic import check_file_target
 
     missing = [m for m in ("onnx", "onnxscript") if importlib.util.find_spec(m) is None]
     if missing:
@@ -183,8 +184,7 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     out = Path(out)
     if out.suffix.lower() != ".onnx":
         raise BadInputError(f"expected an .onnx output, found {out.name!r}")
-    if not out.parent.is_dir():
-        raise BadInputError(f"output folder {str(out.parent)!r} does not exist")
+    check_file_target(out)
     if renderer.hair is None:
         raise BadInputError("expected a head with hair to export the hair graph (a bald "
                             "head has no hair mesh to trace with)")

@@ -529,7 +529,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         invert_texture,
         mirror_grid,
     )
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_path, check_file_target
     from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
     from head360cli.model.head_render import HeadRenderer, to_uint8
     from head360cli.model.train import load_generator
@@ -540,8 +540,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     out = Path(out)
     if out.suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
-    if not out.parent.is_dir():
-        raise BadInputError(f"output folder {str(out.parent)!r} does not exist")
+    check_file_target(out)
     if hair_style is not None and not 0 <= hair_style < len(HAIRSTYLES):
         raise BadInputError(f"expected a hairstyle id 0..{len(HAIRSTYLES) - 1}, found "
                             f"{hair_style}")
