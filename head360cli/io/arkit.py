@@ -691,20 +691,31 @@ def _timecode(seconds: float, fps: float) -> str:
 
 def _timecode_rate(timestamps: np.ndarray, fps: float) -> float:
     """The frame rate to number Live Link Face timecodes at, so that reading them back
-    gives the same times: a reader infers the rate from the largest frame number (the
-    next standard rate above it), so a stream at a non-standard rate (10 frames per
-    second, say) is numbered at the first standard rate that this inference recovers
-    (timecodes carry fractions of a frame, so nothing is rounded away)."""
-    if fps in STANDARD_RATES or len(timestamps) == 0:
+    gives the same times.
+
+    A reader infers the rate from the largest frame number (the next standard rate above
+    it). The stream's own rate is used when that inference recovers it. Otherwise (a rate
+    that is not standard, 10 frames per second say, or a take shorter than a second, whose
+    frame numbers never reach the top of its rate) the timecodes are numbered at a
+    standard rate that the inference does recover: the smallest one above the stream's
+    rate, else the largest below. Timecodes carry fractions of a frame, so the times are
+    kept either way. 24 is always recovered (a frame number below 24 infers 24), so the
+    search always ends.
+    """
+    if len(timestamps) == 0:
         return fps
     frac = np.asarray(timestamps, np.float64) % 1.0
-    for rate in STANDARD_RATES:
-        if rate < fps:
-            continue
+
+    def recovered(rate: float) -> bool:
         top = int(np.floor(frac * rate + 1e-9).max())
-        if next((r for r in STANDARD_RATES if r > top), None) == rate:
+        return next((r for r in STANDARD_RATES if r > top), None) == rate
+
+    above = [r for r in STANDARD_RATES if r >= fps]
+    below = [r for r in reversed(STANDARD_RATES) if r < fps]
+    for rate in (fps, *above, *below):
+        if recovered(rate):
             return rate
-    return fps  # too short to tell: a reader needs the rate given (read_arkit_csv fps=)
+    return fps  # not reached: see the docstring
 
 
 def write_arkit_csv(

@@ -65,6 +65,19 @@ def test_live_link_face_round_trip(tmp_path, fps):
     assert header[54:] == list(ROTATION_COLUMNS)
 
 
+@pytest.mark.parametrize(("frames", "fps"), [(3, 30.0), (5, 60.0), (20, 25.0), (2, 120.0)])
+def test_live_link_face_takes_shorter_than_a_second_keep_their_times(tmp_path, frames, fps):
+    # Timecodes carry no rate, and a short take's frame numbers never reach the top of
+    # its rate: the writer numbers them at a rate the reader infers back.
+    stream = make_stream(frames=frames, fps=fps)
+    path = tmp_path / "short.csv"
+    write_arkit_csv(stream, path, flavor="livelinkface")
+    back = read_arkit_csv(path)
+    np.testing.assert_allclose(back.timestamps, stream.timestamps, atol=1e-3 / 24)
+    assert back.fps == fps
+    np.testing.assert_allclose(back.weights, stream.weights, atol=1e-9)
+
+
 def test_arkit_flavor_round_trip_and_open_stream(tmp_path):
     stream = make_stream(frames=30, fps=30.0)
     buf = io.StringIO()
