@@ -487,10 +487,11 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     neural-texture inversion; closed lids (a texture change that the blinks bring in, so
     closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); hair placement
     (the style's mesh shifted to match the parsed hair from the fitted camera); preview.
-    The parse runs in a second thread while the hairstyles' silhouettes and the
-    inversion's mirror grid are made, so the summary's stage times add up to more than
-    its total by that overlap. Writes ``out`` (``.h360``), ``<out stem>_preview.png``
-    (photo crop | fitted front | three other views | back) and ``<out stem>.json``.
+    The parse runs in a second thread while the hairstyles' silhouettes, the
+    inversion's mirror grid and the bald render of the starting code are made, so the
+    summary's stage times add up to more than its total by that overlap. Writes ``out``
+    (``.h360``), ``<out stem>_preview.png`` (photo crop | fitted front | three other
+    views | back) and ``<out stem>.json``.
 
     Args:
         photo: The image.
@@ -556,10 +557,12 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     res = gen.cfg.image_res
     timings["load"] += time.perf_counter() - t0
     say("parse", 0, 1)
+    dev = torch.device(device)
     with ThreadPoolExecutor(max_workers=1) as pool:
         # GrabCut lets go of the interpreter: the parse runs on one core while this
-        # thread makes what does not need it, the hairstyles' silhouettes and the
-        # inversion's mirror grid (the stages' times overlap by as much)
+        # thread makes what does not need it: the hairstyles' silhouettes, the
+        # inversion's mirror grid, and the bald render of the starting code that the bald
+        # target fills the hair from (the stages' times overlap by as much)
         job = pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
                           prior="learned" if learned_prior else None)
         t0 = time.perf_counter()
@@ -568,9 +571,17 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         t0 = time.perf_counter()
         mirror_grid(gen.cfg.texture_res)
         mirror_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
+        verts = torch.tensor(posed, dtype=torch.float32, device=dev)
+        cam = torch.tensor(c2w, device=dev)
+        kk = torch.tensor(k, device=dev)
+        start = codes.mean(0)
+        with torch.no_grad():
+            first = gen(verts[None], cam[None], kk[None], code=start[None])
+        first_s = time.perf_counter() - t0
         parse, timings["parse"] = job.result()
     t0 = time.perf_counter()
-    c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
     guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
                                                        found.landmarks, silhouettes)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
@@ -580,13 +591,6 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     timings["classify"] = classify_s + time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    dev = torch.device(device)
-    verts = torch.tensor(posed, dtype=torch.float32, device=dev)
-    cam = torch.tensor(c2w, device=dev)
-    kk = torch.tensor(k, device=dev)
-    start = codes.mean(0)
-    with torch.no_grad():
-        first = gen(verts[None], cam[None], kk[None], code=start[None])
     hair_crop = crop_mask(parse.hair, affine, res)
     face_crop = crop_mask(parse.face, affine, res)
     colour_by, colour_s = "tone curve", 0.0
@@ -604,7 +608,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                             f"{int(weight.sum())} pixels (is the face covered?)")
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
-    timings["bald_target"] = time.perf_counter() - t0 - colour_s
+    timings["bald_target"] = first_s + time.perf_counter() - t0 - colour_s
     cfg = PRESETS[preset]
     inv = invert_texture(
         gen, verts, cam, kk,
