@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["dlib_model_files", "models_dir", "shared_data_dir"]
+__all__ = ["cache_dir", "dlib_model_files", "models_dir", "shared_data_dir"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -64,3 +64,20 @@ def dlib_model_files() -> dict[str, Path | None]:
         found = [Path(r) / "models" / filename for r in roots]
         out[key] = next((p for p in found if p.is_file()), None)
     return out
+
+
+def cache_dir() -> Path | None:
+    """The folder for files head360 can always make again, kept to save time in later runs
+    (dlib's face detector, ready to read: :func:`head360cli.fitting.landmarks.hog_detector`).
+
+    In order: ``$HEAD360_CACHE`` (set but empty: no cache); ``$XDG_CACHE_HOME/head360``;
+    ``~/.cache/head360``. The folder is made when a file is first written to it; deleting
+    it is always safe.
+    """
+    env = os.environ.get("HEAD360_CACHE")
+    if env is not None:
+        return Path(env) if env else None
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    if xdg:
+        return Path(xdg) / "head360"
+    return Path.home() / ".cache" / "head360"

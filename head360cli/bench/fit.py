@@ -329,12 +329,13 @@ def _descriptor(rgb: np.ndarray):
     """dlib's 128-d face descriptor of the largest face, or ``None``."""
     import dlib
 
+    from head360cli.fitting.landmarks import hog_detector
     from head360cli.paths import dlib_model_files
 
     files = dlib_model_files()
     cache = _descriptor.__dict__.setdefault("cache", {})
     if not cache:
-        cache["det"] = dlib.get_frontal_face_detector()
+        cache["det"] = hog_detector()
         cache["sp"] = dlib.shape_predictor(str(files["shape_predictor_68"]))
         cache["rec"] = dlib.face_recognition_model_v1(str(files["face_descriptor"]))
     img = np.ascontiguousarray(rgb)

@@ -183,3 +183,63 @@ def test_no_face_in_any_turn_of_a_photo_without_one():
     from head360cli.fitting.landmarks import LandmarkDetector
 
     assert LandmarkDetector("hog").detect_turned(skimage.data.coffee()) == []
+
+
+def test_hog_detector_is_kept_in_the_cache_and_finds_the_same_faces(tmp_path, monkeypatch):
+    """The detector read back from the cache is dlib's: same boxes, scores and sub-detector
+    ids on a photo with a face and a weak second hit; the second process-like call reads the
+    file instead of unpacking dlib's built-in copy."""
+    import dlib
+    import skimage.data
+
+    from head360cli.fitting.landmarks import hog_detector
+
+    monkeypatch.setenv("HEAD360_CACHE", str(tmp_path / "cache"))
+    img = skimage.data.astronaut()
+    reference = dlib.get_frontal_face_detector().run(img, 1, -0.5)
+    first = hog_detector()
+    files = list((tmp_path / "cache").iterdir())
+    assert [f.name for f in files] == [f"dlib-{dlib.__version__}-frontal_face.svm"]
+
+    def unpacked_again():
+        raise AssertionError("the cached detector should have been read")
+
+    monkeypatch.setattr(dlib, "get_frontal_face_detector", unpacked_again)
+    second = hog_detector()
+    for det in (first, second):
+        boxes, scores, ids = det.run(img, 1, -0.5)
+        assert len(boxes) == len(reference[0]) >= 2
+        assert [(b.left(), b.top(), b.right(), b.bottom()) for b in boxes] == [
+            (b.left(), b.top(), b.right(), b.bottom()) for b in reference[0]]
+        np.testing.assert_allclose(scores, reference[1], rtol=0, atol=1e-12)
+        assert list(ids) == list(reference[2])
+
+
+def test_hog_detector_without_a_usable_cache(tmp_path, monkeypatch):
+    import dlib
+    import skimage.data
+
+    from head360cli.fitting.landmarks import hog_detector
+
+    img = skimage.data.astronaut()
+    expected = len(dlib.get_frontal_face_detector()(img, 1))
+    # a damaged file is made again and written over
+    folder = tmp_path / "cache"
+    folder.mkdir()
+    damaged = folder / f"dlib-{dlib.__version__}-frontal_face.svm"
+    damaged.write_bytes(b"not a detector")
+    monkeypatch.setenv("HEAD360_CACHE", str(folder))
+    assert len(hog_detector()(img, 1)) == expected
+    assert dlib.fhog_object_detector(str(damaged)).num_detectors == 5
+    # a cache that cannot be made (a file where the folder should be) costs only time
+    blocked = tmp_path / "blocked"
+    blocked.write_text("a file")
+    monkeypatch.setenv("HEAD360_CACHE", str(blocked))
+    assert len(hog_detector()(img, 1)) == expected
+    assert blocked.read_text() == "a file"
+    # an empty HEAD360_CACHE turns the cache off
+    monkeypatch.setenv("HEAD360_CACHE", "")
+    monkeypatch.chdir(tmp_path)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert len(hog_detector()(img, 1)) == expected
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
