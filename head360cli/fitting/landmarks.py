@@ -83,35 +83,22 @@ def hog_detector():
     ``dlib.get_frontal_face_detector`` unpacks the detector from a compressed copy built
     into dlib, which takes about 0.6 s of every process that detects a face (on a 2-core
     AMD EPYC), while reading it from a file in dlib's own format takes 2 ms. So the
-    detector is kept in :func:`head360cli.paths.cache_dir`, named by dlib's version, and
-    read from there after the first time. The file holds the same detector: the same
-    boxes and scores. A cache that cannot be written or read (a read-only home, a damaged
-    file) only costs the time.
+    detector is kept in head360's cache (:mod:`head360cli.cache`), named by dlib's
+    version, and read from there after the first time. The file holds the same detector:
+    the same boxes and scores.
     """
-    import contextlib
-    import os
-
     import dlib
 
-    from head360cli.paths import cache_dir
+    from head360cli.cache import cache_file, store
 
-    folder = cache_dir()
-    path = None if folder is None else folder / f"dlib-{dlib.__version__}-frontal_face.svm"
+    path = cache_file(f"dlib-{dlib.__version__}-frontal_face.svm")
     if path is not None and path.is_file():
         try:
             return dlib.fhog_object_detector(str(path))
         except RuntimeError:  # damaged: made again and written over below
             pass
     detector = dlib.get_frontal_face_detector()
-    if path is not None:
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            detector.save(str(tmp))
-            os.replace(tmp, path)
-        except (OSError, RuntimeError):  # unwritable: the next process makes it again
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+    store(path, detector.save)
     return detector
 
 

@@ -330,13 +330,26 @@ def loss_window(mask: torch.Tensor, ratio: int, margin: int) -> tuple[int, int, 
 def mirror_grid(res: int) -> torch.Tensor:
     """``(1, res, res, 2)`` sampling grid that mirrors a ``res`` x ``res`` texture left to
     right on the head: each texel reads the texel whose surface point is its mirror image
-    (x -> -x) on the mean head. Texels off the UV islands read themselves."""
-    from scipy.spatial import cKDTree
+    (x -> -x) on the mean head. Texels off the UV islands read themselves.
 
-    from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+    Kept in head360's cache (:mod:`head360cli.cache`) under the bilinear model's hash:
+    making it imports ``scipy.spatial``, about 0.5 s of a fit's first second."""
+    from head360cli.cache import cached_array
     from head360cli.mesh.bilinear import load_bilinear
 
     model = load_bilinear()
+    name = f"mirror-grid-{model.meta['sha256'][:16]}-{res}.npy"
+    grid = cached_array(name, lambda: _make_mirror_grid(model, res), (res, res, 2),
+                        np.float32)
+    return torch.from_numpy(grid.copy())[None]
+
+
+def _make_mirror_grid(model, res: int) -> np.ndarray:
+    """:func:`mirror_grid`'s ``(res, res, 2)`` float32 grid for the bilinear ``model``."""
+    from scipy.spatial import cKDTree
+
+    from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+
     verts = model.vertices(np.zeros(model.rank), np.zeros(52))
     uv = torch.tensor(model.uv, dtype=torch.float32) * res
     frags = rasterize(uv[None], torch.ones(1, len(uv)), torch.as_tensor(model.faces_uv),
@@ -350,7 +363,7 @@ def mirror_grid(res: int) -> torch.Tensor:
     mirrored = pos[valid] * np.array([-1.0, 1.0, 1.0])
     _, nearest = cKDTree(pos[valid]).query(mirrored)
     grid[valid] = grid[valid][nearest]
-    return torch.tensor(grid * 2.0 - 1.0, dtype=torch.float32)[None]
+    return (grid * 2.0 - 1.0).astype(np.float32)
 
 
 def _laplacian(x: torch.Tensor) -> torch.Tensor:

@@ -418,3 +418,18 @@ def test_texture_stride_below_one_and_negative_smoothness_are_refused():
         dataclasses.replace(PRESETS["fast"], fine_smooth=-1.0)
     with pytest.raises(ValueError, match=r"expected code_samples >= 1 or None, found 0"):
         dataclasses.replace(PRESETS["fast"], code_samples=0)
+
+
+def test_mirror_grid_read_from_the_cache_is_the_one_made(tmp_path, monkeypatch):
+    from head360cli.fitting.texture import _make_mirror_grid, mirror_grid
+    from head360cli.mesh.bilinear import load_bilinear
+
+    monkeypatch.setenv("HEAD360_CACHE", str(tmp_path))
+    made = _make_mirror_grid(load_bilinear(), 32)
+    for _ in range(2):  # made and stored, then read back
+        mirror_grid.cache_clear()
+        grid = mirror_grid(32)
+        assert grid.shape == (1, 32, 32, 2) and grid.dtype == torch.float32
+        np.testing.assert_array_equal(grid[0].numpy(), made)
+    assert len(list(tmp_path.glob("mirror-grid-*-32.npy"))) == 1
+    mirror_grid.cache_clear()
