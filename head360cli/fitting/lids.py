@@ -28,7 +28,7 @@ import time
 import numpy as np
 import torch
 
-from head360cli.mesh.eyelids import blink_weights, lid_texels
+from head360cli.mesh.eyelids import blink_weights, grow_mask, lid_texels
 
 __all__ = ["LidConfig", "LidResult", "close_lids", "closed_lid_target", "head_lids"]
 
@@ -130,16 +130,17 @@ def closed_lid_target(open_rgb: np.ndarray, closed_rgb: np.ndarray, open_lid: np
         ``cfg.shade`` times the median colour of the open render in a ring around it, and
         a lash line of ``cfg.lash`` times that colour along its lower edge.
     """
-    from scipy import ndimage
+    import cv2
 
     target = closed_rgb.copy()
-    labels, count = ndimage.label(closed_lid)
+    # the lids as regions joined along rows and columns (scipy.ndimage.label's default)
+    count, labels = cv2.connectedComponents(closed_lid.astype(np.uint8), connectivity=4)
+    count -= 1  # label 0 is the background
     for j in range(1, count + 1):
         lid = labels == j
         if lid.sum() < 20:  # a sliver at the window's edge
             continue
-        ring = (ndimage.binary_dilation(lid, iterations=cfg.ring[1])
-                & ~ndimage.binary_dilation(lid, iterations=cfg.ring[0]) & ~open_lid)
+        ring = grow_mask(lid, cfg.ring[1]) & ~grow_mask(lid, cfg.ring[0]) & ~open_lid
         if not ring.any():
             continue
         skin = np.median(open_rgb[:, ring], axis=1)
@@ -169,8 +170,6 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
     Returns:
         The change; zero if the front view shows no lid.
     """
-    from scipy import ndimage
-
     from head360cli.fitting.adam import Adam
     from head360cli.fitting.texture import _deterministic
     from head360cli.geometry.cameras import (
@@ -217,7 +216,7 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
         at = reading_pixels(raster, keep)
     rgb = before.float().cpu().numpy()
     target = closed_lid_target(rgb[0], rgb[1], lid_pix[0], lid_pix[1], cfg)
-    window = ndimage.binary_dilation(lid_pix[0] | lid_pix[1], iterations=8)
+    window = grow_mask(lid_pix[0] | lid_pix[1], 8)
     target = torch.as_tensor(target, device=dev, dtype=dt)[None]
     weight = torch.as_tensor(window, device=dev, dtype=dt)[None, None]
     area = 3 * weight.sum()
