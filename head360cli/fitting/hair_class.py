@@ -114,7 +114,7 @@ def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
         ``(S, res, res)`` bool: where each style's hair is in front of the head.
     """
     from head360cli.model.render import EMPTY, screen_depth
-    from head360cli.synth.hair import HAIRSTYLES, fit_hair
+    from head360cli.synth.hair import HAIRSTYLES, fit_hairs
 
     styles = list(range(len(HAIRSTYLES))) if styles is None else styles
     cam = torch.as_tensor(c2w, dtype=torch.float32)[None]
@@ -122,10 +122,8 @@ def style_silhouettes(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
     head = screen_depth(torch.as_tensor(posed, dtype=torch.float32)[None],
                         torch.as_tensor(faces, dtype=torch.long), cam, k, res)[0]
     out = np.zeros((len(styles), res, res), bool)
-    meshes: dict[int, object] = {}
+    meshes = fit_hairs(neutral, styles)  # one fit per style, however many offsets
     for j, s in enumerate(styles):
-        if s not in meshes:  # one fit per style, however many offsets
-            meshes[s] = fit_hair(neutral, s)
         mesh = meshes[s]
         if len(mesh.faces) == 0:
             continue

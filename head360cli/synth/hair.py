@@ -22,7 +22,7 @@ import numpy as np
 from head360cli.synth.sculpt import HeadFrame, _column_angles, topology
 
 __all__ = ["HAIRSTYLES", "HAIR_COLOURS", "HairMesh", "HairStyle", "build_hair", "fit_hair",
-           "style_index"]
+           "fit_hairs", "head_normals", "style_index"]
 
 INNER_GAP = 0.0015
 """Distance between the scalp and the hair shell's inner surface, metres."""
@@ -190,19 +190,28 @@ def _level(name: str, frame: HeadFrame, style: HairStyle) -> float:
     return table[name]
 
 
-def _base_grid(verts: np.ndarray, frame: HeadFrame, bottom: float
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Skin rows from the crown to the neck (no pocket rows), continued straight down
-    below the neck to ``bottom``; and the outward normals of those points."""
+def head_normals(verts: np.ndarray) -> np.ndarray:
+    """``(V, 3)`` outward vertex normals of a head of the template's topology (its normal
+    groups kept apart), as the hair is grown along them."""
     import torch
 
     from head360cli.geometry.mesh_ops import vertex_normals
 
     topo = topology()
+    return vertex_normals(torch.tensor(verts)[None], torch.tensor(topo.faces),
+                          torch.tensor(topo.normal_groups))[0].numpy()
+
+
+def _base_grid(verts: np.ndarray, frame: HeadFrame, bottom: float,
+               normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Skin rows from the crown to the neck (no pocket rows), continued straight down
+    below the neck to ``bottom``; and the outward normals of those points (``normals``:
+    :func:`head_normals` of ``verts``, when already made)."""
+    topo = topology()
     keep = [i for i, n in enumerate(topo.row_names) if not n.startswith(("pocket", "seam_l"))]
     rows = topo.skin_rows[keep]
-    normals = vertex_normals(torch.tensor(verts)[None], torch.tensor(topo.faces),
-                             torch.tensor(topo.normal_groups))[0].numpy()
+    if normals is None:
+        normals = head_normals(verts)
     pts, nrm = verts[rows], normals[rows]
     last = pts[-1]
     extra = []
@@ -401,13 +410,16 @@ def _extras(style: HairStyle, frame: HeadFrame, head_top: float, back_z: float
     return pieces
 
 
-def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int) -> HairMesh:
+def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
+               normals: np.ndarray | None = None) -> HairMesh:
     """Fit a hairstyle to a head.
 
     Args:
         verts: ``(V, 3)`` the head's vertices (neutral).
         frame: The head's feature frame.
         style: A :class:`HairStyle` or its index in :data:`HAIRSTYLES`.
+        normals: ``(V, 3)`` :func:`head_normals` of ``verts``, when already made (for
+            several styles on one head); made here otherwise.
 
     Returns:
         The hair mesh (empty for ``bald``).
@@ -417,7 +429,7 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int) -> H
     if style.top <= 0 and not style.extras:
         return HairMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 2)))
     bottom = min(frame.levels["menton"] - style.length, frame.levels["neck_bottom"])
-    base, normal = _base_grid(verts, frame, bottom)
+    base, normal = _base_grid(verts, frame, bottom, normals)
     covered, thick = _coverage_and_thickness(base, frame, style)
     pieces = [_shell(base, normal, covered, thick, style, frame)]
     head_top = float(verts[:, 1].max())
@@ -439,6 +451,16 @@ def fit_hair(verts: np.ndarray, style: HairStyle | int) -> HairMesh:
     from head360cli.synth.sculpt import frame_from_vertices
 
     return build_hair(verts, frame_from_vertices(verts), style)
+
+
+def fit_hairs(verts: np.ndarray, styles: list[int]) -> dict[int, HairMesh]:
+    """:func:`fit_hair` for several styles on one head, its frame and normals made once:
+    ``{style: mesh}``, the same meshes."""
+    from head360cli.synth.sculpt import frame_from_vertices
+
+    frame = frame_from_vertices(verts)
+    normals = head_normals(verts)
+    return {s: build_hair(verts, frame, s, normals) for s in dict.fromkeys(styles)}
 
 
 def hair_texture(colour: tuple[float, float, float], size: int = 256, seed: int = 0

@@ -88,3 +88,19 @@ def test_hair_fits_the_parametric_models_mean_head():
     assert len(hair.faces) > 1000 and np.isfinite(hair.verts).all()
     # The hair sits on the head: its top within 3 cm above the scalp's.
     assert 0 < hair.verts[:, 1].max() - verts[:, 1].max() < 0.03
+
+
+def test_fit_hairs_gives_fit_hairs_meshes_once_per_style():
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.synth.hair import fit_hair, fit_hairs
+
+    model = load_bilinear()
+    verts = model.vertices(np.linspace(-1, 1, model.rank), np.zeros(52))
+    meshes = fit_hairs(verts, [17, 0, 3, 17])
+    assert list(meshes) == [17, 0, 3]
+    for k, mesh in meshes.items():
+        one = fit_hair(verts, k)
+        np.testing.assert_array_equal(mesh.verts, one.verts)
+        np.testing.assert_array_equal(mesh.faces, one.faces)
+        np.testing.assert_array_equal(mesh.uv, one.uv)
+    assert len(meshes[0].faces) == 0 and len(meshes[17].faces) > 1000
