@@ -68,11 +68,11 @@ def dlib_model_files() -> dict[str, Path | None]:
 
 def cache_dir() -> Path | None:
     """The folder for files head360 can always make again, kept to save time in later runs
-    (dlib's face detector, ready to read: :func:`head360cli.fitting.landmarks.hog_detector`).
+    (:mod:`head360cli.cache`).
 
     In order: ``$HEAD360_CACHE`` (set but empty: no cache); ``$XDG_CACHE_HOME/head360``;
-    ``~/.cache/head360``. The folder is made when a file is first written to it; deleting
-    it is always safe.
+    ``~/.cache/head360`` (no cache when there is no home folder). The folder is made
+    when a file is first written to it; deleting it is always safe.
     """
     env = os.environ.get("HEAD360_CACHE")
     if env is not None:
@@ -80,4 +80,7 @@ def cache_dir() -> Path | None:
     xdg = os.environ.get("XDG_CACHE_HOME")
     if xdg:
         return Path(xdg) / "head360"
-    return Path.home() / ".cache" / "head360"
+    try:
+        return Path.home() / ".cache" / "head360"
+    except RuntimeError:  # no home folder to be found: no cache
+        return None

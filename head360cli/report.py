@@ -48,10 +48,11 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
     Returns:
         ``head360``, ``python``, ``platform``, ``packages`` (versions or ``None`` when
         missing), ``devices``, ``models_dir``, ``models`` (name, bytes, sha256) and
-        ``dlib_models`` (which dlib weights are installed).
+        ``dlib_models`` (which dlib weights are installed), ``shared_data`` and
+        ``cache`` (the folder of :mod:`head360cli.cache`, ``None`` when turned off).
     """
     from head360cli import __version__
-    from head360cli.paths import dlib_model_files, models_dir, shared_data_dir
+    from head360cli.paths import cache_dir, dlib_model_files, models_dir, shared_data_dir
 
     packages = {
         "torch": _version("torch"),
@@ -116,6 +117,7 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         "models": models,
         "dlib_models": dlib_files,
         "shared_data": str(shared) if shared else None,
+        "cache": None if cache_dir() is None else str(cache_dir()),
     }
 
 
