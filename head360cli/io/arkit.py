@@ -229,7 +229,11 @@ def read_arkit_csv(
         on_bad: What to do with bad cells and malformed rows: ``"error"``, ``"skip"``
             the row, or ``"hold"`` the previous frame's value.
         fps: Frame rate to assume when the file has no time column (default 60), or the
-            rate of a ``frame`` column. Files with timecodes or seconds ignore it.
+            rate of a ``frame`` column. Files with seconds ignore it. Live Link Face
+            timecodes carry no rate: it is inferred (the next standard rate above the
+            largest frame number) unless ``fps`` is given and above that number. Files
+            that head360 writes read back right without it, short takes included
+            (:func:`write_arkit_csv` numbers those at a rate the inference gives back).
 
     Returns:
         The stream, with weights clamped to [0, 1] and warnings collected.
