@@ -106,6 +106,7 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         k: (str(v) if v is not None else None) for k, v in dlib_model_files().items()
     }
     shared = shared_data_dir()
+    cache = cache_dir()
     return {
         "head360": __version__,
         "python": sys.version.split()[0],
@@ -117,7 +118,7 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         "models": models,
         "dlib_models": dlib_files,
         "shared_data": str(shared) if shared else None,
-        "cache": None if cache_dir() is None else str(cache_dir()),
+        "cache": None if cache is None else str(cache),
     }
 
 

@@ -54,7 +54,7 @@ def lid_texels(faces: np.ndarray, uv: np.ndarray, faces_uv: np.ndarray, moved: n
     frags = rasterize(corners[None], torch.ones(1, len(uv)), torch.as_tensor(faces_uv),
                       res, res, perspective_correct=False, draw=torch.as_tensor(draw))
     inside = (frags.face_id[0] >= 0).numpy()
-    return grow_mask(inside, grow) if grow else inside
+    return grow_mask(inside, grow)
 
 
 def eye_texels(model, shape: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray]:
