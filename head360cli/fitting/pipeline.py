@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -97,13 +98,13 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    if face != "all" and int(face) < 0:
+        raise BadInputError(f"expected a face number >= 0, found {face}")
     img = load_image(photo)
     model = load_bilinear()
     fitter = ShapeFitter(model)
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    if face != "all" and int(face) < 0:
-        raise BadInputError(f"expected a face number >= 0, found {face}")
     faces = find_faces(img.pixels, detector, only=None if face == "all" else int(face))
     if face == "all":
         pick_face(faces, 0, detector)  # raises the no-face error
@@ -197,11 +198,14 @@ turned (fitted 48 degrees); the rest fit at 38 degrees or less."""
 
 def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | None,
                  timings: dict[str, float], warnings: list[str] | None = None,
-                 distance: float | None = None):
+                 distance: float | None = None,
+                 on_face: Callable[[Any, Any], None] | None = None):
     """Load, detect and fit the shape; returns ``(image, found face, fit, model)``.
 
     Warnings for the user (several faces, a small face, a greyscale photo, a profile view)
-    are appended to ``warnings``.
+    are appended to ``warnings``. ``on_face(image, found face)``, when given, is called
+    once the face has passed its checks, before the shape fit (the callers start the
+    hair parse there, which needs only the photo and its landmarks).
 
     Raises:
         NoFaceError: No face (by :func:`~head360cli.fitting.landmarks.find_faces`), or
@@ -236,6 +240,8 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
                         "blurry")
     if np.ptp(img.pixels.astype(np.int16), axis=2).max() <= 2:
         warnings.append("greyscale photo: the texture and hair colour will be grey")
+    if on_face is not None:
+        on_face(img, found)
     t0 = time.perf_counter()
     full_w, full_h = img.source_size
     f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
@@ -456,11 +462,16 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
     from head360cli.fitting.hair_parse import parse_hair
 
     timings: dict[str, float] = {}
-    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings)
-    t0 = time.perf_counter()
-    parse = parse_hair(img.pixels, found.landmarks,
-                       prior="learned" if learned_prior else None)
-    timings["parse"] = time.perf_counter() - t0
+    with ThreadPoolExecutor(max_workers=1) as pool:  # the parse beside the shape fit
+        jobs = []
+
+        def start_parse(img, found) -> None:
+            jobs.append(pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
+                                    prior="learned" if learned_prior else None))
+
+        img, found, fit, model = _photo_stage(photo, face, detector, focal, timings,
+                                              on_face=start_parse)
+        parse, timings["parse"] = jobs[0].result()
     t0 = time.perf_counter()
     guess, estimate, name, colour = _hair_guess(img, parse, fit, model, found.landmarks)
     timings["classify"] = time.perf_counter() - t0
@@ -487,7 +498,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     neural-texture inversion; closed lids (a texture change that the blinks bring in, so
     closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); hair placement
     (the style's mesh shifted to match the parsed hair from the fitted camera); preview.
-    The parse runs in a second thread while the hairstyles' silhouettes, the
+    The parse runs in a second thread from the moment the landmarks are found, while the
+    shape is fitted, the generator loaded, and the hairstyles' silhouettes, the
     inversion's mirror grid and the bald render of the starting code are made, so the
     summary's stage times add up to more than its total by that overlap. Writes ``out``
     (``.h360``), ``<out stem>_preview.png`` (photo crop | fitted front | three other
@@ -550,21 +562,26 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     warnings: list[str] = []
     t_all = time.perf_counter()
     say("shape", 0, 1)
-    img, found, fit, model = _photo_stage(photo, face, detector, focal, timings, warnings,
-                                          distance)
-    t0 = time.perf_counter()
-    gen, codes = load_generator(device=device)
-    res = gen.cfg.image_res
-    timings["load"] += time.perf_counter() - t0
-    say("parse", 0, 1)
-    dev = torch.device(device)
     with ThreadPoolExecutor(max_workers=1) as pool:
-        # GrabCut lets go of the interpreter: the parse runs on one core while this
-        # thread makes what does not need it: the hairstyles' silhouettes, the
-        # inversion's mirror grid, and the bald render of the starting code that the bald
-        # target fills the hair from (the stages' times overlap by as much)
-        job = pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
-                          prior="learned" if learned_prior else None)
+        # GrabCut lets go of the interpreter: the parse runs on one core from the moment
+        # the landmarks are found, while this thread makes what does not need it: the
+        # shape fit, the generator, the hairstyles' silhouettes, the inversion's mirror
+        # grid, and the bald render of the starting code that the bald target fills the
+        # hair from (the stages' times overlap by as much)
+        jobs = []
+
+        def start_parse(img, found) -> None:
+            jobs.append(pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
+                                    prior="learned" if learned_prior else None))
+
+        img, found, fit, model = _photo_stage(photo, face, detector, focal, timings,
+                                              warnings, distance, on_face=start_parse)
+        t0 = time.perf_counter()
+        gen, codes = load_generator(device=device)
+        res = gen.cfg.image_res
+        timings["load"] += time.perf_counter() - t0
+        say("parse", 0, 1)
+        dev = torch.device(device)
         t0 = time.perf_counter()
         silhouettes = _silhouettes(img, fit, model)
         classify_s = time.perf_counter() - t0
@@ -580,7 +597,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         with torch.no_grad():
             first = gen(verts[None], cam[None], kk[None], code=start[None])
         first_s = time.perf_counter() - t0
-        parse, timings["parse"] = job.result()
+        parse, timings["parse"] = jobs[0].result()
     t0 = time.perf_counter()
     guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
                                                        found.landmarks, silhouettes)

@@ -27,13 +27,13 @@ def test_mirror_maps_the_predictor_on_a_flipped_photo_back():
     them (within a pixel); without the permutation the eyes would swap (tens of px)."""
     import skimage.data
 
-    from head360cli.fitting.landmarks import MIRROR_68, LandmarkDetector, _load, _points
+    from head360cli.fitting.landmarks import MIRROR_68, LandmarkDetector, _points, _predictor
 
     img = skimage.data.astronaut()
     face = LandmarkDetector(average=False).detect_one(img)
     x0, y0, x1, y1 = (int(v) for v in face.box)
     last = img.shape[1] - 1
-    flipped = _points(_load("hog")[1], np.ascontiguousarray(img[:, ::-1]),
+    flipped = _points(_predictor(), np.ascontiguousarray(img[:, ::-1]),
                       (last - x1, y0, last - x0, y1))
     flipped[:, 0] = last - flipped[:, 0]
     err = np.linalg.norm(flipped[MIRROR_68] - face.landmarks, axis=1).mean()
@@ -69,11 +69,11 @@ def test_averaging_commutes_with_mirroring():
     is the mirror of the mean on the photo."""
     import skimage.data
 
-    from head360cli.fitting.landmarks import MIRROR_68, _averaged, _load
+    from head360cli.fitting.landmarks import MIRROR_68, _averaged, _predictor
 
     img = skimage.data.astronaut()
     mirrored = np.ascontiguousarray(img[:, ::-1])
-    predictor = _load("hog")[1]
+    predictor = _predictor()
     last = img.shape[1] - 1
     box = (175, 76, 265, 166)
     a = _averaged(predictor, img, mirrored, box)
@@ -243,3 +243,20 @@ def test_hog_detector_without_a_usable_cache(tmp_path, monkeypatch):
     before = sorted(p.name for p in tmp_path.iterdir())
     assert len(hog_detector()(img, 1)) == expected
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_an_image_without_a_face_does_not_load_the_predictor():
+    """The 68-point predictor takes about 1 s to load; an image where the detector finds
+    no face (a hair close-up, a back view) is searched without it."""
+    from head360cli.fitting.landmarks import LandmarkDetector, _predictor, find_faces
+
+    _predictor.cache_clear()
+    blank = np.full((120, 160, 3), 200, np.uint8)
+    assert LandmarkDetector("hog").detect(blank) == []
+    assert find_faces(blank, "hog") == []
+    assert _predictor.cache_info().misses == 0
+    import skimage.data
+
+    faces = LandmarkDetector("hog").detect(skimage.data.astronaut())
+    assert faces and all(f.landmarks.shape == (68, 2) for f in faces)
+    assert _predictor.cache_info().misses == 1
