@@ -375,3 +375,35 @@ def test_where_the_learned_prior_is_sure_the_pixel_is_the_persons(monkeypatch):
     soft = mask_iou(parse_hair(img, lm).hair, truth)
     assert sure == pytest.approx(0.925, abs=0.02)  # measured 0.925
     assert soft == pytest.approx(0.785, abs=0.02)  # measured 0.785
+
+
+def test_the_person_pass_runs_at_person_side_and_finds_the_same_hair(monkeypatch):
+    """The first GrabCut pass (the person against the background) runs on a copy at most
+    PERSON_SIDE pixels long, the second at the working size; on a corpus head seen at
+    512 px the hair is found as well as with both passes at the working size."""
+    import cv2
+
+    import head360cli.fitting.hair_parse as hp
+
+    img, lm, hair, _ = _corpus_portrait(3)
+    assert hair.sum() > 500  # a head with hair
+    img = cv2.resize(img, (512, 512), interpolation=cv2.INTER_LINEAR)
+    hair = cv2.resize(hair.astype(np.uint8), (512, 512), interpolation=cv2.INTER_NEAREST) > 0
+    lm = lm * 2.0
+    shapes = []
+    real = hp._grabcut
+
+    def spy(bgr, mask, iterations):
+        shapes.append(mask.shape)
+        return real(bgr, mask, iterations)
+
+    monkeypatch.setattr(hp, "_grabcut", spy)
+    fast = parse_hair(img, lm, prior=None)
+    assert shapes == [(hp.PERSON_SIDE, hp.PERSON_SIDE), (384, 384)]
+    shapes.clear()
+    full = parse_hair(img, lm, prior=None, person_size=384)
+    assert shapes == [(384, 384), (384, 384)]
+    assert fast.hair.shape == hair.shape
+    assert mask_iou(fast.hair, hair) > 0.93
+    assert mask_iou(fast.hair, hair) > mask_iou(full.hair, hair) - 0.02
+    assert mask_iou(fast.hair, full.hair) > 0.96
