@@ -287,23 +287,23 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         landmarks: ``(68, 2)`` iBUG landmarks in its pixels, or ``None`` (no face found).
         work_size: Longest side the segmentation runs at.
         iterations: GrabCut iterations.
-        person_size: Longest side of the first GrabCut pass with landmarks, the person
-            against the background (:data:`PERSON_SIDE`; ``work_size`` or more: at the
-            working size).
         prior: Where hair probably is, used as GrabCut's soft labels when landmarks are
             given (and where it is above :data:`PRIOR_SURE`, as the person's hard label
             in the first pass, person against backdrop). ``"learned"`` runs the shipped
             hair prior (:mod:`head360cli.fitting.hair_prior`) when it is installed; an
             ``(H, W)`` float map of probabilities in [0, 1] at the photo's size is used
             as it is; ``None`` parses by colour and landmarks alone.
+        person_size: Longest side of the first GrabCut pass with landmarks, the person
+            against the background (:data:`PERSON_SIDE`; ``work_size`` or more: at the
+            working size).
 
     Returns:
         The masks at the photo's size.
 
     Raises:
         BadInputError: ``rgb`` is not an ``(H, W, 3)`` uint8 image with sides of at least
-            :data:`MIN_SIDE` pixels, or ``prior`` is neither ``"learned"``, ``None`` nor a
-            map of the photo's size.
+            :data:`MIN_SIDE` pixels, ``prior`` is neither ``"learned"``, ``None`` nor a
+            map of the photo's size, or ``person_size`` is under :data:`MIN_SIDE`.
     """
     import cv2
 
@@ -313,6 +313,9 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise BadInputError(f"expected an (H, W, 3) uint8 RGB photo to parse, found shape "
                             f"{tuple(rgb.shape)} of {rgb.dtype}")
+    if person_size < MIN_SIDE:
+        raise BadInputError(f"expected a person pass size of at least {MIN_SIDE} pixels, "
+                            f"found {person_size}")
     h, w = rgb.shape[:2]
     if min(h, w) < MIN_SIDE:
         raise BadInputError(f"expected a photo at least {MIN_SIDE}x{MIN_SIDE} pixels to parse "

@@ -137,6 +137,8 @@ def test_parse_refuses_photos_too_small_or_not_rgb():
         parse_hair(rng.random((40, 40, 3)), None)
     with pytest.raises(BadInputError, match=r"found shape \(40, 40\)"):
         parse_hair(np.zeros((40, 40), np.uint8), None)
+    with pytest.raises(BadInputError, match=r"person pass size of at least 16 pixels, found 8"):
+        parse_hair(rng.integers(0, 256, (40, 40, 3), dtype=np.uint8), None, person_size=8)
     # The smallest accepted size, and a thin strip, parse without numpy warnings (a 5-px
     # photo had divided by empty colour samples).
     import warnings

@@ -248,6 +248,8 @@ def test_hog_detector_without_a_usable_cache(tmp_path, monkeypatch):
 def test_an_image_without_a_face_does_not_load_the_predictor():
     """The 68-point predictor takes about 1 s to load; an image where the detector finds
     no face (a hair close-up, a back view) is searched without it."""
+    import skimage.data
+
     from head360cli.fitting.landmarks import LandmarkDetector, _predictor, find_faces
 
     _predictor.cache_clear()
@@ -255,8 +257,6 @@ def test_an_image_without_a_face_does_not_load_the_predictor():
     assert LandmarkDetector("hog").detect(blank) == []
     assert find_faces(blank, "hog") == []
     assert _predictor.cache_info().misses == 0
-    import skimage.data
-
     faces = LandmarkDetector("hog").detect(skimage.data.astronaut())
     assert faces and all(f.landmarks.shape == (68, 2) for f in faces)
     assert _predictor.cache_info().misses == 1
