@@ -156,7 +156,7 @@ def info() -> None:
     for key, path in report["dlib_models"].items():
         lines.append(f"  {key:<20} {'present' if path else 'MISSING'}")
     lines.append(f"shared evaluation data: {report['shared_data'] or 'not found'}")
-    lines.append(f"cache: {report['cache'] or 'off (HEAD360_CACHE is empty)'}")
+    lines.append(f"cache: {report['cache'] or 'off (HEAD360_CACHE empty, or no home folder)'}")
     _emit(report, "\n".join(lines))
 
 

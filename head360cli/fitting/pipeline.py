@@ -424,6 +424,8 @@ def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
     photo's hair pixels (``crop (R, R, 3)`` uint8, ``hair (R, R)`` bool): ``(name, linear
     RGB, "render" or "tone curve")``. The generator renders a named colour close to, but
     not exactly as, the corpus renderer whose look the tone curve was fitted to."""
+    import dataclasses
+
     import cv2
     import torch
 
@@ -440,9 +442,12 @@ def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
 
     with torch.no_grad():
         texture = gen.texture(code[None])  # the same head under every candidate
+    # the same hair mesh too: fitted to the head once, each candidate only recoloured
+    shape = hair_for(neutral, [style], np.asarray(estimate, np.float32)[None]).to(verts.device)
 
     def render(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        h = gen.prepare_hair(hair_for(neutral, [style], rgb[None]).to(verts.device))
+        h = gen.prepare_hair(dataclasses.replace(shape, colour=torch.as_tensor(
+            np.asarray(rgb, np.float32)[None], device=verts.device)))
         with torch.no_grad(), gen.image_size(size):
             out = gen(verts[None], cam[None], small_k[None], texture=texture, hair=h)
         return (out["rgb"][0].permute(1, 2, 0).clamp(0, 1).cpu().numpy(),
