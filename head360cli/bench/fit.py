@@ -46,7 +46,7 @@ def _hair_parse(data: Path) -> dict[str, Any]:
     for name, pattern, truth in (("figaro", "*-org.jpg", lambda p: p.with_name(
             p.name.replace("-org.jpg", "-gt.pbm"))), ("celebamask", "*.jpg", lambda p:
                                                       p.with_name(p.stem + "_hair.png"))):
-        ious, alone, auto, seeded, by_cnn = [], [], [], 0, 0
+        ious, alone, auto, plain, seeded, by_cnn, profiles = [], [], [], [], 0, 0, 0
         for photo in sorted((data / "hair" / name).glob(pattern)):
             img = load_image(photo).pixels
             gt = cv2.imread(str(truth(photo)), 0)
@@ -54,7 +54,12 @@ def _hair_parse(data: Path) -> dict[str, Any]:
             found = face_to_parse(img)  # as parse-hair: HOG, then turned copies
             lm = None if found is None else found.landmarks
             seeded += lm is not None
-            ious.append(mask_iou(parse_hair(img, lm).hair, gt))
+            parsed = parse_hair(img, lm)
+            ious.append(mask_iou(parsed.hair, gt))
+            profiles += parsed.profile
+            # without a face, the parse without looking for a face in profile
+            plain.append(ious[-1] if lm is not None else
+                         mask_iou(parse_hair(img, None, profile=False).hair, gt))
             # parse-hair --detector auto: the CNN detector where HOG finds no face
             auto_found = face_to_parse(img, detector="auto") if lm is None else found
             by_cnn += auto_found is not None and auto_found.detector == "cnn"
@@ -66,8 +71,10 @@ def _hair_parse(data: Path) -> dict[str, Any]:
                          mask_iou(parse_hair(img, lm, prior=None).hair, gt))
         if ious:
             out[name] = {"photos": len(ious), "with_face": seeded, "face_by_cnn": by_cnn,
+                         "profile_face": profiles,
                          "mean_iou": round(float(np.mean(ious)), 4),
                          "mean_iou_no_prior": round(float(np.mean(alone)), 4),
+                         "mean_iou_no_profile": round(float(np.mean(plain)), 4),
                          "mean_iou_auto": round(float(np.mean(auto)), 4),
                          "iou_auto": [round(i, 3) for i in auto],
                          "iou": [round(i, 3) for i in ious]}
@@ -162,8 +169,10 @@ def _hair_style(views: int = 30, seed: int = 0) -> dict[str, Any]:
 
 def _hair_parse_no_face(heads: int = 30, seed: int = 0) -> dict[str, Any]:
     """Hair IoU of the parse without a face on held-out corpus heads: back views (yaw 180,
-    pitch 10) and close-ups (a crop of 0.6 times the hair's extent around its middle,
-    seen from yaw 150, pitch 20), on four plain backdrops, at 256 x 256."""
+    pitch 10), close-ups (a crop of 0.6 times the hair's extent around its middle, seen
+    from yaw 150, pitch 20) and two profiles (yaw 90 and 65 degrees to either side,
+    pitch 5, the sides alternating from head to head), on four plain backdrops, at 256 x
+    256. Profiles are also parsed without looking for a face in profile."""
     import cv2
     import torch
 
@@ -172,15 +181,19 @@ def _hair_parse_no_face(heads: int = 30, seed: int = 0) -> dict[str, Any]:
     from head360cli.model.data import Views
 
     data = Views(heads, split="test", seed=seed, size=384)
-    cams = camera_on_sphere(torch.tensor([180.0, 150.0]), torch.tensor([10.0, 20.0]),
-                            RIG_DISTANCE)
     backdrops = np.array([(255, 255, 255), (40, 40, 40), (120, 140, 160), (200, 180, 150)])
-    ious: dict[str, list[float]] = {"back_view": [], "close_up": []}
+    kinds = ("back_view", "close_up", "profile", "profile")
+    ious: dict[str, list[float]] = {"back_view": [], "close_up": [], "profile": [],
+                                    "profile_no_cascade": []}
+    found = 0
     for i in range(heads):
         if data.head(i).hair_style == 0:  # bald: no hair to find
             continue
+        side = 1.0 if i % 2 == 0 else -1.0
+        cams = camera_on_sphere(torch.tensor([180.0, 150.0, 90.0 * side, -65.0 * side]),
+                                torch.tensor([10.0, 20.0, 5.0, 5.0]), RIG_DISTANCE)
         batch = data.render(i, np.zeros(52, np.float32), cams, with_hair=True)
-        for v, kind in enumerate(ious):
+        for v, kind in enumerate(kinds):
             alpha = batch.alpha[v, 0].numpy()[..., None]
             rgb = (batch.rgb[v].permute(1, 2, 0).numpy() * alpha * 255
                    + backdrops[(i + v) % 4] * (1 - alpha)).astype(np.uint8)
@@ -194,9 +207,16 @@ def _hair_parse_no_face(heads: int = 30, seed: int = 0) -> dict[str, Any]:
             rgb = cv2.resize(rgb, (256, 256), interpolation=cv2.INTER_AREA)
             hair = cv2.resize(hair.astype(np.uint8), (256, 256),
                               interpolation=cv2.INTER_NEAREST) > 0
-            ious[kind].append(mask_iou(parse_hair(rgb, None).hair, hair))
-    return {k: {"views": len(v), "mean_iou": round(float(np.mean(v)), 4)}
-            for k, v in ious.items()}
+            parsed = parse_hair(rgb, None)
+            ious[kind].append(mask_iou(parsed.hair, hair))
+            if kind == "profile":
+                found += parsed.profile
+                ious["profile_no_cascade"].append(
+                    mask_iou(parse_hair(rgb, None, profile=False).hair, hair))
+    out: dict[str, Any] = {k: {"views": len(v), "mean_iou": round(float(np.mean(v)), 4)}
+                           for k, v in ious.items()}
+    out["profile"]["profile_face"] = found
+    return out
 
 
 def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0
@@ -557,10 +577,13 @@ def _markdown(r: dict[str, Any]) -> str:
     if "hair_parse" in r:
         lines += ["## Hair parsing (IoU of the hair mask)", "", "| data | photos | with a "
                   "face found | mean IoU | without the learned prior | with `--detector "
-                  "auto` (faces found by the CNN fallback) |", "|---|---|---|---|---|---|"]
+                  "auto` (faces found by the CNN fallback) | without looking for a face "
+                  "in profile (profiles found) |", "|---|---|---|---|---|---|---|"]
         lines += [f"| {k} | {v['photos']} | {v['with_face']} | {v['mean_iou']:.3f} | "
                   f"{_maybe(v.get('mean_iou_no_prior'))} | {_maybe(v.get('mean_iou_auto'))}"
-                  + (f" ({v['face_by_cnn']})" if "face_by_cnn" in v else "") + " |"
+                  + (f" ({v['face_by_cnn']})" if "face_by_cnn" in v else "") + " | "
+                  f"{_maybe(v.get('mean_iou_no_profile'))}"
+                  + (f" ({v['profile_face']})" if "profile_face" in v else "") + " |"
                   for k, v in r["hair_parse"].items()]
         lines.append("")
     h = r["hair_style"]
@@ -569,7 +592,11 @@ def _markdown(r: dict[str, Any]) -> str:
               f"10 degrees {h['parsed_iou']:.3f} (without the learned prior "
               f"{_maybe(h.get('parsed_iou_no_prior'))}); no face, back views "
               f"{n['back_view']['mean_iou']:.3f}, close-ups {n['close_up']['mean_iou']:.3f} "
-              f"({n['back_view']['views']} heads).", ""]
+              f"({n['back_view']['views']} heads)"
+              + (f", profiles {n['profile']['mean_iou']:.3f} ({n['profile']['views']} views, "
+                 f"a face in profile found in {n['profile']['profile_face']}; without "
+                 f"looking for one {n['profile_no_cascade']['mean_iou']:.3f})"
+                 if "profile" in n else "") + ".", ""]
     lines += ["## Hairstyle (30 styles, held-out heads, true mesh) and hair colour name "
               "(10 colours, heads with hair)", "",
               "| hair mask | style top-1 | style top-3 | top-1 or the same silhouette | "

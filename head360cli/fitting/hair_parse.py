@@ -25,7 +25,10 @@ Without landmarks (a back view, a profile, a hair close-up), the photo is taken 
 the hair: GrabCut separates the foreground (the centre of the image and what has its colours
 are probably in it; an edge of the frame is not, unless it has those colours too, as in a
 close-up where the hair runs off the frame; smooth regions and skin colours probably are
-not) and that foreground is the hair.
+not) and that foreground is the hair. A face in profile, which dlib's frontal detectors
+do not find, is looked for with OpenCV's Haar profile cascade
+(:func:`~head360cli.fitting.landmarks.find_profile`): where one is found, its cheek gives
+the face's own skin colour, which is then not hair, and the face mask.
 
 Everything runs at a working resolution of at most ``work_size`` pixels and is scaled back
 to the input's size; the first of the two GrabCut passes (the person against the
@@ -71,6 +74,8 @@ class HairParse:
         background: Neither hair nor face.
         seeded: Whether landmarks seeded the parse (``False``: the no-face fallback).
         prior: Whether a hair prior (learned or given) set GrabCut's soft labels.
+        profile: Whether a face in profile guided the parse without landmarks (its skin
+            is then the face mask).
     """
 
     hair: np.ndarray
@@ -78,6 +83,7 @@ class HairParse:
     background: np.ndarray
     seeded: bool
     prior: bool = False
+    profile: bool = False
 
 
 def mask_iou(pred: np.ndarray, truth: np.ndarray) -> float:
@@ -259,6 +265,48 @@ def _learned_prior(rgb: np.ndarray, landmarks: np.ndarray | None) -> np.ndarray 
     return None if net is None else net.predict(rgb, landmarks)
 
 
+PROFILE_SKIN = 0.3
+"""Share of a profile face's cheek (see :func:`_profile_cheek`) that must fall in the
+fixed skin box for the face to be believed. On development renders (corpus seeds 1 and 2,
+256 pixels) the cheeks of faces found in profile had 0.42 to 1.0 of their pixels in it;
+the three boxes the cascade put on back views and close-ups of hair 0.0 to 0.18."""
+
+
+def _profile_cheek(bgr: np.ndarray, skin: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(cheek, face)`` ``(H, W)`` bool masks of the largest face in profile in ``bgr``
+    (:func:`~head360cli.fitting.landmarks.find_profile`), or ``None`` when there is none
+    or its cheek is not skin-coloured (:data:`PROFILE_SKIN` of ``skin``, the fixed skin
+    box).
+
+    The cascade's box is sometimes the face and sometimes the whole head, but both have
+    the nose at its front side, so the cheek is taken in the box's front half (0.1 to
+    0.45 of its width from the front, 0.4 to 0.8 of its height) and the face, where its
+    skin is sure, in 0 to 0.6 of the width and below 0.3 of the height; both only where
+    the skin box is, since the front half also holds the backdrop before the face (with
+    it, the skin model took a dark backdrop and the black hair as skin).
+    """
+    import cv2
+
+    from head360cli.fitting.landmarks import find_profile
+
+    found = find_profile(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
+    if found is None:
+        return None
+    x0, y0, x1, y1 = found.box
+    yy, xx = np.mgrid[0:bgr.shape[0], 0:bgr.shape[1]].astype(np.float32)
+    across = (xx - x0) / (x1 - x0) if found.facing < 0 else (x1 - xx) / (x1 - x0)
+    down = (yy - y0) / (y1 - y0)
+    cheek = (across > 0.1) & (across < 0.45) & (down > 0.4) & (down < 0.8)
+    if not cheek.any() or skin[cheek].mean() < PROFILE_SKIN:
+        return None
+    # The box's front half also catches the backdrop before the face.
+    cheek &= skin
+    if cheek.sum() < MIN_SAMPLES:
+        return None
+    return cheek, (across > 0) & (across < 0.6) & (down > 0.3) & (down < 1.0) & skin
+
+
 def _grabcut_at(bgr: np.ndarray, mask: np.ndarray, iterations: int, side: int
                 ) -> np.ndarray:
     """:func:`_grabcut` on a copy at most ``side`` pixels long (the image scaled by area,
@@ -279,7 +327,7 @@ def _grabcut_at(bgr: np.ndarray, mask: np.ndarray, iterations: int, side: int
 def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
                work_size: int = 384, iterations: int = 5,
                prior: np.ndarray | str | None = "learned",
-               person_size: int = PERSON_SIDE) -> HairParse:
+               person_size: int = PERSON_SIDE, profile: bool = True) -> HairParse:
     """Hair, face and background masks of a photo.
 
     Args:
@@ -296,6 +344,8 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         person_size: Longest side of the first GrabCut pass with landmarks, the person
             against the background (:data:`PERSON_SIDE`; ``work_size`` or more: at the
             working size).
+        profile: Without landmarks, whether to look for a face in profile and keep its
+            skin out of the hair (:func:`_profile_cheek`).
 
     Returns:
         The masks at the photo's size.
@@ -337,6 +387,7 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     lab = cv2.cvtColor(bgr, cv2.COLOR_BGR2LAB).astype(np.float32)
     yy, xx = np.mgrid[0:sh, 0:sw].astype(np.float32)
     face = np.zeros((sh, sw), bool)
+    cheek = None  # a face in profile's cheek and face, without landmarks
     size = max(sh, sw)
     band = max(2, round(0.02 * size))
     border = np.zeros((sh, sw), bool)
@@ -435,6 +486,18 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # off the frame, and seeding it as background made the whole mask empty.
         centre = (np.abs(xx / sw - 0.5) < 0.25) & (np.abs(yy / sh - 0.45) < 0.3)
         core = (np.abs(xx / sw - 0.5) < 0.1) & (np.abs(yy / sh - 0.45) < 0.12)
+        skin = _skin_box(bgr)
+        core_skin = skin[core].mean()
+        # A face in profile: its cheek gives this face's skin colour, which is then not
+        # hair, and the core's hair colours are taken without it (the centre of a profile
+        # is often the cheek or the ear: the face was parsed as hair).
+        cheek = _profile_cheek(bgr, skin) if profile else None
+        face_like = face_sure = np.zeros((sh, sw), bool)
+        if cheek is not None:
+            face_like = _colour_distance(lab, lab[cheek[0]]) < LIKE_DEVIATIONS
+            face_sure = face_like & cheek[1]
+            if (core & ~face_like).sum() >= MIN_SAMPLES:
+                core = core & ~face_like
         like_core = _colour_distance(lab, lab[core]) < LIKE_DEVIATIONS
         m = np.full((sh, sw), cv2.GC_PR_BGD, np.uint8)
         m[centre | like_core] = cv2.GC_PR_FGD
@@ -443,13 +506,15 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # The neck, ears and face of a back or profile view are not hair: without a face
         # there is no cheek to learn the skin from, so a fixed skin box is used, unless
         # the core's own colours fall in it (blond or red hair).
-        skin = _skin_box(bgr)
-        if skin[core].mean() < 0.5:
+        if core_skin < 0.5:
             m[skin & ~core] = cv2.GC_PR_BGD
+        m[face_like & ~core] = cv2.GC_PR_BGD
+        m[face_sure] = cv2.GC_BGD
         for edge in (np.s_[:band], np.s_[-band:], np.s_[:, :band], np.s_[:, -band:]):
             if like_core[edge].mean() < 0.3:
                 m[edge] = cv2.GC_BGD
         hair = _clean(_grabcut(bgr, m, iterations), None, size)
+        face = face_sure & ~hair
     if scale < 1:
         def up(m: np.ndarray) -> np.ndarray:
             return cv2.resize(m.astype(np.uint8) * 255, (w, h),
@@ -457,4 +522,5 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         hair, face = up(hair), up(face)
     face &= ~hair
     return HairParse(hair, face, ~(hair | face), landmarks is not None,
-                     prior is not None and landmarks is not None)
+                     prior is not None and landmarks is not None,
+                     landmarks is None and cheek is not None)

@@ -281,7 +281,8 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
 
     A photo without a detectable face (:func:`face_to_parse`) is parsed without
     landmarks (``"seeded": false``, ``"face_detector": null``; else the detector that
-    found it, ``hog`` or ``cnn``, and ``face_turn_degrees``).
+    found it, ``hog`` or ``cnn``, and ``face_turn_degrees``); ``"profile_face"`` says
+    whether such a photo showed a face in profile, whose skin is then its face mask.
     ``learned_prior=False`` parses by colour and landmarks alone (no hair-prior network).
     """
     import cv2
@@ -316,7 +317,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
             "face_turn_degrees": None if found is None else found.turn,
-            "learned_prior": parse.prior,
+            "profile_face": parse.profile, "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),
             "face_fraction": round(float(parse.face.mean()), 4),
             "seconds": round(time.perf_counter() - t0, 3),

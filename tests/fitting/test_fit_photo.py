@@ -93,7 +93,7 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     # Hair on the crown, face skin on the cheeks and nose (rows 150-180).
     assert hair[40:80, 180:280].mean() > 230 and face[150:180, 210:260].mean() > 180
     assert Image.open(out["overlay"]).size == (512, 512)
-    assert out["learned_prior"] is True
+    assert out["learned_prior"] is True and out["profile_face"] is False
     # Without the learned prior: the astronaut's hair is plain against her backdrop and
     # both parses agree (measured: 1 pixel of 262,144 differs).
     r = run_cli("parse-hair", astronaut, "-o", tmp_path / "alone", "--json", "--no-prior")
@@ -118,6 +118,24 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     Image.fromarray(np.zeros((3, 3, 3), np.uint8)).save(speck)
     r = run_cli("parse-hair", speck, "-o", tmp_path / "speck")
     assert r.code == 3 and "found 3x3" in r.err and not (tmp_path / "speck").exists()
+
+
+def test_parse_hair_says_it_found_a_face_in_profile(run_cli, tmp_path):
+    """A held-out corpus head turned 65 degrees: no face for dlib, a face in profile for
+    the cascade, whose skin is the face mask (before, the face was parsed as hair)."""
+    from tests.fitting.test_hair_parse import _corpus_view
+
+    photo = tmp_path / "side.png"
+    rgb, hair, _ = _corpus_view(65.0)
+    Image.fromarray(rgb).save(photo)
+    r = run_cli("parse-hair", photo, "-o", tmp_path / "out", "--json")
+    assert r.code == 0, r.err
+    out = json.loads(r.out)
+    assert out["seeded"] is False and out["profile_face"] is True
+    assert out["face_fraction"] > 0.02
+    face = np.array(Image.open(out["face_mask"])) > 0
+    parsed = np.array(Image.open(out["hair_mask"])) > 0
+    assert not (face & hair).any() and (parsed & hair).sum() > 0.9 * hair.sum()
 
 
 def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):

@@ -260,3 +260,22 @@ def test_an_image_without_a_face_does_not_load_the_predictor():
     faces = LandmarkDetector("hog").detect(skimage.data.astronaut())
     assert faces and all(f.landmarks.shape == (68, 2) for f in faces)
     assert _predictor.cache_info().misses == 1
+
+
+def test_profile_cascade_finds_either_side_and_not_a_back_view():
+    """A held-out corpus head (1) turned 65 degrees: found looking to the image's left;
+    its mirror image, looking right, with the mirrored box; seen from behind, nothing."""
+    import cv2
+
+    from head360cli.fitting.landmarks import find_profile
+    from tests.fitting.test_hair_parse import _corpus_view
+
+    grey = cv2.cvtColor(_corpus_view(65.0)[0], cv2.COLOR_RGB2GRAY)
+    left = find_profile(grey)
+    right = find_profile(np.ascontiguousarray(grey[:, ::-1]))
+    assert left is not None and right is not None
+    assert (left.facing, right.facing) == (-1, 1)
+    w = grey.shape[1]
+    assert right.box == (w - left.box[2], left.box[1], w - left.box[0], left.box[3])
+    assert find_profile(cv2.cvtColor(_corpus_view(180.0)[0], cv2.COLOR_RGB2GRAY)) is None
+    assert find_profile(np.zeros((8, 8), np.uint8)) is None
