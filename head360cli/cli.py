@@ -454,8 +454,10 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
 
     Writes <stem>_hair.png and <stem>_face.png (single channel, the photo's size, 255
     inside) and <stem>_parse.png (hair red, face blue). Without a detectable face the hair
-    is parsed from colour alone ("seeded": false). With a face, a small network trained on
-    the synthetic corpus (models/hair_prior.pt) says where hair probably is first.
+    is parsed from colour alone ("seeded": false), keeping out the skin of a face in
+    profile where OpenCV's profile cascade finds one ("profile_face": true). With a
+    face, a small network trained on the synthetic corpus (models/hair_prior.pt) says
+    where hair probably is first.
 
     \b
     Examples:
@@ -467,8 +469,14 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
 
     r = parse_photo(photo, out_dir, face=face, detector=detector, learned_prior=not no_prior)
     _emit(r, f"hair {100 * r['hair_fraction']:.1f}% and face {100 * r['face_fraction']:.1f}% "
-          f"of the image{'' if r['seeded'] else ' (no face found: colour only)'}; wrote "
+          f"of the image{'' if r['seeded'] else _unseeded(r)}; wrote "
           f"{r['hair_mask']}, {r['face_mask']}, {r['overlay']}")
+
+
+def _unseeded(r: dict) -> str:
+    """How ``parse-hair``'s line names a parse without landmarks."""
+    return (" (no frontal face: colour and a face in profile)" if r["profile_face"]
+            else " (no face found: colour only)")
 
 
 @cli.command("classify-hair")

@@ -136,6 +136,8 @@ def test_parse_hair_says_it_found_a_face_in_profile(run_cli, tmp_path):
     face = np.array(Image.open(out["face_mask"])) > 0
     parsed = np.array(Image.open(out["hair_mask"])) > 0
     assert not (face & hair).any() and (parsed & hair).sum() > 0.9 * hair.sum()
+    r = run_cli("parse-hair", photo, "-o", tmp_path / "out")
+    assert r.code == 0 and "no frontal face: colour and a face in profile" in r.out
 
 
 def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):
