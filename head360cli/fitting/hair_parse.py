@@ -74,8 +74,8 @@ class HairParse:
         background: Neither hair nor face.
         seeded: Whether landmarks seeded the parse (``False``: the no-face fallback).
         prior: Whether a hair prior (learned or given) set GrabCut's soft labels.
-        profile: Whether a face in profile guided the parse without landmarks (the skin
-            around it, face, ear and neck, is then the face mask).
+        profile: Whether a face in profile guided the parse without landmarks (its skin
+            is then the face mask).
     """
 
     hair: np.ndarray
@@ -274,22 +274,17 @@ the three boxes the cascade put on back views and close-ups of hair 0.0 to 0.18.
 
 def _profile_cheek(bgr: np.ndarray, skin: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(cheek, around)`` ``(H, W)`` bool masks of the largest face in profile in
-    ``bgr`` (:func:`~head360cli.fitting.landmarks.find_profile`), or ``None`` when there
-    is none or its cheek is not skin-coloured (:data:`PROFILE_SKIN` of ``skin``, the
-    fixed skin box).
+    """``(cheek, face)`` ``(H, W)`` bool masks of the largest face in profile in ``bgr``
+    (:func:`~head360cli.fitting.landmarks.find_profile`), or ``None`` when there is none
+    or its cheek is not skin-coloured (:data:`PROFILE_SKIN` of ``skin``, the fixed skin
+    box).
 
     The cascade's box is sometimes the face and sometimes the whole head, but both have
     the nose at its front side, so the cheek is taken in the box's front half (0.1 to
-    0.45 of its width from the front, 0.4 to 0.8 of its height). ``around`` is where
-    pixels with the cheek's colour are surely this person's skin (face, ear, neck): the
-    box grown by half its width to either side, a quarter of its height up and its
-    height down. Both only where the skin box is, since the front half also holds the
-    backdrop before the face (with it, the skin model took a dark backdrop and the black
-    hair as skin). On development profiles (corpus seeds 1 and 2) ``around`` in place of
-    the face's front (0 to 0.6 of the box's width, 0.3 to 1 of its height) took the hair
-    IoU from 0.886 / 0.884 to 0.904 / 0.900, back views, close-ups and composites with a
-    second person unchanged.
+    0.45 of its width from the front, 0.4 to 0.8 of its height) and the face, where its
+    skin is sure, in 0 to 0.6 of the width and below 0.3 of the height; both only where
+    the skin box is, since the front half also holds the backdrop before the face (with
+    it, the skin model took a dark backdrop and the black hair as skin).
     """
     import cv2
 
@@ -309,8 +304,7 @@ def _profile_cheek(bgr: np.ndarray, skin: np.ndarray
     cheek &= skin
     if cheek.sum() < MIN_SAMPLES:
         return None
-    near = (across > -0.5) & (across < 1.5) & (down > -0.25) & (down < 2.0)
-    return cheek, near & skin
+    return cheek, (across > 0) & (across < 0.6) & (down > 0.3) & (down < 1.0) & skin
 
 
 def _grabcut_at(bgr: np.ndarray, mask: np.ndarray, iterations: int, side: int
@@ -495,9 +489,8 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         skin = _skin_box(bgr)
         core_skin = skin[core].mean()
         # A face in profile: its cheek gives this face's skin colour, which is then not
-        # hair (surely not around the face), and the core's hair colours are taken
-        # without it (the centre of a profile is often the cheek or the ear: the face
-        # was parsed as hair).
+        # hair, and the core's hair colours are taken without it (the centre of a profile
+        # is often the cheek or the ear: the face was parsed as hair).
         cheek = _profile_cheek(bgr, skin) if profile else None
         face_like = face_sure = np.zeros((sh, sw), bool)
         if cheek is not None:

@@ -40,7 +40,7 @@ def test_hair_parse_without_a_face_on_three_heads():
     assert r["profile"]["views"] == r["profile_no_cascade"]["views"] == 4
     assert 0 <= r["profile"]["profile_face"] <= 4
     # these short light cuts lie in the skin box: without the cascade the face was hair
-    # (measured 0.829, 3 of 4 profiles found, against 0.309)
+    # (measured 0.828, 3 of 4 profiles found, against 0.309)
     assert r["profile"]["mean_iou"] > 0.75
     assert r["profile_no_cascade"]["mean_iou"] < r["profile"]["mean_iou"]
 
