@@ -269,7 +269,8 @@ PROFILE_SKIN = 0.3
 """Share of a profile face's cheek (see :func:`_profile_cheek`) that must fall in the
 fixed skin box for the face to be believed. On development renders (corpus seeds 1 and 2,
 256 pixels) the cheeks of faces found in profile had 0.42 to 1.0 of their pixels in it;
-the three boxes the cascade put on back views and close-ups of hair 0.0 to 0.18."""
+the one box the cascade put on the back views and close-ups of hair 0.0 (two more that a
+looser search, 2 neighbours instead of 3, put there 0.08 and 0.18)."""
 
 
 def _profile_cheek(bgr: np.ndarray, skin: np.ndarray

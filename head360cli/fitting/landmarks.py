@@ -195,9 +195,10 @@ def find_profile(gray: np.ndarray, min_size: float = PROFILE_MIN) -> ProfileFace
     dlib's detectors are frontal: they find faces turned up to about 60 degrees. OpenCV's
     Haar profile cascade finds faces looking left; the mirror image gives those looking
     right. About 60 ms for both on a 384-pixel image. On development renders of held-out
-    synthetic heads (corpus seed 1, 19 heads with hair, 256 pixels) it found 35 of 38
-    turned 65 degrees and 17 of 38 turned 90, and none of 38 back views or close-ups of
-    hair it should not (stop 65, with the skin check of the hair parse that uses it).
+    synthetic heads (corpus seed 1, 19 heads with hair, 256 pixels) it found 36 of 38
+    turned 65 degrees and 17 of 38 turned 90, and one false face in 38 back views and
+    close-ups of hair, which the skin check of the hair parse that uses it turns down
+    (stop 65).
 
     Args:
         gray: ``(H, W)`` uint8 image.
