@@ -443,3 +443,20 @@ def test_unseeded_profile_found_by_the_cascade_keeps_the_face_out(yaw):
     assert mask_iou(r.hair, hair) > 0.9
     assert r.face.any() and not (r.face & r.hair).any()
     assert (r.face & head & ~hair).sum() >= 0.95 * r.face.sum()
+
+
+def test_unseeded_profile_needs_skin_colour_and_the_cascade(monkeypatch):
+    """The same profile in grey levels has no skin colour, so the face the cascade finds
+    is not believed; and where OpenCV has no profile cascade, the parse is the one
+    without it, pixel for pixel."""
+    from head360cli.fitting import landmarks
+
+    rgb = _corpus_view(65.0)[0]
+    grey = np.repeat(rgb.mean(2, keepdims=True).round().astype(np.uint8), 3, 2)
+    assert landmarks.find_profile(grey[..., 0]) is not None  # the cascade finds it
+    r = parse_hair(grey, None)
+    assert not r.profile and not r.face.any()
+    plain = parse_hair(rgb, None, profile=False)
+    monkeypatch.setattr(landmarks, "_profile_cascade", lambda: None)
+    r = parse_hair(rgb, None)
+    assert not r.profile and np.array_equal(r.hair, plain.hair)
