@@ -273,12 +273,12 @@ the one box the cascade put on the back views and close-ups of hair 0.0 (two mor
 looser search, 2 neighbours instead of 3, put there 0.08 and 0.18)."""
 
 
-def _profile_cheek(bgr: np.ndarray, skin: np.ndarray
+def _profile_cheek(bgr: np.ndarray, skin: np.ndarray, xx: np.ndarray, yy: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray] | None:
     """``(cheek, face)`` ``(H, W)`` bool masks of the largest face in profile in ``bgr``
     (:func:`~head360cli.fitting.landmarks.find_profile`), or ``None`` when there is none
     or its cheek is not skin-coloured (:data:`PROFILE_SKIN` of ``skin``, the fixed skin
-    box).
+    box); ``xx`` and ``yy`` are the ``(H, W)`` pixel coordinates.
 
     The cascade's box is sometimes the face and sometimes the whole head, but both have
     the nose at its front side, so the cheek is taken in the box's front half (0.1 to
@@ -295,7 +295,6 @@ def _profile_cheek(bgr: np.ndarray, skin: np.ndarray
     if found is None:
         return None
     x0, y0, x1, y1 = found.box
-    yy, xx = np.mgrid[0:bgr.shape[0], 0:bgr.shape[1]].astype(np.float32)
     across = (xx - x0) / (x1 - x0) if found.facing < 0 else (x1 - xx) / (x1 - x0)
     down = (yy - y0) / (y1 - y0)
     cheek = (across > 0.1) & (across < 0.45) & (down > 0.4) & (down < 0.8)
@@ -388,7 +387,7 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     lab = cv2.cvtColor(bgr, cv2.COLOR_BGR2LAB).astype(np.float32)
     yy, xx = np.mgrid[0:sh, 0:sw].astype(np.float32)
     face = np.zeros((sh, sw), bool)
-    cheek = None  # a face in profile's cheek and face, without landmarks
+    side_face = None  # without landmarks: a face in profile's cheek and sure face
     size = max(sh, sw)
     band = max(2, round(0.02 * size))
     border = np.zeros((sh, sw), bool)
@@ -492,11 +491,12 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         # A face in profile: its cheek gives this face's skin colour, which is then not
         # hair, and the core's hair colours are taken without it (the centre of a profile
         # is often the cheek or the ear: the face was parsed as hair).
-        cheek = _profile_cheek(bgr, skin) if profile else None
+        side_face = _profile_cheek(bgr, skin, xx, yy) if profile else None
         face_like = face_sure = np.zeros((sh, sw), bool)
-        if cheek is not None:
-            face_like = _colour_distance(lab, lab[cheek[0]]) < LIKE_DEVIATIONS
-            face_sure = face_like & cheek[1]
+        if side_face is not None:
+            cheek, sure = side_face
+            face_like = _colour_distance(lab, lab[cheek]) < LIKE_DEVIATIONS
+            face_sure = face_like & sure
             if (core & ~face_like).sum() >= MIN_SAMPLES:
                 core = core & ~face_like
         like_core = _colour_distance(lab, lab[core]) < LIKE_DEVIATIONS
@@ -504,9 +504,10 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         m[centre | like_core] = cv2.GC_PR_FGD
         # Smooth regions, measured against the core's texture, are probably not hair.
         m[_smooth(lab, core) & ~core] = cv2.GC_PR_BGD
-        # The neck, ears and face of a back or profile view are not hair: without a face
-        # there is no cheek to learn the skin from, so a fixed skin box is used, unless
-        # the core's own colours fall in it (blond or red hair).
+        # The neck, ears and face of a back or profile view are not hair: without
+        # landmarks there is no cheek to learn the skin from (unless a face in profile
+        # gave one, above), so a fixed skin box is used, unless the core's own colours
+        # fall in it (blond or red hair).
         if core_skin < 0.5:
             m[skin & ~core] = cv2.GC_PR_BGD
         m[face_like & ~core] = cv2.GC_PR_BGD
@@ -524,4 +525,4 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     face &= ~hair
     return HairParse(hair, face, ~(hair | face), landmarks is not None,
                      prior is not None and landmarks is not None,
-                     landmarks is None and cheek is not None)
+                     side_face is not None)
