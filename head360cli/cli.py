@@ -696,9 +696,12 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
 @click.option("--batch", default=24, show_default=True, help="Crops per step.")
 @click.option("--width", default=16, show_default=True,
               help="Channels of the network's first level.")
+@click.option("--frame-share", default=0.0, show_default=True,
+              help="Share of crops cut to a random rectangle with its edge repeated beyond "
+                   "it, as a photo's edge is in the crop of a face that fills the photo.")
 @common_options
 def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, steps: int,
-                         minutes: float, batch: int, width: int) -> None:
+                         minutes: float, batch: int, width: int, frame_share: float) -> None:
     """Train the learned hair prior that guides hair parsing, on corpus renders.
 
     About 3 minutes of rendering and 20 of training on 2 CPU cores with the defaults.
@@ -715,6 +718,8 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     if min(heads, views, steps, batch, width) < 1:
         raise BadInputError(f"expected --heads, --views, --steps, --batch and --width >= 1, "
                             f"found {heads}, {views}, {steps}, {batch} and {width}")
+    if not 0.0 <= frame_share <= 1.0:
+        raise BadInputError(f"expected --frame-share in [0, 1], found {frame_share}")
     if out is None:
         from head360cli.paths import models_dir
 
@@ -726,7 +731,7 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     if device != "cpu":
         _warn("train-hair-prior trains on the CPU (the renders are CPU work)")
     cfg = HairPriorTrainConfig(heads=heads, views=views, seed=seed, steps=steps,
-                               minutes=minutes, batch=batch)
+                               minutes=minutes, batch=batch, frame_share=frame_share)
     quiet = _settings().quiet
     prior, summary = train_hair_prior(
         cfg, HairPriorConfig(width=width), progress=not quiet,

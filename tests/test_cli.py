@@ -256,12 +256,16 @@ def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
 
     out = tmp_path / "prior.pt"
     r = run_cli("--json", "--quiet", "train-hair-prior", "--heads", "2", "--views", "1",
-                "--steps", "2", "--batch", "2", "--width", "4", "-o", out)
+                "--steps", "2", "--batch", "2", "--width", "4", "--frame-share", "0.5",
+                "-o", out)
     assert r.code == 0, r.err
     summary = json.loads(r.out)
     assert summary["steps"] == 2 and summary["crops"] == 2 and summary["out"] == str(out)
     prior = load_hair_prior(out)
     assert prior.net.cfg.width == 4 and prior.meta["train_config"]["heads"] == 2
+    assert prior.meta["train_config"]["frame_share"] == 0.5
+    bad = run_cli("train-hair-prior", "--frame-share", "1.5", "-o", tmp_path / "x.pt")
+    assert bad.code == 3 and "expected --frame-share in [0, 1], found 1.5" in bad.err
     assert run_cli("train-hair-prior", "--steps", "0", "-o", tmp_path / "x.pt").code == 3
     assert run_cli("train-hair-prior", "-o", tmp_path / "no" / "x.pt").code == 3
     assert not (tmp_path / "x.pt").exists()

@@ -79,6 +79,11 @@ class HairPriorTrainConfig:
     """AdamW learning rate at the start; it decays linearly to 5 % of it."""
     weight_decay: float = 1e-4
     """AdamW weight decay."""
+    frame_share: float = 0.0
+    """Share of crops shown as if the photo ended inside the crop: beyond a random
+    rectangle around the face the crop repeats the rectangle's edge pixels, as
+    :meth:`head360cli.fitting.hair_prior.HairPrior.crop_photo` fills the part of a crop
+    outside the photo (a face that fills the photo leaves most of its crop outside)."""
 
 
 def canonical_landmarks(views: Any, crop: int, shrink: float, heads: int = 20) -> np.ndarray:
@@ -189,12 +194,17 @@ class Augmenter:
         seed: Seed of the augmentation's generator.
     """
 
-    def __init__(self, data: dict[str, np.ndarray], seed: int = 0) -> None:
+    def __init__(self, data: dict[str, np.ndarray], seed: int = 0,
+                 frame_share: float = 0.0) -> None:
         self.rgb = torch.tensor(data["rgb"]).permute(0, 3, 1, 2)
         self.alpha = torch.tensor(data["alpha"])[:, None]
         self.hair = torch.tensor(data["hair"])[:, None]
         self.size = self.rgb.shape[-1]
         self.gen = torch.Generator().manual_seed(seed)
+        # the photo frames draw from their own generator: the other augmentations of a
+        # batch are the same with and without them
+        self.frame_share = frame_share
+        self.frame_gen = torch.Generator().manual_seed(seed + 1)
         self.backdrops = _load_backdrops()
 
     def _rand(self, *shape: int) -> torch.Tensor:
@@ -278,7 +288,35 @@ class Augmenter:
         img = img + self._rand(n, 1, 1, 1) * 0.04 * torch.randn(img.shape, generator=self.gen)
         grey = self._rand(n) < 0.08
         img[grey] = img[grey].mean(1, keepdim=True).expand(-1, 3, -1, -1)
+        if self.frame_share > 0:
+            img = self._frame(img)
         return img.clamp(0, 1), (h > 0.5).float()
+
+    FRAME_CUT = 0.7
+    """Chance that each side of a framed crop is cut."""
+
+    def _frame(self, img: torch.Tensor) -> torch.Tensor:
+        """A :attr:`frame_share` of ``img (n, 3, S, S)`` cut to a random rectangle around
+        the crop's face, the rest filled by repeating the rectangle's edge pixels (the
+        photo's edge replicated, as at inference). Each side is cut with chance
+        :data:`FRAME_CUT`, at most 30 % of the crop in (25 % from the bottom): the face
+        is always inside. The hair target is left whole."""
+        n, _, s, _ = img.shape
+
+        def rand(*shape: int) -> torch.Tensor:
+            return torch.rand(*shape, generator=self.frame_gen)
+
+        framed = rand(n) < self.frame_share
+        cuts = (rand(n, 4) < self.FRAME_CUT) * rand(n, 4) * torch.tensor(
+            [0.3, 0.3, 0.3, 0.25]) * s
+        out = img.clone()
+        ramp = torch.arange(s)
+        for b in framed.nonzero()[:, 0].tolist():
+            x0, y0 = int(cuts[b, 0]), int(cuts[b, 1])
+            x1, y1 = s - int(cuts[b, 2]), s - int(cuts[b, 3])
+            ix, iy = ramp.clamp(x0, x1 - 1), ramp.clamp(y0, y1 - 1)
+            out[b] = img[b][:, iy][:, :, ix]
+        return out
 
 
 def hair_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -323,7 +361,7 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
         next(bar, None)
     canon, arrays = data
     render_s = time.perf_counter() - t0
-    aug = Augmenter(arrays, seed=cfg.seed)
+    aug = Augmenter(arrays, seed=cfg.seed, frame_share=cfg.frame_share)
     net = HairPriorNet(net_cfg).train()
     opt = torch.optim.AdamW(net.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
     t1 = time.perf_counter()

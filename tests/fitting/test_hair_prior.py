@@ -132,6 +132,33 @@ def test_augmenter_batches_are_valid_and_seeded():
     assert not torch.equal(a.batch(6)[0], img)
 
 
+def test_augmenter_frames_repeat_the_edge_and_leave_the_rest():
+    """Photo frames: each framed crop is its unframed self cut to a rectangle around the
+    face with the rectangle's edge pixels repeated beyond it (as ``crop_photo`` fills
+    the part of a crop outside the photo); the targets, and the crops of a zero share,
+    are those of the same seed without frames."""
+    data = _disc_data()
+    plain, framed = Augmenter(data, seed=5), Augmenter(data, seed=5, frame_share=1.0)
+    img, mask = plain.batch(8)
+    img_f, mask_f = framed.batch(8)
+    assert torch.equal(mask, mask_f)
+    s = img.shape[-1]
+    ramp = torch.arange(s)
+    cut = 0
+    for b in range(8):
+        # the centre row and column are always inside: where they match the unframed
+        # crop is the rectangle (the crops carry sensor noise, so matches are not chance)
+        xs = torch.nonzero((img_f[b, :, s // 2] == img[b, :, s // 2]).all(0))[:, 0]
+        ys = torch.nonzero((img_f[b, :, :, s // 2] == img[b, :, :, s // 2]).all(0))[:, 0]
+        x0, x1, y0, y1 = int(xs[0]), int(xs[-1]), int(ys[0]), int(ys[-1])
+        assert x0 <= 0.3 * s and x1 >= 0.7 * s - 1 and y0 <= 0.3 * s and y1 >= 0.75 * s - 1
+        expected = img[b][:, ramp.clamp(y0, y1)][:, :, ramp.clamp(x0, x1)]
+        assert torch.equal(img_f[b], expected)
+        cut += (x0, y0, x1, y1) != (0, 0, s - 1, s - 1)
+    assert cut >= 5  # each side is cut with chance 0.7: nearly every crop is framed
+    assert torch.equal(Augmenter(data, seed=5, frame_share=0.0).batch(8)[0], img)
+
+
 def test_hair_loss_prefers_the_right_mask():
     target = torch.zeros(2, 1, 8, 8)
     target[:, :, :3] = 1
