@@ -187,11 +187,14 @@ _YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.
 
 
 class Augmenter:
-    """Random training batches from rendered crops: backdrop, colour, geometry, lighting.
+    """Random training batches from rendered crops: backdrop, colour, geometry, lighting
+    and, for a share of them, a photo's edge (:meth:`_frame`).
 
     Args:
         data: ``render_crops``'s arrays.
-        seed: Seed of the augmentation's generator.
+        seed: Seed of the augmentation's generator (the frames use ``seed + 1``).
+        frame_share: Share of crops cut as by a photo's edge
+            (:attr:`HairPriorTrainConfig.frame_share`).
     """
 
     def __init__(self, data: dict[str, np.ndarray], seed: int = 0,
@@ -299,7 +302,7 @@ class Augmenter:
         """A :attr:`frame_share` of ``img (n, 3, S, S)`` cut to a random rectangle around
         the crop's face, the rest filled by repeating the rectangle's edge pixels (the
         photo's edge replicated, as at inference). Each side is cut with chance
-        :data:`FRAME_CUT`, at most 30 % of the crop in (25 % from the bottom): the face
+        :attr:`FRAME_CUT`, at most 30 % of the crop in (25 % from the bottom): the face
         is always inside. The hair target is left whole."""
         n, _, s, _ = img.shape
 
