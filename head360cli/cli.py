@@ -699,9 +699,17 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
 @click.option("--frame-share", default=0.0, show_default=True,
               help="Share of crops cut to a random rectangle with its edge repeated beyond "
                    "it, as a photo's edge is in the crop of a face that fills the photo.")
+@click.option("--hat-share", default=0.0, show_default=True,
+              help="Share of crops with a hat drawn over the head, not hair in the target.")
+@click.option("--init", "init", default=None, type=click.Path(dir_okay=False),
+              help="Start from this hair prior's weights (fine-tuning) instead of random "
+                   "ones.")
+@click.option("--lr", default=2e-3, show_default=True,
+              help="Learning rate at the start (it decays linearly to 5 %% of it).")
 @common_options
 def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, steps: int,
-                         minutes: float, batch: int, width: int, frame_share: float) -> None:
+                         minutes: float, batch: int, width: int, frame_share: float,
+                         hat_share: float, init: str | None, lr: float) -> None:
     """Train the learned hair prior that guides hair parsing, on corpus renders.
 
     About 3 minutes of rendering and 20 of training on 2 CPU cores with the defaults.
@@ -710,6 +718,7 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     Examples:
       head360 train-hair-prior                      writes models/hair_prior.pt
       head360 train-hair-prior --steps 200 -o try.pt
+      head360 train-hair-prior --init models/hair_prior.pt --steps 600 --lr 5e-4 -o tuned.pt
     """
     from head360cli.devices import resolve_device
     from head360cli.fitting.hair_prior import FILE_NAME, HairPriorConfig, save_hair_prior
@@ -718,8 +727,13 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     if min(heads, views, steps, batch, width) < 1:
         raise BadInputError(f"expected --heads, --views, --steps, --batch and --width >= 1, "
                             f"found {heads}, {views}, {steps}, {batch} and {width}")
-    if not 0.0 <= frame_share <= 1.0:
-        raise BadInputError(f"expected --frame-share in [0, 1], found {frame_share}")
+    for name, share in (("--frame-share", frame_share), ("--hat-share", hat_share)):
+        if not 0.0 <= share <= 1.0:
+            raise BadInputError(f"expected {name} in [0, 1], found {share}")
+    if not lr > 0:
+        raise BadInputError(f"expected --lr > 0, found {lr}")
+    if init is not None and not Path(init).is_file():
+        raise BadInputError(f"hair prior {init!r} (--init) does not exist")
     if out is None:
         from head360cli.paths import models_dir
 
@@ -731,7 +745,8 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     if device != "cpu":
         _warn("train-hair-prior trains on the CPU (the renders are CPU work)")
     cfg = HairPriorTrainConfig(heads=heads, views=views, seed=seed, steps=steps,
-                               minutes=minutes, batch=batch, frame_share=frame_share)
+                               minutes=minutes, batch=batch, frame_share=frame_share,
+                               hat_share=hat_share, init=init or "", lr=lr)
     quiet = _settings().quiet
     prior, summary = train_hair_prior(
         cfg, HairPriorConfig(width=width), progress=not quiet,

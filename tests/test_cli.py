@@ -266,6 +266,19 @@ def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
     assert prior.meta["train_config"]["frame_share"] == 0.5
     bad = run_cli("train-hair-prior", "--frame-share", "1.5", "-o", tmp_path / "x.pt")
     assert bad.code == 3 and "expected --frame-share in [0, 1], found 1.5" in bad.err
+    bad = run_cli("train-hair-prior", "--hat-share", "-0.1", "-o", tmp_path / "x.pt")
+    assert bad.code == 3 and "expected --hat-share in [0, 1], found -0.1" in bad.err
+    bad = run_cli("train-hair-prior", "--init", tmp_path / "none.pt", "-o", tmp_path / "x.pt")
+    assert bad.code == 3 and "(--init) does not exist" in bad.err
+    assert run_cli("train-hair-prior", "--lr", "0", "-o", tmp_path / "x.pt").code == 3
+    # fine-tuning the prior just written, with hats
+    tuned = tmp_path / "tuned.pt"
+    r = run_cli("--json", "--quiet", "train-hair-prior", "--heads", "2", "--views", "1",
+                "--steps", "2", "--batch", "2", "--init", out, "--hat-share", "1",
+                "--lr", "1e-4", "-o", tuned)
+    assert r.code == 0, r.err
+    meta = load_hair_prior(tuned).meta["train_config"]
+    assert meta["init"] == str(out) and meta["hat_share"] == 1.0 and meta["lr"] == 1e-4
     assert run_cli("train-hair-prior", "--steps", "0", "-o", tmp_path / "x.pt").code == 3
     assert run_cli("train-hair-prior", "-o", tmp_path / "no" / "x.pt").code == 3
     assert not (tmp_path / "x.pt").exists()

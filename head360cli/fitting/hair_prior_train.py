@@ -32,7 +32,7 @@ from head360cli.fitting.hair_prior import (
 )
 
 __all__ = ["BACKDROPS", "Augmenter", "HairPriorTrainConfig", "canonical_landmarks",
-           "render_crops", "train_hair_prior"]
+           "draw_hat", "render_crops", "train_hair_prior"]
 
 BACKDROPS = ("brick", "chelsea", "coffee", "coins", "grass", "gravel", "rocket", "page",
              "text", "moon", "colorwheel", "logo", "clock", "horse", "hubble_deep_field",
@@ -84,6 +84,13 @@ class HairPriorTrainConfig:
     rectangle around the face the crop repeats the rectangle's edge pixels, as
     :meth:`head360cli.fitting.hair_prior.HairPrior.crop_photo` fills the part of a crop
     outside the photo (a face that fills the photo leaves most of its crop outside)."""
+    init: str = ""
+    """A hair-prior checkpoint whose network training starts from (fine-tuning; its
+    network shape is kept); empty: random weights."""
+    hat_share: float = 0.0
+    """Share of crops with a hat drawn over the top of the head (:func:`draw_hat`): its
+    pixels are not hair in the target, so the prior learns that a cap or beanie over
+    the hair is not hair."""
 
 
 def canonical_landmarks(views: Any, crop: int, shrink: float, heads: int = 20) -> np.ndarray:
@@ -183,6 +190,62 @@ def _load_backdrops() -> list[torch.Tensor]:
     return images
 
 
+def draw_hat(img: torch.Tensor, alpha: torch.Tensor, eyes: np.ndarray,
+             rand: Callable[[], float], vivid: float = 1.0
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """A hat over the top of a head: a dome from a line above the eyes to above the
+    head's top, as wide as the head there, sometimes with a brim; one colour (vivid or
+    neutral), shaded, sometimes knitted.
+
+    Args:
+        img: ``(3, H, W)`` image in [0, 1].
+        alpha: ``(H, W)`` the head's coverage (hair included) in [0, 1].
+        eyes: ``(12, 2)`` the eyes' landmarks (iBUG 36-47) in pixels.
+        rand: Draws a uniform number in [0, 1).
+        vivid: Chance of a saturated colour; otherwise a neutral one (black, grey,
+            white, beige), which short dark or grey hair can look like.
+
+    Returns:
+        ``(image with the hat, hat coverage (H, W) in [0, 1])``; coverage all zero where
+        the head has no pixels above the hat's line.
+    """
+    import colorsys
+
+    _, h, w = img.shape
+    d = float(np.linalg.norm(eyes[:6].mean(0) - eyes[6:].mean(0)))
+    eye_y, eye_x = float(eyes[:, 1].mean()), float(eyes[:, 0].mean())
+    cut = eye_y - d * (0.8 + 0.8 * rand())  # the hat's lower edge, above the brows
+    head = alpha > 0.5
+    above = head[:max(0, int(cut))]
+    if d <= 0 or not above.any():
+        return img, torch.zeros_like(alpha)
+    rows = torch.nonzero(above.any(1))[:, 0]
+    cols = torch.nonzero(above.any(0))[:, 0]
+    top, x0, x1 = float(rows[0]), float(cols[0]), float(cols[-1])
+    hc = 0.5 * (x0 + x1) + 0.1 * d * (rand() - 0.5) if x1 > x0 else eye_x
+    half = max(0.5 * (x1 - x0), d) * (1.0 + 0.15 * rand())
+    height = max(cut - top, 0.3 * d) * (1.05 + 0.3 * rand())
+    yy, xx = torch.meshgrid(torch.arange(h, dtype=img.dtype) + 0.5,
+                            torch.arange(w, dtype=img.dtype) + 0.5, indexing="ij")
+    u, v = (xx - hc) / half, (yy - cut) / height
+    lower = cut + d * (0.4 * rand() - 0.1) * u ** 2  # the edge bends down (or up) aside
+    hat = (u ** 2 + v ** 2 <= 1.0) & (yy <= lower)
+    if rand() < 0.5:  # a brim (a cap's peak seen from the front)
+        bw, bh = half * (0.9 + 0.4 * rand()), d * (0.12 + 0.3 * rand())
+        hat |= ((xx - hc) / bw) ** 2 + ((yy - lower) / bh) ** 2 <= 1.0
+    if rand() < vivid:
+        rgb = colorsys.hsv_to_rgb(rand(), 0.5 + 0.5 * rand(), 0.3 + 0.7 * rand())
+    else:  # black, grey, white, beige, navy...
+        rgb = colorsys.hsv_to_rgb(rand(), 0.3 * rand(), 0.05 + 0.9 * rand())
+    colour = torch.tensor(rgb, dtype=img.dtype)[:, None, None]
+    shade = 1.0 + 0.5 * (rand() - 0.5) * v + 0.4 * (rand() - 0.5) * u
+    if rand() < 0.3:  # knitted rows
+        shade = shade + 0.12 * torch.sin(yy * (2 * np.pi / (2.0 + 4.0 * rand())))
+    painted = (colour * shade).clamp(0, 1)
+    cover = F.avg_pool2d(hat.to(img.dtype)[None, None], 3, 1, 1)[0, 0]
+    return img * (1 - cover) + painted * cover, cover
+
+
 _YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
 
 
@@ -198,7 +261,8 @@ class Augmenter:
     """
 
     def __init__(self, data: dict[str, np.ndarray], seed: int = 0,
-                 frame_share: float = 0.0) -> None:
+                 frame_share: float = 0.0, hat_share: float = 0.0,
+                 canon: np.ndarray | None = None) -> None:
         self.rgb = torch.tensor(data["rgb"]).permute(0, 3, 1, 2)
         self.alpha = torch.tensor(data["alpha"])[:, None]
         self.hair = torch.tensor(data["hair"])[:, None]
@@ -208,6 +272,11 @@ class Augmenter:
         # batch are the same with and without them
         self.frame_share = frame_share
         self.frame_gen = torch.Generator().manual_seed(seed + 1)
+        self.hat_share = hat_share
+        self.hat_gen = torch.Generator().manual_seed(seed + 2)
+        if hat_share > 0 and canon is None:
+            raise ValueError("expected the canonical landmarks to place hats")
+        self.eyes = None if canon is None else np.asarray(canon, np.float32)[9:21]
         self.backdrops = _load_backdrops()
 
     def _rand(self, *shape: int) -> torch.Tensor:
@@ -268,6 +337,8 @@ class Augmenter:
         x = self._jitter(x, 1.0)
         x = x * (1 - h) + hair_x * h
         img = x * a + self._jitter(self._backdrop(n), 1.0) * (1 - a)
+        if self.hat_share > 0:
+            img, h = self._hats(img, a, h)
         # rotation, scale, shift and mirror
         ang = (self._rand(n) - 0.5) * 0.35
         sc = 1 + (self._rand(n) - 0.5) * 0.25
@@ -294,6 +365,20 @@ class Augmenter:
         if self.frame_share > 0:
             img = self._frame(img)
         return img.clamp(0, 1), (h > 0.5).float()
+
+    def _hats(self, img: torch.Tensor, a: torch.Tensor, h: torch.Tensor
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A :attr:`hat_share` of the crops with a hat (:func:`draw_hat`) over the head,
+        its pixels taken out of the hair target; from their own generator."""
+        def rand() -> float:
+            return torch.rand(1, generator=self.hat_gen).item()
+
+        chosen = torch.rand(len(img), generator=self.hat_gen) < self.hat_share
+        img, h = img.clone(), h.clone()
+        for b in chosen.nonzero()[:, 0].tolist():
+            img[b], cover = draw_hat(img[b], a[b, 0], self.eyes, rand)
+            h[b, 0] = h[b, 0] * (cover < 0.5)
+        return img, h
 
     FRAME_CUT = 0.7
     """Chance that each side of a framed crop is cut."""
@@ -337,7 +422,8 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
 
     Args:
         cfg: Data and optimisation settings.
-        net_cfg: Network shape.
+        net_cfg: Network shape (with ``cfg.init``, the checkpoint's own is used; its crop
+            must be the same).
         log: Called with a line of text now and then.
         progress: Show progress bars.
         data: ``render_crops``'s result, to skip rendering (tests).
@@ -364,8 +450,20 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
         next(bar, None)
     canon, arrays = data
     render_s = time.perf_counter() - t0
-    aug = Augmenter(arrays, seed=cfg.seed, frame_share=cfg.frame_share)
-    net = HairPriorNet(net_cfg).train()
+    aug = Augmenter(arrays, seed=cfg.seed, frame_share=cfg.frame_share,
+                    hat_share=cfg.hat_share, canon=canon)
+    if cfg.init:
+        from head360cli.errors import BadInputError
+        from head360cli.fitting.hair_prior import load_hair_prior
+
+        start = load_hair_prior(cfg.init)
+        if not np.allclose(start.canon, canon, atol=1e-3):
+            raise BadInputError(f"expected {cfg.init} to align its crops as these renders "
+                                f"do, found canonical landmarks up to "
+                                f"{np.abs(start.canon - canon).max():.2f} px apart")
+        net = start.net.train()
+    else:
+        net = HairPriorNet(net_cfg).train()
     opt = torch.optim.AdamW(net.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
     t1 = time.perf_counter()
     losses: list[float] = []

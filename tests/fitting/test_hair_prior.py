@@ -20,6 +20,7 @@ from head360cli.fitting.hair_prior import (
 from head360cli.fitting.hair_prior_train import (
     Augmenter,
     HairPriorTrainConfig,
+    draw_hat,
     hair_loss,
     render_crops,
     train_hair_prior,
@@ -157,6 +158,80 @@ def test_augmenter_frames_repeat_the_edge_and_leave_the_rest():
         cut += (x0, y0, x1, y1) != (0, 0, s - 1, s - 1)
     assert cut >= 5  # each side is cut with chance 0.7: nearly every crop is framed
     assert torch.equal(Augmenter(data, seed=5, frame_share=0.0).batch(8)[0], img)
+
+
+def _eyes(y: float, left: float, right: float) -> np.ndarray:
+    """Twelve eye landmarks (iBUG 36-47): six around each centre."""
+    ring = np.stack([np.cos(np.arange(6)), 0.3 * np.sin(np.arange(6))], 1)
+    return np.concatenate([ring + np.array([left, y]), ring + np.array([right, y])]).astype(
+        np.float32)
+
+
+def test_draw_hat_covers_the_head_above_the_eyes_only():
+    """A hat lies above the eye line (its brim included), changes no pixel it does not
+    cover, is saturated when vivid, and is not drawn where no head is above its line."""
+    s = 64
+    yy, xx = np.mgrid[0:s, 0:s]
+    alpha = torch.tensor((((xx - 32) ** 2 + (yy - 34) ** 2) < 22 ** 2).astype(np.float32))
+    img = torch.rand(3, s, s, generator=torch.Generator().manual_seed(0))
+    eyes = _eyes(36.0, 26.0, 38.0)
+    rng = np.random.default_rng(1)
+    covered = 0
+    for _ in range(20):
+        out, cover = draw_hat(img, alpha, eyes, lambda: float(rng.random()), vivid=1.0)
+        assert out.shape == img.shape and cover.shape == alpha.shape
+        assert (cover[37:] == 0).all()  # nothing at or below the eyes
+        assert torch.equal(out[:, cover == 0], img[:, cover == 0])
+        hat = cover == 1
+        covered += int(hat.sum())
+        if hat.sum() > 20:
+            px = out[:, hat]
+            sat = (px.max(0).values - px.min(0).values) / px.max(0).values.clamp_min(1e-6)
+            assert sat.median() > 0.3
+    assert covered > 20 * 150  # hats of a useful size were drawn
+    out, cover = draw_hat(img, torch.zeros(s, s), eyes, lambda: float(rng.random()))
+    assert (cover == 0).all() and torch.equal(out, img)
+
+
+def test_augmenter_hats_take_hair_out_of_the_target_only():
+    """Hats come from their own generator: the rest of a batch is the batch without
+    them, the hat's pixels leave the hair target, and a zero share changes nothing."""
+    data = _disc_data()
+    canon = np.zeros((41, 2), np.float32)
+    canon[9:21] = _eyes(18.0, 12.0, 20.0)
+    plain = Augmenter(data, seed=5)
+    hats = Augmenter(data, seed=5, hat_share=1.0, canon=canon)
+    img, mask = plain.batch(8)
+    img_h, mask_h = hats.batch(8)
+    assert (mask_h <= mask).all() and mask_h.sum() < 0.8 * mask.sum()
+    assert not torch.equal(img_h, img)
+    still = (mask_h == mask).all(1, keepdim=True).expand_as(img)
+    assert still.float().mean() > 0.5
+    none = Augmenter(data, seed=5, hat_share=0.0, canon=canon).batch(8)
+    assert torch.equal(none[0], img) and torch.equal(none[1], mask)
+    with pytest.raises(ValueError, match="canonical landmarks"):
+        Augmenter(data, seed=5, hat_share=0.5)
+
+
+def test_training_can_start_from_a_checkpoint(tmp_path):
+    """``init``: training starts from a saved prior's weights (its shape kept, whatever
+    ``net_cfg`` says), and a prior aligned otherwise is refused."""
+    data = _disc_data()
+    canon = np.zeros((41, 2), np.float32)
+    start = _tiny_prior(3)
+    start.canon = canon
+    save_hair_prior(start, tmp_path / "start.pt")
+    cfg = HairPriorTrainConfig(steps=1, batch=2, lr=1e-12, seed=0,
+                               init=str(tmp_path / "start.pt"))
+    prior, summary = train_hair_prior(cfg, HairPriorConfig(), progress=False,
+                                      data=(canon, data))
+    assert prior.net.cfg == TINY and summary["train_config"]["init"].endswith("start.pt")
+    for name, value in start.net.state_dict().items():
+        if value.dtype.is_floating_point and "running" not in name:
+            torch.testing.assert_close(prior.net.state_dict()[name], value, atol=1e-6,
+                                       rtol=0)
+    with pytest.raises(BadInputError, match="align its crops"):
+        train_hair_prior(cfg, TINY, progress=False, data=(canon + 5, data))
 
 
 def test_hair_loss_prefers_the_right_mask():
