@@ -251,13 +251,20 @@ _YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.
 
 class Augmenter:
     """Random training batches from rendered crops: backdrop, colour, geometry, lighting
-    and, for a share of them, a photo's edge (:meth:`_frame`).
+    and, for shares of them, a photo's edge (:meth:`_frame`) and a hat (:meth:`_hats`).
 
     Args:
         data: ``render_crops``'s arrays.
-        seed: Seed of the augmentation's generator (the frames use ``seed + 1``).
+        seed: Seed of the augmentation's generator (the frames use ``seed + 1``, the
+            hats ``seed + 2``).
         frame_share: Share of crops cut as by a photo's edge
             (:attr:`HairPriorTrainConfig.frame_share`).
+        hat_share: Share of crops with a hat (:attr:`HairPriorTrainConfig.hat_share`).
+        canon: ``(41, 2)`` the crops' canonical landmarks 27-67 (``render_crops``'s),
+            which place the hats; needed when ``hat_share`` is above 0.
+
+    Raises:
+        ValueError: ``hat_share`` is above 0 and ``canon`` is missing.
     """
 
     def __init__(self, data: dict[str, np.ndarray], seed: int = 0,
