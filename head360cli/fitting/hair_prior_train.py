@@ -443,6 +443,11 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
 
     say = log or (lambda _: None)
     torch.manual_seed(cfg.seed)
+    start = None
+    if cfg.init:  # read first: a file that is no prior fails before minutes of rendering
+        from head360cli.fitting.hair_prior import load_hair_prior
+
+        start = load_hair_prior(cfg.init)
     t0 = time.perf_counter()
     if data is None:
         bar = iter(progress_bar(range(cfg.heads), total=cfg.heads, desc="render",
@@ -459,11 +464,9 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
     render_s = time.perf_counter() - t0
     aug = Augmenter(arrays, seed=cfg.seed, frame_share=cfg.frame_share,
                     hat_share=cfg.hat_share, canon=canon)
-    if cfg.init:
+    if start is not None:
         from head360cli.errors import BadInputError
-        from head360cli.fitting.hair_prior import load_hair_prior
 
-        start = load_hair_prior(cfg.init)
         if not np.allclose(start.canon, canon, atol=1e-3):
             raise BadInputError(f"expected {cfg.init} to align its crops as these renders "
                                 f"do, found canonical landmarks up to "

@@ -232,6 +232,10 @@ def test_training_can_start_from_a_checkpoint(tmp_path):
                                        rtol=0)
     with pytest.raises(BadInputError, match="align its crops"):
         train_hair_prior(cfg, TINY, progress=False, data=(canon + 5, data))
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    junk = HairPriorTrainConfig(steps=1, batch=2, init=str(tmp_path / "junk.pt"))
+    with pytest.raises(BadInputError):  # before any rendering (data=None would render)
+        train_hair_prior(junk, TINY, progress=False)
 
 
 def test_hair_loss_prefers_the_right_mask():
