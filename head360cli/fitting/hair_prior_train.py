@@ -283,7 +283,9 @@ class Augmenter:
         self.hat_gen = torch.Generator().manual_seed(seed + 2)
         if hat_share > 0 and canon is None:
             raise ValueError("expected the canonical landmarks to place hats")
-        self.eyes = None if canon is None else np.asarray(canon, np.float32)[9:21]
+        # canon holds landmarks 27-67 (ALIGN_LANDMARKS); the eyes are landmarks 36-47
+        eyes = slice(36 - ALIGN_LANDMARKS.start, 48 - ALIGN_LANDMARKS.start)
+        self.eyes = None if canon is None else np.asarray(canon, np.float32)[eyes]
         self.backdrops = _load_backdrops()
 
     def _rand(self, *shape: int) -> torch.Tensor:
