@@ -77,9 +77,9 @@ def _slug(heading: str) -> str:
 
 
 def test_readme_links_resolve():
-    """Every relative link and picture in the README and the model card names a file
+    """Every relative link and picture in the README, the model card and the history names a file
     that exists, and every #anchor one of that file's headings."""
-    pages = [REPO / "README.md", REPO / "models" / "MODEL_CARD.md"]
+    pages = [REPO / "README.md", REPO / "models" / "MODEL_CARD.md", REPO / "docs" / "HISTORY.md"]
     checked = 0
     for page in pages:
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
