@@ -41,7 +41,7 @@ def _renderer(head: str, samples: int | None, size: int | None, precision: str =
         raise BadInputError(f"expected --samples between 1 and 64, found {samples}")
     if size is not None and not 32 <= size <= 2048:
         raise BadInputError(f"expected --size between 32 and 2048, found {size}")
-    if not Path(head).is_file():
+    if not Path(head).exists():  # a pipe (<(...)) is read like a file
         raise BadInputError(f"head file {head!r} does not exist")
     try:
         return load_head_renderer(head, str(resolve_device(_settings().device)),
@@ -259,7 +259,7 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         raise BadInputError(f"expected --smooth between 0 and 5 seconds, found {smooth}")
     if workers is not None and not 1 <= workers <= 64:
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
-    if arkit != "-" and not Path(arkit).is_file():
+    if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         raise BadInputError(f"ARKit stream {arkit!r} does not exist")
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
     for warning in stream.warnings:

@@ -8,9 +8,12 @@ import hashlib
 import platform
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from head360cli.errors import BadInputError
+
+if TYPE_CHECKING:
+    from head360cli.io.sources import NamedBytes
 
 __all__ = ["environment_report", "file_kind", "inspect_file", "sha256_file"]
 
@@ -122,18 +125,25 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
     }
 
 
-def file_kind(path: str) -> str:
-    """``"stream"``, ``"head"`` or ``"image"``, from the name and the first bytes."""
+def file_kind(path: str | NamedBytes) -> str:
+    """``"stream"``, ``"head"`` or ``"image"``, from the name and the first bytes (a
+    pipe's content already read, :class:`~head360cli.io.sources.NamedBytes`: from its
+    bytes alone, and what is neither a zip nor an image is taken for a stream)."""
+    from head360cli.io.sources import NamedBytes
+
     if path == "-":
         return "stream"
-    p = Path(path)
-    if not p.exists():
-        raise BadInputError(f"no such file: {path!r}")
-    if p.is_dir():
-        raise BadInputError(f"expected a file, found a folder: {path!r}")
+    if isinstance(path, NamedBytes):
+        p, source, magic = Path(path.name), path, path.getvalue()[:8]
+    else:
+        p = source = Path(path)
+        if not p.exists():
+            raise BadInputError(f"no such file: {path!r}")
+        if p.is_dir():
+            raise BadInputError(f"expected a file, found a folder: {path!r}")
+        with open(p, "rb") as f:
+            magic = f.read(8)
     suffix = p.suffix.lower()
-    with open(p, "rb") as f:
-        magic = f.read(8)
     if suffix in _HEAD_SUFFIXES or magic.startswith(b"PK\x03\x04"):
         return "head"
     if suffix in _STREAM_SUFFIXES:
@@ -143,10 +153,15 @@ def file_kind(path: str) -> str:
     try:
         from PIL import Image
 
-        with Image.open(p):
+        with Image.open(source):
             return "image"
     except Exception:
         pass
+    finally:
+        if isinstance(source, NamedBytes):
+            source.seek(0)
+    if isinstance(source, NamedBytes):
+        return "stream"  # a pipe has no name to go by; the CSV reader says what is wrong
     raise BadInputError(
         f"expected an ARKit stream (.csv), an image or a head file (.h360), found {p.name!r}"
     )
@@ -163,10 +178,15 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
     Returns:
         A JSON-ready description whose ``kind`` says which of the three it is.
     """
+    from head360cli.io.sources import is_pipe, readable
+
+    name = path
+    if path != "-" and is_pipe(path):  # <(...), /dev/stdin: read once, looked at twice
+        path, _ = readable(path)
     kind = file_kind(path)
     if plot is not None and kind != "stream":
         what = {"image": "an image", "head": "a head file"}[kind]
-        raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {path!r}")
+        raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {name!r}")
     if kind == "image":
         from head360cli.io.images import describe_image
 
@@ -177,20 +197,20 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
         head = read_head(path)
         return {
             "kind": "head",
-            "path": path,
+            "path": name,
             "metadata": head.metadata(),
             "arrays": {
                 name: {"shape": list(a.shape), "dtype": str(a.dtype)}
                 for name, a in sorted(head.arrays.items())
             },
-            "bytes": Path(path).stat().st_size,
+            "bytes": readable(path)[1],
         }
     from head360cli.io.arkit import read_arkit_csv
 
     stream = read_arkit_csv(path, on_bad=on_bad)  # type: ignore[arg-type]
     out: dict[str, Any] = {
         "kind": "arkit_stream",
-        "path": path,
+        "path": name,
         "format": stream.source_format,
         "frames": stream.num_frames,
         "fps": round(stream.fps, 4),

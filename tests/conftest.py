@@ -62,3 +62,36 @@ def head_file(tmp_path_factory) -> Path:
     head = sample_heads(1, seed=0)[0]
     assert int(head.arrays["hair_style"]) != 0
     return write_samples([head], tmp_path_factory.mktemp("head"))[0]
+
+
+@pytest.fixture
+def pipe(tmp_path):
+    """``pipe(data, name)``: a named pipe that a thread fills with ``data`` once and then
+    closes, as a shell's ``<(...)`` does; readers see no size and cannot seek."""
+    import threading
+
+    feeders = []
+
+    def make(data: bytes, name: str = "fifo") -> Path:
+        path = tmp_path / name
+        os.mkfifo(path)
+
+        def feed() -> None:
+            with open(path, "wb") as f:  # blocks until a reader opens the pipe
+                f.write(data)
+
+        thread = threading.Thread(target=feed, daemon=True)
+        thread.start()
+        feeders.append((path, thread))
+        return path
+
+    yield make
+    for path, thread in feeders:
+        if thread.is_alive():  # nothing read it: open it once so the writer can finish
+            try:
+                fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+                thread.join(timeout=5)
+                os.close(fd)
+            except OSError:
+                pass
+        thread.join(timeout=5)

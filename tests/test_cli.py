@@ -138,6 +138,22 @@ def test_inspect_image_and_head(run_cli, tmp_path):
     assert "head file" in run_cli("inspect", head).out
 
 
+def test_inspect_reads_pipes(run_cli, tmp_path, pipe):
+    """``head360 inspect <(...)``: a pipe has no name to tell its kind by, so its content
+    does (it was refused for want of a known extension)."""
+    j = json.loads(run_cli("inspect", pipe(SAMPLE_STREAM.read_bytes(), "s"), "--json").out)
+    assert (j["kind"], j["frames"]) == ("arkit_stream", 240) and j["path"].endswith("s")
+    buf = io.BytesIO()
+    Image.fromarray(np.zeros((20, 30), np.uint8)).save(buf, format="PNG")
+    j = json.loads(run_cli("inspect", pipe(buf.getvalue(), "i"), "--json").out)
+    assert (j["kind"], j["width"], j["bytes"]) == ("image", 30, len(buf.getvalue()))
+    head = write_head(HeadFile(arrays={"shape": np.zeros(3, np.float32)}), tmp_path / "h.h360")
+    j = json.loads(run_cli("inspect", pipe(head.read_bytes(), "h"), "--json").out)
+    assert (j["kind"], j["bytes"]) == ("head", head.stat().st_size)
+    r = run_cli("inspect", pipe(b"no,columns,we,know\n1,2,3,4\n", "x"))
+    assert r.code == 3 and "expected columns named after ARKit blendshapes" in r.err
+
+
 def test_bad_inputs_get_one_line_and_their_exit_code(run_cli, tmp_path):
     nan = tmp_path / "nan.csv"
     nan.write_text("time,jawOpen\n0,0.1\n0.1,nan\n")

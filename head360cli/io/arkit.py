@@ -29,11 +29,14 @@ import sys
 from array import array
 from collections.abc import Iterable
 from pathlib import Path
-from typing import IO, Literal
+from typing import IO, TYPE_CHECKING, Literal
 
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError
+
+if TYPE_CHECKING:
+    from head360cli.io.sources import NamedBytes
 from head360cli.mesh.arkit52 import ARKIT52, INDEX, NUM_BLENDSHAPES, canonical_name, split_part
 
 __all__ = [
@@ -175,20 +178,25 @@ class ArkitStream:
 # --------------------------------------------------------------------------- reading
 
 
-def _open_text(source: str | Path | IO[str]) -> tuple[IO[str], str]:
-    if not isinstance(source, (str, Path)):
+def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]:
+    from head360cli.io.sources import NamedBytes
+
+    if isinstance(source, NamedBytes):  # a pipe's content, read already
+        path, raw = source.name, source.getvalue()
+    elif not isinstance(source, (str, Path)):
         return source, getattr(source, "name", "<stream>")
-    if str(source) == "-":
+    elif str(source) == "-":
         return sys.stdin, "<stdin>"
-    path = Path(source)
-    if not path.exists():
-        raise BadInputError(f"no such file: {str(path)!r}")
-    if path.is_dir():
-        raise BadInputError(f"expected an ARKit CSV file, found a folder: {str(path)!r}")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise FileFormatError(f"cannot read {str(path)!r}: {exc.strerror}") from exc
+    else:
+        path = Path(source)
+        if not path.exists():
+            raise BadInputError(f"no such file: {str(path)!r}")
+        if path.is_dir():
+            raise BadInputError(f"expected an ARKit CSV file, found a folder: {str(path)!r}")
+        try:
+            raw = path.read_bytes()  # a pipe (<(...)) too: it is read once, whole
+        except OSError as exc:
+            raise FileFormatError(f"cannot read {str(path)!r}: {exc.strerror}") from exc
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -217,7 +225,7 @@ def _to_float(cell: str) -> float:
 
 
 def read_arkit_csv(
-    source: str | Path | IO[str],
+    source: str | Path | IO[str] | NamedBytes,
     *,
     on_bad: BadCellPolicy = "error",
     fps: float | None = None,
@@ -225,7 +233,9 @@ def read_arkit_csv(
     """Read an ARKit-52 CSV stream (Live Link Face, MediaPipe-named or generic).
 
     Args:
-        source: A path, ``"-"`` for standard input, or an open text stream.
+        source: A path (a pipe, ``<(...)``, too), ``"-"`` for standard input, an open
+            text stream, or a pipe's bytes already read
+            (:class:`~head360cli.io.sources.NamedBytes`).
         on_bad: What to do with bad cells and malformed rows: ``"error"``, ``"skip"``
             the row, or ``"hold"`` the previous frame's value.
         fps: Frame rate to assume when the file has no time column (default 60), or the

@@ -23,11 +23,14 @@ import os
 import zipfile
 import zlib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError, ModelMismatchError
+
+if TYPE_CHECKING:
+    from head360cli.io.sources import NamedBytes
 
 __all__ = [
     "FORMAT_NAME",
@@ -250,12 +253,13 @@ def write_head(head: HeadFile, path: str | os.PathLike[str]) -> Path:
 
 
 def read_head(
-    path: str | os.PathLike[str], *, expected_model_hash: str | None = None
+    path: str | os.PathLike[str] | NamedBytes, *, expected_model_hash: str | None = None
 ) -> HeadFile:
     """Read and validate a head file.
 
     Args:
-        path: The ``.h360`` file.
+        path: The ``.h360`` file, a pipe that holds one (``<(...)``, ``/dev/stdin``), or
+            a pipe's content already read.
         expected_model_hash: When given, the file must have been made with this model.
 
     Returns:
@@ -267,19 +271,26 @@ def read_head(
             or written by a newer format version.
         ModelMismatchError: Made with another model than ``expected_model_hash``.
     """
-    path = Path(path)
-    where = f"head file {str(path)!r}"
-    if not path.exists():
-        raise BadInputError(f"no such file: {str(path)!r}")
-    if path.is_dir():
-        raise BadInputError(f"expected a head file, found a folder: {str(path)!r}")
-    with open(path, "rb") as f:
-        magic = f.read(4)
+    from head360cli.io.sources import NamedBytes, readable
+
+    if not isinstance(path, NamedBytes):
+        path = Path(path)
+        if not path.exists():
+            raise BadInputError(f"no such file: {str(path)!r}")
+        if path.is_dir():
+            raise BadInputError(f"expected a head file, found a folder: {str(path)!r}")
+    source, _ = readable(path)  # a pipe is read once, into memory
+    where = f"head file {str(source.name if isinstance(source, NamedBytes) else source)!r}"
+    if isinstance(source, Path):
+        with open(source, "rb") as f:
+            magic = f.read(4)
+    else:
+        magic = source.getvalue()[:4]
     if magic != b"PK\x03\x04":
         found = "an empty file" if not magic else f"bytes {magic!r}"
         raise FileFormatError(f"{where}: expected a head360 .h360 (zip) file, found {found}")
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        with np.load(source, allow_pickle=False) as npz:
             names = list(npz.files)
             if META_KEY not in names:
                 raise FileFormatError(f"{where}: expected a {META_KEY!r} entry, found only "

@@ -15,10 +15,14 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError
+
+if TYPE_CHECKING:
+    from head360cli.io.sources import NamedBytes
 
 __all__ = ["MAX_PIXELS", "MAX_SIDE", "LoadedImage", "describe_image", "load_image"]
 
@@ -67,20 +71,27 @@ class LoadedImage:
         return int(self.pixels.shape[1]), int(self.pixels.shape[0])
 
 
-def _open(path: str | os.PathLike[str]):  # -> PIL.Image.Image
+def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
+    """``(PIL.Image.Image, size in bytes)`` of an image file, a pipe or a pipe's content
+    already read (:func:`~head360cli.io.sources.readable`), its pixels not decoded yet."""
     from PIL import Image, UnidentifiedImageError
 
-    path = Path(path)
-    if not path.exists():
-        raise BadInputError(f"no such file: {str(path)!r}")
-    if path.is_dir():
-        raise BadInputError(f"expected an image file, found a folder: {str(path)!r}")
-    if path.stat().st_size == 0:
+    from head360cli.io.sources import NamedBytes, readable
+
+    if not isinstance(path, NamedBytes):
+        path = Path(path)
+        if not path.exists():
+            raise BadInputError(f"no such file: {str(path)!r}")
+        if path.is_dir():
+            raise BadInputError(f"expected an image file, found a folder: {str(path)!r}")
+    source, size = readable(path)
+    path = source.name if isinstance(source, NamedBytes) else path
+    if size == 0:
         raise FileFormatError(f"expected an image in {str(path)!r}, found an empty file")
     # Our own limit is checked on the header below; switch Pillow's off meanwhile.
     Image.MAX_IMAGE_PIXELS = None
     try:
-        img = Image.open(path)
+        img = Image.open(source)
     except UnidentifiedImageError:
         raise FileFormatError(
             f"expected an image ({', '.join(e[1:] for e in EXTENSIONS)}) in {str(path)!r}, "
@@ -88,7 +99,7 @@ def _open(path: str | os.PathLike[str]):  # -> PIL.Image.Image
         ) from None
     except OSError as exc:
         raise FileFormatError(f"cannot read image {str(path)!r}: {exc}") from exc
-    return img
+    return img, size
 
 
 def _orientation(img) -> int:
@@ -99,24 +110,27 @@ def _orientation(img) -> int:
     return value if value in _ORIENTATION_NAMES else 1
 
 
-def describe_image(path: str | os.PathLike[str]) -> dict[str, object]:
+def describe_image(path: str | os.PathLike[str] | NamedBytes) -> dict[str, object]:
     """What an image file is, read from its header only (no pixel decoding).
 
     Args:
-        path: The image file.
+        path: The image file, a pipe, or a pipe's content already read.
 
     Returns:
         ``format``, ``mode``, ``width`` and ``height`` as stored, ``orientation`` (code and
         name), upright ``display_size``, ``frames`` and ``bytes``.
     """
-    img = _open(path)
+    from head360cli.io.sources import NamedBytes
+
+    img, size = _open(path)
+    name = path.name if isinstance(path, NamedBytes) else str(path)
     with img:
         w, h = img.size
         orient = _orientation(img)
         upright = (h, w) if orient in (5, 6, 7, 8) else (w, h)
         return {
             "kind": "image",
-            "path": str(path),
+            "path": name,
             "format": img.format,
             "mode": img.mode,
             "width": w,
@@ -125,7 +139,7 @@ def describe_image(path: str | os.PathLike[str]) -> dict[str, object]:
             "orientation_name": _ORIENTATION_NAMES[orient],
             "display_size": list(upright),
             "frames": int(getattr(img, "n_frames", 1)),
-            "bytes": Path(path).stat().st_size,
+            "bytes": size,
             "megapixels": round(w * h / 1e6, 3),
         }
 
@@ -180,7 +194,8 @@ def load_image(
     """Load a photo as upright 8-bit RGB (or RGBA).
 
     Args:
-        path: jpg, png, ppm/pgm/pbm, tiff, webp or bmp file.
+        path: jpg, png, ppm/pgm/pbm, tiff, webp or bmp file, or a pipe that holds one
+            (``<(...)``, ``/dev/stdin``).
         keep_alpha: Return RGBA (opaque images get alpha 255) instead of compositing
             transparent pixels over ``background``.
         background: RGB colour transparent pixels are composited over.
@@ -196,7 +211,7 @@ def load_image(
     """
     from PIL import Image, ImageOps
 
-    img = _open(path)
+    img, _ = _open(path)
     with img:
         w, h = img.size
         if w <= 0 or h <= 0:

@@ -131,6 +131,25 @@ def test_cli_animate_reads_stdin_and_writes_a_gif(run_cli, head_file, tmp_path,
     assert res["frames"] == 3 and out.is_file()  # 8 frames at 30 fps = 0.233 s -> 3 at 10
 
 
+def test_cli_animate_and_render_read_pipes(run_cli, head_file, tmp_path, pipe):
+    """``--arkit <(...)`` and a head given as ``<(...)``: a pipe is no file, has no size
+    and is read once; it was refused as "does not exist"."""
+    from head360cli.io.arkit import write_arkit_csv
+
+    buf = io.StringIO()
+    write_arkit_csv(_stream(8), buf)
+    out = tmp_path / "a.gif"
+    r = run_cli("animate", pipe(head_file.read_bytes(), "head"), "--arkit",
+                pipe(buf.getvalue().encode(), "take"), "-o", out, "--size", "64",
+                "--samples", "2", "--fps", "10", "--json")
+    assert r.code == 0, r.err
+    assert json.loads(r.out)["frames"] == 3 and out.is_file()
+    r = run_cli("render", pipe(head_file.read_bytes(), "again"), "-o", tmp_path / "v.png",
+                "--size", "64", "--samples", "2")
+    assert r.code == 0, r.err
+    assert (tmp_path / "v.png").stat().st_size > 0
+
+
 def test_cli_animate_exact_decodes_every_point_and_agrees(run_cli, head_file, tmp_path):
     """With a still camera frames reuse the points whose inputs barely moved; --exact
     decodes every point. The two give the same frames to within a level or two."""

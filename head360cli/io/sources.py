@@ -1,0 +1,53 @@
+"""Inputs that are pipes rather than files.
+
+A shell script can hand head360 a photo, a stream or a head file through a pipe instead
+of a file: process substitution (``head360 fit <(curl -s URL)``), ``/dev/stdin`` or a
+named pipe. A pipe has no size, can be read only once and cannot seek, while the readers
+check the size, look at the first bytes before reading the rest, or seek (Pillow, zip
+archives). :func:`readable` reads a pipe whole into memory once and hands the readers a
+seekable buffer instead; a regular file is passed on as its path.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import stat
+from pathlib import Path
+
+__all__ = ["NamedBytes", "is_pipe", "readable"]
+
+
+class NamedBytes(io.BytesIO):
+    """A pipe's content in memory, with the pipe's path as ``name`` for messages."""
+
+    def __init__(self, data: bytes, name: str) -> None:
+        super().__init__(data)
+        self.name = name
+
+
+def is_pipe(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` exists and is neither a regular file nor a folder (a pipe, a
+    character device such as ``/dev/stdin``, a socket)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def readable(path: str | os.PathLike[str] | NamedBytes) -> tuple[Path | NamedBytes, int]:
+    """What a reader should open for an existing, non-folder ``path``, and its size.
+
+    Returns:
+        ``(source, size)``: for a regular file its ``Path`` and size on disk; for a pipe
+        (:func:`is_pipe`) a :class:`NamedBytes` of everything it held, and that length;
+        a :class:`NamedBytes` already read is returned as it is.
+    """
+    if isinstance(path, NamedBytes):
+        return path, len(path.getbuffer())
+    path = Path(path)
+    if is_pipe(path):
+        data = path.read_bytes()
+        return NamedBytes(data, str(path)), len(data)
+    return path, path.stat().st_size

@@ -1,0 +1,68 @@
+"""Inputs that are pipes: ``is_pipe`` and ``readable``, and each reader given a pipe."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from head360cli.errors import FileFormatError
+from head360cli.io.arkit import read_arkit_csv
+from head360cli.io.headfile import HeadFile, read_head, write_head
+from head360cli.io.images import describe_image, load_image
+from head360cli.io.sources import NamedBytes, is_pipe, readable
+from head360cli.mesh.arkit52 import INDEX
+
+
+def _png(pixels: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(pixels).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_is_pipe_tells_pipes_from_files_and_folders(tmp_path, pipe):
+    f = tmp_path / "f.txt"
+    f.write_text("x")
+    p = pipe(b"x")
+    assert is_pipe(p)
+    assert not is_pipe(f) and not is_pipe(tmp_path) and not is_pipe(tmp_path / "missing")
+    assert p.read_bytes() == b"x"  # and it reads like one (the feeder finishes)
+
+
+def test_readable_reads_a_pipe_once_and_passes_files_on(tmp_path, pipe):
+    f = tmp_path / "f.bin"
+    f.write_bytes(b"abc")
+    assert readable(f) == (f, 3)
+    source, size = readable(pipe(b"hello pipe"))
+    assert isinstance(source, NamedBytes) and size == 10
+    assert source.read() == b"hello pipe" and source.name.endswith("fifo")
+    again = readable(source)  # what is read already is not read again
+    assert again[0] is source and again[1] == 10
+
+
+def test_images_load_from_a_pipe_like_the_file(tmp_path, pipe):
+    rng = np.random.default_rng(0)
+    pixels = rng.integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    data = _png(pixels)
+    got = load_image(pipe(data, "photo"))
+    np.testing.assert_array_equal(got.pixels, pixels)
+    d = describe_image(pipe(data, "again"))
+    assert (d["width"], d["height"], d["bytes"]) == (40, 24, len(data))
+    assert d["path"].endswith("again")
+
+
+def test_an_empty_pipe_is_an_empty_image(pipe):
+    with pytest.raises(FileFormatError, match="found an empty file"):
+        load_image(pipe(b""))
+
+
+def test_head_files_and_streams_read_from_pipes(tmp_path, pipe):
+    head = write_head(HeadFile(arrays={"shape": np.arange(5, dtype=np.float32)}),
+                      tmp_path / "h.h360")
+    got = read_head(pipe(head.read_bytes()))
+    np.testing.assert_array_equal(got.arrays["shape"], np.arange(5, dtype=np.float32))
+    stream = read_arkit_csv(pipe(b"time,jawOpen\n0,0.25\n0.1,0.75\n", "take"))
+    assert stream.num_frames == 2
+    np.testing.assert_allclose(stream.weights[:, INDEX["jawOpen"]], [0.25, 0.75])
