@@ -34,10 +34,10 @@ from typing import IO, TYPE_CHECKING, Literal
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError
+from head360cli.mesh.arkit52 import ARKIT52, INDEX, NUM_BLENDSHAPES, canonical_name, split_part
 
 if TYPE_CHECKING:
     from head360cli.io.sources import NamedBytes
-from head360cli.mesh.arkit52 import ARKIT52, INDEX, NUM_BLENDSHAPES, canonical_name, split_part
 
 __all__ = [
     "LIVE_LINK_FACE_ORDER",
@@ -179,7 +179,7 @@ class ArkitStream:
 
 
 def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]:
-    from head360cli.io.sources import NamedBytes
+    from head360cli.io.sources import NamedBytes, existing
 
     if isinstance(source, NamedBytes):  # a pipe's content, read already
         path, raw = source.name, source.getvalue()
@@ -188,11 +188,7 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
     elif str(source) == "-":
         return sys.stdin, "<stdin>"
     else:
-        path = Path(source)
-        if not path.exists():
-            raise BadInputError(f"no such file: {str(path)!r}")
-        if path.is_dir():
-            raise BadInputError(f"expected an ARKit CSV file, found a folder: {str(path)!r}")
+        path = existing(source, "an ARKit CSV file")
         try:
             raw = path.read_bytes()  # a pipe (<(...)) too: it is read once, whole
         except OSError as exc:

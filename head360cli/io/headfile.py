@@ -271,15 +271,9 @@ def read_head(
             or written by a newer format version.
         ModelMismatchError: Made with another model than ``expected_model_hash``.
     """
-    from head360cli.io.sources import NamedBytes, readable
+    from head360cli.io.sources import NamedBytes, existing, readable
 
-    if not isinstance(path, NamedBytes):
-        path = Path(path)
-        if not path.exists():
-            raise BadInputError(f"no such file: {str(path)!r}")
-        if path.is_dir():
-            raise BadInputError(f"expected a head file, found a folder: {str(path)!r}")
-    source, _ = readable(path)  # a pipe is read once, into memory
+    source, _ = readable(existing(path, "a head file"))  # a pipe is read once, into memory
     where = f"head file {str(source.name if isinstance(source, NamedBytes) else source)!r}"
     if isinstance(source, Path):
         with open(source, "rb") as f:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -76,29 +75,23 @@ def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
     already read (:func:`~head360cli.io.sources.readable`), its pixels not decoded yet."""
     from PIL import Image, UnidentifiedImageError
 
-    from head360cli.io.sources import NamedBytes, readable
+    from head360cli.io.sources import NamedBytes, existing, readable
 
-    if not isinstance(path, NamedBytes):
-        path = Path(path)
-        if not path.exists():
-            raise BadInputError(f"no such file: {str(path)!r}")
-        if path.is_dir():
-            raise BadInputError(f"expected an image file, found a folder: {str(path)!r}")
-    source, size = readable(path)
-    path = source.name if isinstance(source, NamedBytes) else path
+    source, size = readable(existing(path, "an image file"))
+    label = source.name if isinstance(source, NamedBytes) else str(source)
     if size == 0:
-        raise FileFormatError(f"expected an image in {str(path)!r}, found an empty file")
+        raise FileFormatError(f"expected an image in {label!r}, found an empty file")
     # Our own limit is checked on the header below; switch Pillow's off meanwhile.
     Image.MAX_IMAGE_PIXELS = None
     try:
         img = Image.open(source)
     except UnidentifiedImageError:
         raise FileFormatError(
-            f"expected an image ({', '.join(e[1:] for e in EXTENSIONS)}) in {str(path)!r}, "
+            f"expected an image ({', '.join(e[1:] for e in EXTENSIONS)}) in {label!r}, "
             "found something unreadable"
         ) from None
     except OSError as exc:
-        raise FileFormatError(f"cannot read image {str(path)!r}: {exc}") from exc
+        raise FileFormatError(f"cannot read image {label!r}: {exc}") from exc
     return img, size
 
 

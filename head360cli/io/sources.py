@@ -15,7 +15,7 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["NamedBytes", "is_pipe", "readable"]
+__all__ = ["NamedBytes", "existing", "is_pipe", "readable"]
 
 
 class NamedBytes(io.BytesIO):
@@ -34,6 +34,29 @@ def is_pipe(path: str | os.PathLike[str]) -> bool:
     except OSError:
         return False
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def existing(path: str | os.PathLike[str] | NamedBytes, what: str) -> Path | NamedBytes:
+    """``path`` as a ``Path`` once it is known to exist and not to be a folder (a
+    :class:`NamedBytes` is returned as it is).
+
+    Args:
+        path: The input.
+        what: What was expected, for the message (``"an image file"``).
+
+    Raises:
+        BadInputError: No such file, or a folder.
+    """
+    from head360cli.errors import BadInputError
+
+    if isinstance(path, NamedBytes):
+        return path
+    path = Path(path)
+    if not path.exists():
+        raise BadInputError(f"no such file: {str(path)!r}")
+    if path.is_dir():
+        raise BadInputError(f"expected {what}, found a folder: {str(path)!r}")
+    return path
 
 
 def readable(path: str | os.PathLike[str] | NamedBytes) -> tuple[Path | NamedBytes, int]:

@@ -1,4 +1,5 @@
-"""Inputs that are pipes: ``is_pipe`` and ``readable``, and each reader given a pipe."""
+"""Inputs that are pipes: ``is_pipe``, ``existing`` and ``readable``, and each reader
+given a pipe."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from head360cli.errors import FileFormatError
+from head360cli.errors import BadInputError, FileFormatError
 from head360cli.io.arkit import read_arkit_csv
 from head360cli.io.headfile import HeadFile, read_head, write_head
 from head360cli.io.images import describe_image, load_image
-from head360cli.io.sources import NamedBytes, is_pipe, readable
+from head360cli.io.sources import NamedBytes, existing, is_pipe, readable
 from head360cli.mesh.arkit52 import INDEX
 
 
@@ -66,3 +67,15 @@ def test_head_files_and_streams_read_from_pipes(tmp_path, pipe):
     stream = read_arkit_csv(pipe(b"time,jawOpen\n0,0.25\n0.1,0.75\n", "take"))
     assert stream.num_frames == 2
     np.testing.assert_allclose(stream.weights[:, INDEX["jawOpen"]], [0.25, 0.75])
+
+
+def test_existing_says_what_is_missing_or_a_folder(tmp_path):
+    f = tmp_path / "f.png"
+    f.write_bytes(b"x")
+    assert existing(str(f), "an image file") == f
+    with pytest.raises(BadInputError, match=r"no such file: '.*nope\.png'"):
+        existing(tmp_path / "nope.png", "an image file")
+    with pytest.raises(BadInputError, match="expected a head file, found a folder"):
+        existing(tmp_path, "a head file")
+    buf = NamedBytes(b"abc", "pipe")
+    assert existing(buf, "anything") is buf
