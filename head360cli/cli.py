@@ -423,7 +423,9 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     from head360cli.synth.hair import style_index
 
     style = None if hair_style is None else style_index(hair_style)
-    target = out or f"{Path(photo).stem}.h360"
+    from head360cli.io.sources import input_stem
+
+    target = out or f"{input_stem(photo)}.h360"
     result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
                        focal=focal, device=str(resolve_device(_settings().device)),
                        hair_style=style, distance=distance, progress=_progress_printer(),

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from head360cli.errors import BadInputError
+from head360cli.io.sources import input_stem
 
 __all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer",
            "parse_photo", "run_demo"]
@@ -118,7 +119,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stem = Path(photo).stem
+    stem = input_stem(photo)
     results = []
     for index, found in chosen:
         t0 = time.perf_counter()
@@ -301,7 +302,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     w, h = img.source_size
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stem = Path(photo).stem
+    stem = input_stem(photo)
     paths = {"hair_mask": out / f"{stem}_hair.png", "face_mask": out / f"{stem}_face.png",
              "overlay": out / f"{stem}_parse.png"}
     overlay = img.pixels.astype(np.float32)

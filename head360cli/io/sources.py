@@ -15,7 +15,7 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["NamedBytes", "existing", "is_pipe", "readable"]
+__all__ = ["NamedBytes", "existing", "input_stem", "is_pipe", "readable"]
 
 
 class NamedBytes(io.BytesIO):
@@ -74,3 +74,13 @@ def readable(path: str | os.PathLike[str] | NamedBytes) -> tuple[Path | NamedByt
         data = path.read_bytes()
         return NamedBytes(data, str(path)), len(data)
     return path, path.stat().st_size
+
+
+def input_stem(path: str | os.PathLike[str]) -> str:
+    """The name outputs made from ``path`` are called after: its stem, except for a pipe
+    without a name of its own (process substitution's ``/dev/fd/63``, ``/dev/stdin``),
+    which gives ``"pipe"`` (a named pipe keeps its name)."""
+    stem = Path(path).stem
+    if is_pipe(path) and (stem.isdigit() or str(path) in ("/dev/stdin", "-")):
+        return "pipe"
+    return stem

@@ -4,6 +4,7 @@ scikit-image's astronaut photo (ships with scikit-image, so these always run).""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,6 +119,20 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     Image.fromarray(np.zeros((3, 3, 3), np.uint8)).save(speck)
     r = run_cli("parse-hair", speck, "-o", tmp_path / "speck")
     assert r.code == 3 and "found 3x3" in r.err and not (tmp_path / "speck").exists()
+
+
+def test_parse_hair_of_a_pipe_names_its_masks_pipe(run_cli, astronaut, tmp_path, pipe):
+    """A photo from ``<(...)`` (``/dev/fd/63``) is parsed as the file is, and its masks are
+    called ``pipe_*`` rather than after the descriptor's number."""
+    r = run_cli("parse-hair", pipe(astronaut.read_bytes(), "63"), "-o", tmp_path / "p",
+                "--json")
+    assert r.code == 0, r.err
+    out = json.loads(r.out)
+    assert Path(out["hair_mask"]).name == "pipe_hair.png"
+    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "f", "--json")
+    from_file = json.loads(r.out)
+    assert np.array_equal(np.array(Image.open(out["hair_mask"])),
+                          np.array(Image.open(from_file["hair_mask"])))
 
 
 def test_parse_hair_says_it_found_a_face_in_profile(run_cli, tmp_path):

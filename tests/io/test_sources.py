@@ -79,3 +79,17 @@ def test_existing_says_what_is_missing_or_a_folder(tmp_path):
         existing(tmp_path, "a head file")
     buf = NamedBytes(b"abc", "pipe")
     assert existing(buf, "anything") is buf
+
+
+def test_input_stem_names_outputs_after_the_input(tmp_path, pipe):
+    from head360cli.io.sources import input_stem
+
+    f = tmp_path / "me.jpg"
+    f.write_bytes(b"x")
+    assert input_stem(f) == "me"
+    named = pipe(b"x", "take.csv")  # a named pipe keeps its name
+    assert input_stem(named) == "take"
+    assert named.read_bytes() == b"x"
+    anonymous = pipe(b"y", "63")  # as /dev/fd/63 from <(...)
+    assert input_stem(anonymous) == "pipe"
+    assert anonymous.read_bytes() == b"y"
