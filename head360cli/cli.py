@@ -420,11 +420,10 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
                             "--stage shape for every face)")
     from head360cli.devices import resolve_device
     from head360cli.fitting.pipeline import fit_photo
+    from head360cli.io.sources import input_stem
     from head360cli.synth.hair import style_index
 
     style = None if hair_style is None else style_index(hair_style)
-    from head360cli.io.sources import input_stem
-
     target = out or f"{input_stem(photo)}.h360"
     result = fit_photo(photo, target, preset=preset, face=int(face), detector=detector,
                        focal=focal, device=str(resolve_device(_settings().device)),

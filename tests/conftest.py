@@ -88,10 +88,7 @@ def pipe(tmp_path):
     yield make
     for path, thread in feeders:
         if thread.is_alive():  # nothing read it: open it once so the writer can finish
-            try:
-                fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-                thread.join(timeout=5)
-                os.close(fd)
-            except OSError:
-                pass
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+            thread.join(timeout=5)
+            os.close(fd)
         thread.join(timeout=5)

@@ -21,26 +21,11 @@ from head360cli.io.sources import input_stem
 __all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer",
            "parse_photo", "run_demo"]
 
-_EXIF_FOCAL_35MM = 0xA405
-_EXIF_IFD = 0x8769
-
 
 def _timed(fn, *args, **kwargs) -> tuple[Any, float]:
     """``(fn(*args, **kwargs), its wall time in seconds)``."""
     t0 = time.perf_counter()
     return fn(*args, **kwargs), time.perf_counter() - t0
-
-
-def _focal_35mm(path: str | Path) -> float | None:
-    """``FocalLengthIn35mmFilm`` from a photo's EXIF, if present."""
-    from PIL import Image
-
-    try:
-        with Image.open(path) as img:
-            value = img.getexif().get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM)
-        return float(value) if value else None
-    except Exception:  # no or malformed EXIF
-        return None
 
 
 def _overlay(rgb: np.ndarray, detected: np.ndarray, fitted: np.ndarray, verts2d: np.ndarray,
@@ -116,7 +101,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
 
     full_w, full_h = img.source_size
     scale = img.scale  # loaded pixels per pixel on disk
-    f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
+    f_disk = focal if focal else default_focal(full_w, full_h, img.focal_35mm)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = input_stem(photo)
@@ -245,7 +230,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
         on_face(img, found)
     t0 = time.perf_counter()
     full_w, full_h = img.source_size
-    f_disk = focal if focal else default_focal(full_w, full_h, _focal_35mm(photo))
+    f_disk = focal if focal else default_focal(full_w, full_h, img.focal_35mm)
     fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale,
                                  distance=distance, turn=found.turn)
     timings["shape"] = time.perf_counter() - t0

@@ -54,6 +54,7 @@ class LoadedImage:
         orientation: EXIF orientation code (1 when absent).
         format: File format (``JPEG``, ``PNG``, ...).
         path: Where it was read from.
+        focal_35mm: EXIF ``FocalLengthIn35mmFilm`` in millimetres, ``None`` when absent.
     """
 
     pixels: np.ndarray
@@ -63,6 +64,7 @@ class LoadedImage:
     orientation: int
     format: str
     path: str
+    focal_35mm: float | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -93,6 +95,19 @@ def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
     except OSError as exc:
         raise FileFormatError(f"cannot read image {label!r}: {exc}") from exc
     return img, size
+
+
+_EXIF_IFD = 0x8769
+_EXIF_FOCAL_35MM = 0xA405
+
+
+def _focal_35mm(img) -> float | None:
+    """``FocalLengthIn35mmFilm`` from an open image's EXIF, if present."""
+    try:
+        value = img.getexif().get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM)
+        return float(value) if value else None
+    except Exception:  # no or malformed EXIF
+        return None
 
 
 def _orientation(img) -> int:
@@ -215,6 +230,7 @@ def load_image(
                 f"most {max_pixels / 1e6:.0f} megapixels: downscale it first"
             )
         orient = _orientation(img)
+        focal_35mm = _focal_35mm(img)
         mode, fmt = img.mode, img.format or "unknown"
         longer = max(w, h)
         if max_side is not None and longer > max_side and fmt == "JPEG":
@@ -245,4 +261,5 @@ def load_image(
         orientation=orient,
         format=fmt,
         path=str(path),
+        focal_35mm=focal_35mm,
     )

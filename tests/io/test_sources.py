@@ -93,3 +93,18 @@ def test_input_stem_names_outputs_after_the_input(tmp_path, pipe):
     anonymous = pipe(b"y", "63")  # as /dev/fd/63 from <(...)
     assert input_stem(anonymous) == "pipe"
     assert anonymous.read_bytes() == b"y"
+
+
+def test_the_exif_focal_length_comes_with_the_pixels_even_from_a_pipe(tmp_path, pipe):
+    """The fit's focal length is read from the image as it is loaded: a second opening of
+    a pipe finds it empty (the EXIF focal was lost) or waits for a writer forever."""
+    img = Image.fromarray(np.zeros((16, 24, 3), np.uint8))
+    exif = img.getexif()
+    exif.get_ifd(0x8769)[0xA405] = 52  # FocalLengthIn35mmFilm
+    buf = io.BytesIO()
+    img.save(buf, format="JPEG", exif=exif)
+    f = tmp_path / "lens.jpg"
+    f.write_bytes(buf.getvalue())
+    assert load_image(f).focal_35mm == 52.0
+    assert load_image(pipe(buf.getvalue(), "lens")).focal_35mm == 52.0
+    assert load_image(pipe(_png(np.zeros((4, 4, 3), np.uint8)), "plain")).focal_35mm is None
