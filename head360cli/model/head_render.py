@@ -118,7 +118,10 @@ class HeadRenderer:
         if lid_change is not None:
             from head360cli.mesh.eyelids import eye_texels
 
-            change = torch.as_tensor(np.asarray(lid_change, np.float32), device=self.device)
+            # a fit hands over its tensor, on its device (numpy cannot read a GPU's)
+            change = (lid_change.detach() if torch.is_tensor(lid_change)
+                      else torch.as_tensor(np.asarray(lid_change, np.float32)))
+            change = change.to(self.device, torch.float32)
             if change.shape != self.texture.shape[1:]:
                 raise ValueError(f"expected a lid change shaped like the texture "
                                  f"{tuple(self.texture.shape[1:])}, found "

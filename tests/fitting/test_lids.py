@@ -174,6 +174,26 @@ def test_a_renderer_adds_each_eyes_change_as_far_as_it_is_closed(head):
                      lid_change=change[:, :8])
 
 
+def test_a_renderer_takes_the_lid_change_as_a_fit_hands_it_over(head):
+    """``fit`` passes its lid change as a tensor on the fit's device, maybe still tied to
+    the optimiser's graph: the renderer must not read it through numpy (which fails for a
+    GPU's tensors: every ``fit --device cuda`` failed so until stop 69, and for tensors
+    that require grad), and holds the same change as from the head file's array."""
+    from head360cli.model.head_render import HeadRenderer
+
+    gen, model, _, _, texture, texels = head
+    change = torch.randn_like(texture) * torch.as_tensor(texels)
+    from_file = HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3),
+                             lid_change=change.numpy())
+    live = change.clone().requires_grad_(True)
+    from_fit = HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3),
+                            lid_change=live * 1.0)
+    assert not from_fit.lids.requires_grad
+    assert from_fit.lids.device == from_file.lids.device
+    torch.testing.assert_close(from_fit.lids, from_file.lids, rtol=0, atol=0)
+    assert from_fit.lids.abs().sum() > 0
+
+
 def test_the_change_comes_in_from_the_heads_own_blink(head):
     """A fitted texture already shows the photo's half-closed eyes: its own weights (a
     render given none) show no change, and a stream's blink closes each eye from its own
