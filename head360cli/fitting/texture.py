@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import functools
 import time
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -380,6 +381,11 @@ def _mirror(texture: torch.Tensor) -> torch.Tensor:
                                            mode="nearest", align_corners=False)
 
 
+NO_DETERMINISTIC_KERNEL = r".* does not have a deterministic implementation"
+"""The start of torch's warning for a kernel with no deterministic version (a regular
+expression for :func:`warnings.filterwarnings`)."""
+
+
 @contextlib.contextmanager
 def _deterministic():
     """Deterministic torch kernels inside, the caller's setting restored after.
@@ -391,6 +397,11 @@ def _deterministic():
     The flag is set through ``torch._C`` where it exists: the public
     ``torch.use_deterministic_algorithms`` also sets the flag of the inductor compiler,
     which we never use, and importing it took 1.0-1.5 s of a 15 s fast fit.
+
+    On a GPU some kernels have no deterministic version (CUDA's backward of
+    ``grid_sample``): torch runs the usual one there and says so in a ``UserWarning``,
+    which every ``fit --device cuda`` printed; it is silenced here, and a GPU fit is
+    repeatable to the last bits only.
     """
     before = (torch.are_deterministic_algorithms_enabled(),
               torch.is_deterministic_algorithms_warn_only_enabled())
@@ -399,7 +410,10 @@ def _deterministic():
         setter = torch.use_deterministic_algorithms
     setter(True, warn_only=True)
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=NO_DETERMINISTIC_KERNEL,
+                                    category=UserWarning)
+            yield
     finally:
         setter(before[0], warn_only=before[1])
 

@@ -292,6 +292,26 @@ def test_inversion_is_deterministic_and_restores_the_torch_setting(scene):
         torch.use_deterministic_algorithms(before)
 
 
+def test_no_deterministic_kernel_warning_reaches_the_user():
+    """On a GPU, CUDA's grid_sample backward has no deterministic kernel, and torch warned
+    on every ``fit --device cuda`` (seen on an H200, stop 69): the fit silences that
+    warning, the text torch gives it, and only that one, and only inside."""
+    import warnings
+
+    from head360cli.fitting.texture import _deterministic
+
+    torch_text = ("grid_sampler_2d_backward_cuda does not have a deterministic "
+                  "implementation, but you set 'torch.use_deterministic_algorithms(True, "
+                  "warn_only=True)'. You can file an issue at ...")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        with _deterministic():
+            warnings.warn(torch_text, UserWarning, stacklevel=1)
+            warnings.warn("another warning", UserWarning, stacklevel=1)
+        warnings.warn(torch_text, UserWarning, stacklevel=1)
+    assert [str(w.message)[:20] for w in seen] == ["another warning", torch_text[:20]]
+
+
 def test_landmarks_of_the_wrong_shape_are_refused(scene):
     gen, codes, batch = scene
     with pytest.raises(ValueError, match=r"expected landmarks as .* found shapes"):
