@@ -33,7 +33,9 @@ ANIMATE_SAMPLES = 8
 43.0 dB) at 1.5x the frame rate (``head360 bench animate`` measures both)."""
 
 
-def _renderer(head: str, samples: int | None, size: int | None, precision: str = "auto"):
+def _renderer(head: str, samples: int | None, size: int | None, precision: str = "auto",
+              device: str | None = None):
+    """The head's renderer on ``device`` (default: ``--device``)."""
     from head360cli.devices import resolve_device
     from head360cli.fitting.pipeline import load_head_renderer
 
@@ -44,7 +46,7 @@ def _renderer(head: str, samples: int | None, size: int | None, precision: str =
     if not Path(head).exists():  # a pipe (<(...)) is read like a file
         raise BadInputError(f"head file {head!r} does not exist")
     try:
-        return load_head_renderer(head, str(resolve_device(_settings().device)),
+        return load_head_renderer(head, device or str(resolve_device(_settings().device)),
                                   samples=samples, size=size, precision=precision)
     except ValueError as exc:  # an image size the generator cannot make
         raise BadInputError(str(exc)) from None
@@ -346,13 +348,14 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
           f"{HAIRSTYLES[was].name}, style {was})")
 
 
-def _mean_head_renderer():
+def _mean_head_renderer(device: str | None = None):
+    """The model's mean head, bald, on ``device`` (default: ``--device``)."""
     from head360cli.devices import resolve_device
     from head360cli.drive.sample import sample_heads
     from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
 
-    device = str(resolve_device(_settings().device))
+    device = device or str(resolve_device(_settings().device))
     head = sample_heads(1, scale=0.0, device=device, lids=False)[0]  # still views
     gen, _ = load_generator(device=device)
     import torch
@@ -492,7 +495,8 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
 
     Inputs per frame: the mesh vertices, the neural texture, the camera and, for the hair
     graph, the hair mesh and its planes; output: the RGB image. The runner class
-    head360cli.export.onnx.OnnxFrameRunner calls it without torch.
+    head360cli.export.onnx.OnnxFrameRunner calls it without torch. The graph is traced
+    on the CPU whatever --device says: it is the same graph for any device.
 
     \b
     Examples:
@@ -507,12 +511,19 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
     if not 1 <= samples <= 64 or not 32 <= size <= 2048:
         raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
                             f"{samples} and {size}")
+    # torch's exporter failed to trace a CUDA renderer (a data-dependent size in the hair
+    # planes' grid_sample; torch 2.11 on an H200) and traced the same renderer on that
+    # machine's CPU in 51 s
+    device = _settings().device
+    if device and device.lower() != "cpu":
+        _warn(f"export-onnx traces on the CPU (the graph is the same for any device); "
+              f"--device {device} is not used")
     if head is not None:
-        r = _renderer(head, samples, size, "fp32")
+        r = _renderer(head, samples, size, "fp32", device="cpu")
         if r.hair is None:
             r = r.with_hair(11, r.hair_colour)  # the bald graph needs no hair; trace bob
     else:
-        r = _mean_head_renderer()
+        r = _mean_head_renderer(device="cpu")
         try:
             r.gen.image_size(size)  # raises now for a size the generator cannot make
         except ValueError as exc:
@@ -523,7 +534,8 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
     if head is not None:
         path = Path(out).with_name(f"{Path(head).stem}_inputs.npz")
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **head_inputs(_renderer(head, samples, size, "fp32")))
+            np.savez(f, **head_inputs(_renderer(head, samples, size, "fp32",
+                                                device="cpu")))
         res["files"].append(str(path))
     _emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
           f"{size}x{size}): " + ", ".join(res["files"]))

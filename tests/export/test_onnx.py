@@ -237,3 +237,25 @@ def test_export_without_the_export_extra_says_what_to_install(run_cli, monkeypat
     r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "g.onnx")
     assert r.code == 7 and "head360[export]" in r.err
     assert not (tmp_path / "g.onnx").exists()
+
+
+def test_export_traces_on_the_cpu_whatever_the_device(run_cli, monkeypatch, tmp_path):
+    """torch's exporter failed to trace a CUDA renderer (torch 2.11 on an H200, stop 69)
+    and traced the same head on that machine's CPU: ``--device cuda`` is not used, and
+    the command says so (here, with no GPU, it would otherwise fail to find one)."""
+    import head360cli.export.onnx as onnx_export
+
+    seen = []
+
+    def fake_export(renderer, out, progress=None):
+        seen.append(renderer.device.type)
+        return {"files": [str(out)], "seconds": 0.0}
+
+    monkeypatch.setattr(onnx_export, "export_onnx", fake_export)
+    r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "g.onnx",
+                "--device", "cuda")
+    assert r.code == 0, r.err
+    assert seen == ["cpu"]
+    assert "export-onnx traces on the CPU" in r.err and "--device cuda is not used" in r.err
+    r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "h.onnx")
+    assert r.code == 0 and seen == ["cpu", "cpu"] and "traces on the CPU" not in r.err
