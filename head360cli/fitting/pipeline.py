@@ -724,6 +724,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "face_detector": found.detector,
         "face_turn_degrees": found.turn,
         "warnings": warnings,
+        "device": str(dev),  # where the generator ran: the timings depend on it
         "timings": {k_: round(v, 3) for k_, v in timings.items()},
         "files": {k_: str(v) for k_, v in paths.items()},
     }

@@ -33,6 +33,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
                           "summary": str(tmp_path / "me.json")}
     assert json.loads((tmp_path / "me.json").read_text()) == s
     assert s["warnings"] == []  # one face, 90 px wide, in colour, frontal
+    assert s["device"] == "cpu"
     assert s["hair_parse"]["learned_prior"] is True
     # Short hair, light colour, a face fitted well at the input view.
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
