@@ -382,7 +382,7 @@ def _mirror(texture: torch.Tensor) -> torch.Tensor:
 
 
 NO_DETERMINISTIC_KERNEL = r".* does not have a deterministic implementation"
-"""The start of torch's warning for a kernel with no deterministic version (a regular
+"""Matches torch's warning for a kernel with no deterministic version (a regular
 expression for :func:`warnings.filterwarnings`)."""
 
 
@@ -400,8 +400,8 @@ def _deterministic():
 
     On a GPU some kernels have no deterministic version (CUDA's backward of
     ``grid_sample``): torch runs the usual one there and says so in a ``UserWarning``,
-    which every ``fit --device cuda`` printed; it is silenced here, and a GPU fit is
-    repeatable to the last bits only.
+    which every ``fit --device cuda`` printed; it is silenced here. Two fits of one
+    photo on a GPU may therefore differ in their last bits.
     """
     before = (torch.are_deterministic_algorithms_enabled(),
               torch.is_deterministic_algorithms_warn_only_enabled())
