@@ -226,12 +226,16 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
               help="Processes that render frames on a CPU (default: one per core, at "
               "most 4, for takes of 64 frames or more; 1: this process alone). On 2 "
               "cores two one-thread processes render 1.3-1.5x the frames of one.")
+@click.option("--batch", type=int, default=None,
+              help="Frames per generator call (default: 1 on a CPU, 32 on a GPU). On a GPU "
+              "fewer need less memory (32: 2.8 GiB) and more can be faster (an H200 "
+              "rendered 836 frames/s at 32, 1070 at 64).")
 @_quality_options
 @_backend_options
 @common_options
 def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
-            yaw: float, pitch: float, on_bad: str, workers: int | None,
+            yaw: float, pitch: float, on_bad: str, workers: int | None, batch: int | None,
             samples: int | None, size: int | None, exact: bool, precision: str,
             no_hair: bool, backend: str, onnx_path: str) -> None:
     """Drive a head with an ARKit-52 blendshape stream.
@@ -261,6 +265,8 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         raise BadInputError(f"expected --smooth between 0 and 5 seconds, found {smooth}")
     if workers is not None and not 1 <= workers <= 64:
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
+    if batch is not None and not 1 <= batch <= 1024:
+        raise BadInputError(f"expected --batch between 1 and 1024, found {batch}")
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         raise BadInputError(f"ARKit stream {arkit!r} does not exist")
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
@@ -276,7 +282,8 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         return r
 
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
-                        yaw=yaw, pitch=pitch, hair=not no_hair, workers=workers)
+                        yaw=yaw, pitch=pitch, hair=not no_hair, workers=workers,
+                        batch=batch)
     # given the loader, run() starts the processes that render frames on a CPU before
     # it loads the head (with --device auto on a GPU machine they end unused)
     on_cpu = backend == "torch" and not _settings().device.strip().lower().startswith("cuda")

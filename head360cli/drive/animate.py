@@ -50,7 +50,8 @@ class AnimateConfig:
     """Camera pitch in degrees."""
     batch: int | None = None
     """Frames rendered per generator call (``None``: the renderer's choice, one on CPU,
-    where decoded points are then reused from frame to frame, eight on a GPU)."""
+    where decoded points are then reused from frame to frame, 32 on a GPU); more than
+    one renders in this process alone (no worker processes)."""
     hair: bool = True
     """Render the hair (False: the bald head)."""
     workers: int | None = None

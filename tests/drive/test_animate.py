@@ -170,6 +170,34 @@ def test_cli_animate_exact_decodes_every_point_and_agrees(run_cli, head_file, tm
     assert np.abs(got["reuse"].astype(int) - got["exact"]).max() <= 2
 
 
+def test_cli_animate_batch_renders_the_same_frames(run_cli, head_file, tmp_path):
+    """--batch N renders N frames a generator call (a GPU's way; a small GPU takes fewer,
+    a large one more): the frames agree with one-a-call rendering to a level or two (that
+    one reuses decoded points between frames), and an impossible batch is refused."""
+    import imageio.v3 as iio
+
+    from head360cli.io.arkit import write_arkit_csv
+
+    write_arkit_csv(_stream(5), tmp_path / "s.csv")
+    got = {}
+    for name, extra in (("one", ()), ("three", ("--batch", "3"))):
+        r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
+                    tmp_path / name, "--size", "64", "--samples", "4", "--json", *extra)
+        assert r.code == 0, r.err
+        res = json.loads(r.out)
+        assert res["workers"] == 1
+        # decoded points are reused between frames one at a time only
+        assert ("decoded_share" in res) == (name == "one")
+        got[name] = np.stack([iio.imread(p) for p in sorted((tmp_path / name).iterdir())])
+    assert got["one"].shape == got["three"].shape == (5, 64, 64, 3)
+    assert np.abs(got["one"].astype(int) - got["three"]).max() <= 2
+    assert not np.array_equal(got["three"][0], got["three"][-1])  # the jaw opened
+    r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
+                tmp_path / "zero", "--batch", "0")
+    assert r.code == 3 and "--batch between 1 and 1024, found 0" in r.err
+    assert not (tmp_path / "zero").exists()
+
+
 def test_cli_animate_errors(run_cli, head_file, tmp_path):
     r = run_cli("animate", head_file, "--arkit", tmp_path / "none.csv", "-o",
                 tmp_path / "a.mp4")
