@@ -18,13 +18,14 @@ from typing import Any
 import click
 
 from head360cli import __version__
-from head360cli.errors import EXIT_CODES, BadInputError, Head360Error
+from head360cli.errors import EXIT_CODES, BadInputError, Head360Error, is_out_of_memory
 
 __all__ = ["cli", "main"]
 
 EPILOG_EXIT_CODES = (
     "Exit codes: 0 ok, 1 internal error, 2 usage error, 3 bad input, 4 no face found, "
-    "5 bad file format, 6 model mismatch, 7 model or package not installed, 130 interrupted."
+    "5 bad file format, 6 model mismatch, 7 model or package not installed, 8 out of memory, "
+    "130 interrupted."
 )
 
 
@@ -910,6 +911,21 @@ from head360cli import cli_drive  # noqa: E402,F401  (registers them on `cli`)
 # --------------------------------------------------------------------------- entry point
 
 
+def _memory_shortfall(exc: BaseException) -> str:
+    """What an out-of-memory error says, in a few words: a GPU's first two sentences
+    ("CUDA out of memory. Tried to allocate 2.00 GiB"), the size a CPU allocation asked
+    for, or the error's own start."""
+    import re
+
+    text = " ".join(str(exc).split())
+    asked = re.search(r"tried to allocate (\d+) bytes", text)
+    if asked:
+        return f"the CPU could not allocate {int(asked.group(1)) / 2**30:.1f} GiB"
+    if "out of memory" in text.lower():
+        return ". ".join(text.split(". ")[:2])[:160]
+    return text[:160] or type(exc).__name__
+
+
 def _error_json(kind: str, message: str, code: int) -> None:
     print(json.dumps({"ok": False, "error": {"type": kind, "message": message,
                                              "exit_code": code}}))
@@ -945,6 +961,18 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0  # e.g. `head360 inspect x.csv | head`
     except Exception as exc:
+        if is_out_of_memory(exc):  # not a bug: a resource the user can free or ask less of
+            if debug:
+                import traceback
+
+                traceback.print_exc()
+            message = (f"out of memory ({_memory_shortfall(exc)}): ask for less at once (a "
+                       f"smaller --size or --samples; animate: fewer frames a call, --batch), "
+                       f"free memory, or use another --device")
+            click.echo(f"head360: error: {message}", err=True)
+            if as_json:
+                _error_json("OutOfMemory", message, EXIT_CODES["out_of_memory"])
+            return EXIT_CODES["out_of_memory"]
         if debug:
             import traceback
 

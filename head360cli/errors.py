@@ -21,6 +21,8 @@ code  exception              meaning
                              loaded, or a checkpoint's config does not fit
 7     ModelNotFoundError     a model file or an optional package the command
                              needs is not installed
+8     (out of memory)        the CPU's or the GPU's memory ran out (MemoryError,
+                             torch's OutOfMemoryError or failed CPU allocation)
 130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
 ====  =====================  ==================================================
 """
@@ -35,6 +37,7 @@ __all__ = [
     "ModelMismatchError",
     "ModelNotFoundError",
     "NoFaceError",
+    "is_out_of_memory",
 ]
 
 
@@ -91,6 +94,22 @@ EXIT_CODES: dict[str, int] = {
     FileFormatError.__name__: FileFormatError.exit_code,
     ModelMismatchError.__name__: ModelMismatchError.exit_code,
     ModelNotFoundError.__name__: ModelNotFoundError.exit_code,
+    "out_of_memory": 8,
     "interrupted": 130,
 }
 """Exit code by error name, as documented in the README."""
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` says that memory ran out: Python's or numpy's ``MemoryError``,
+    torch's ``OutOfMemoryError`` (a GPU's), or torch's failed CPU allocation (a
+    ``RuntimeError`` that says "can't allocate memory"). torch is not imported here."""
+    import sys
+
+    if isinstance(exc, MemoryError):
+        return True
+    torch = sys.modules.get("torch")
+    oom = getattr(torch, "OutOfMemoryError", None) if torch is not None else None
+    if oom is not None and isinstance(exc, oom):
+        return True
+    return isinstance(exc, RuntimeError) and "can't allocate memory" in str(exc)

@@ -198,7 +198,7 @@ def test_exit_codes_are_distinct():
                                    errors.FileFormatError, errors.ModelMismatchError,
                                    errors.ModelNotFoundError)]
     assert len(set(codes)) == len(codes)
-    assert not set(codes) & {0, 1, 2, 130}
+    assert not set(codes) & {0, 1, 2, errors.EXIT_CODES["out_of_memory"], 130}
 
 
 def test_internal_errors_and_debug(run_cli, monkeypatch):
@@ -211,6 +211,42 @@ def test_internal_errors_and_debug(run_cli, monkeypatch):
     assert "internal error: ZeroDivisionError: bug" in r.err and "Traceback" not in r.err
     d = run_cli("inspect", SAMPLE_STREAM, "--debug")
     assert d.code == 1 and "Traceback" in d.err
+
+
+@pytest.mark.parametrize("error, says", [
+    (MemoryError(), "MemoryError"),
+    (RuntimeError("[enforce fail at alloc_cpu.cpp:127] err == 0. DefaultCPUAllocator: "
+                  "can't allocate memory: you tried to allocate 3221225472 bytes. Error "
+                  "code 12 (Cannot allocate memory)"), "the CPU could not allocate 3.0 GiB"),
+    ("torch", "CUDA out of memory. Tried to allocate 2.00 GiB"),
+])
+def test_out_of_memory_exits_8_with_a_hint(run_cli, monkeypatch, error, says):
+    """Running out of memory is no bug to report: its own exit code, one line that says
+    what ran out and how to ask for less, and the same in the JSON error."""
+    import torch
+
+    if error == "torch":  # a GPU's error, as torch raises it (it has the class on a CPU)
+        error = torch.OutOfMemoryError(
+            "CUDA out of memory. Tried to allocate 2.00 GiB. GPU 0 has a total capacity of "
+            "7.6 GiB of which 1.1 GiB is free. Including non-PyTorch memory, ...")
+
+    def run_out(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr("head360cli.report.inspect_file", run_out)
+    r = run_cli("inspect", SAMPLE_STREAM)
+    assert r.code == 8
+    assert r.err.startswith("head360: error: out of memory (") and says in r.err
+    assert "--batch" in r.err and len(r.err.strip().splitlines()) == 1
+    assert "internal error" not in r.err
+    j = run_cli("inspect", SAMPLE_STREAM, "--json")
+    assert j.code == 8
+    e = json.loads(j.out)["error"]
+    assert e["type"] == "OutOfMemory" and e["exit_code"] == 8 and says in e["message"]
+    # a RuntimeError that is not about memory stays an internal error
+    monkeypatch.setattr("head360cli.report.inspect_file",
+                        lambda *a, **k: (_ for _ in ()).throw(RuntimeError("shape")))
+    assert run_cli("inspect", SAMPLE_STREAM).code == 1
 
 
 def test_interrupt_exits_130(run_cli, monkeypatch):
