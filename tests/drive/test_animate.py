@@ -198,6 +198,30 @@ def test_cli_animate_batch_renders_the_same_frames(run_cli, head_file, tmp_path)
     assert not (tmp_path / "zero").exists()
 
 
+def test_cli_animate_out_of_memory_midway_leaves_no_video(run_cli, head_file, tmp_path,
+                                                          monkeypatch):
+    """A GPU that runs out of memory a few frames in (simulated: torch's error raised by
+    the renderer after two frames): exit 8 with the --batch hint, and no video file."""
+    from head360cli.io.arkit import write_arkit_csv
+    from head360cli.model.head_render import HeadRenderer
+
+    write_arkit_csv(_stream(6), tmp_path / "s.csv")
+    real = HeadRenderer.frames
+
+    def frames(self, *args, **kwargs):
+        for i, f in enumerate(real(self, *args, **kwargs)):
+            if i == 2:
+                raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB")
+            yield f
+
+    monkeypatch.setattr(HeadRenderer, "frames", frames)
+    r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
+                tmp_path / "a.mp4", "--size", "64", "--samples", "4", "--workers", "1")
+    assert r.code == 8, r.err
+    assert "CUDA out of memory" in r.err and "--batch" in r.err
+    assert list(tmp_path.iterdir()) == [tmp_path / "s.csv"]
+
+
 def test_cli_animate_errors(run_cli, head_file, tmp_path):
     r = run_cli("animate", head_file, "--arkit", tmp_path / "none.csv", "-o",
                 tmp_path / "a.mp4")
