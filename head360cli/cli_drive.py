@@ -514,6 +514,7 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
 
     from head360cli.export.onnx import export_onnx, head_inputs
     from head360cli.io.atomic import atomic_path
+    from head360cli.io.sources import input_stem
 
     if not 1 <= samples <= 64 or not 32 <= size <= 2048:
         raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
@@ -526,9 +527,9 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
         _warn(f"export-onnx traces on the CPU (the graph is the same for any device); "
               f"--device {device} is not used")
     if head is not None:
-        r = _renderer(head, samples, size, "fp32", device="cpu")
-        if r.hair is None:
-            r = r.with_hair(11, r.hair_colour)  # the bald graph needs no hair; trace bob
+        own = _renderer(head, samples, size, "fp32", device="cpu")  # read once: maybe a pipe
+        # the bald graph needs no hair; a bald head traces the hair graph wearing bob
+        r = own if own.hair is not None else own.with_hair(11, own.hair_colour)
     else:
         r = _mean_head_renderer(device="cpu")
         try:
@@ -539,10 +540,9 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
         r = r.with_hair(11, r.hair_colour)
     res = export_onnx(r, out, progress=_progress_printer())
     if head is not None:
-        path = Path(out).with_name(f"{Path(head).stem}_inputs.npz")
+        path = Path(out).with_name(f"{input_stem(head)}_inputs.npz")
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **head_inputs(_renderer(head, samples, size, "fp32",
-                                                device="cpu")))
+            np.savez(f, **head_inputs(own))
         res["files"].append(str(path))
     _emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
           f"{size}x{size}): " + ", ".join(res["files"]))

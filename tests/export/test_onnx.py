@@ -259,3 +259,25 @@ def test_export_traces_on_the_cpu_whatever_the_device(run_cli, monkeypatch, tmp_
     assert "export-onnx traces on the CPU" in r.err and "--device cuda is not used" in r.err
     r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "h.onnx")
     assert r.code == 0 and seen == ["cpu", "cpu"] and "traces on the CPU" not in r.err
+
+
+def test_export_reads_the_head_once_so_a_pipe_works(run_cli, monkeypatch, tmp_path, pipe,
+                                                    head_file):
+    """``export-onnx --head <(...)``: the head is read once (it was read again for its
+    inputs file, and a pipe read twice waits forever), the inputs are the head's own, and
+    the file is named after the pipe as other outputs are (``pipe_inputs.npz``)."""
+    import head360cli.export.onnx as onnx_export
+    from head360cli.export.onnx import head_inputs
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    monkeypatch.setattr(onnx_export, "export_onnx", lambda renderer, out, progress=None: {
+        "files": [str(out)], "seconds": 0.0})
+    r = run_cli("export-onnx", "--head", pipe(head_file.read_bytes(), "63"), "--samples",
+                "2", "--size", "32", "-o", tmp_path / "g.onnx")
+    assert r.code == 0, r.err
+    with np.load(tmp_path / "pipe_inputs.npz") as got:
+        want = head_inputs(load_head_renderer(head_file, samples=2, size=32,
+                                              precision="fp32"))
+        assert set(got.files) == set(want)
+        for key, value in want.items():
+            np.testing.assert_array_equal(got[key], value)
