@@ -129,18 +129,14 @@ def file_kind(path: str | NamedBytes) -> str:
     """``"stream"``, ``"head"`` or ``"image"``, from the name and the first bytes (a
     pipe's content already read, :class:`~head360cli.io.sources.NamedBytes`: from its
     bytes alone, and what is neither a zip nor an image is taken for a stream)."""
-    from head360cli.io.sources import NamedBytes
+    from head360cli.io.sources import NamedBytes, existing
 
     if path == "-":
         return "stream"
     if isinstance(path, NamedBytes):
         p, source, magic = Path(path.name), path, path.getvalue()[:8]
     else:
-        p = source = Path(path)
-        if not p.exists():
-            raise BadInputError(f"no such file: {path!r}")
-        if p.is_dir():
-            raise BadInputError(f"expected a file, found a folder: {path!r}")
+        p = source = existing(path, "a file")
         with open(p, "rb") as f:
             magic = f.read(8)
     suffix = p.suffix.lower()
@@ -180,13 +176,13 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
     """
     from head360cli.io.sources import is_pipe, readable
 
-    name = path
+    shown = path  # the name in messages and output, a pipe's too
     if path != "-" and is_pipe(path):  # <(...), /dev/stdin: read once, looked at twice
         path, _ = readable(path)
     kind = file_kind(path)
     if plot is not None and kind != "stream":
         what = {"image": "an image", "head": "a head file"}[kind]
-        raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {name!r}")
+        raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {shown!r}")
     if kind == "image":
         from head360cli.io.images import describe_image
 
@@ -197,7 +193,7 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
         head = read_head(path)
         return {
             "kind": "head",
-            "path": name,
+            "path": shown,
             "metadata": head.metadata(),
             "arrays": {
                 name: {"shape": list(a.shape), "dtype": str(a.dtype)}
@@ -210,7 +206,7 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
     stream = read_arkit_csv(path, on_bad=on_bad)  # type: ignore[arg-type]
     out: dict[str, Any] = {
         "kind": "arkit_stream",
-        "path": name,
+        "path": shown,
         "format": stream.source_format,
         "frames": stream.num_frames,
         "fps": round(stream.fps, 4),
