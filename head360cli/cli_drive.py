@@ -12,7 +12,6 @@ from pathlib import Path
 import click
 
 from head360cli.cli import (
-    _cpu_only,
     _emit,
     _progress_printer,
     _settings,
@@ -561,16 +560,25 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
                                  "Live Link Face capture in ../shared/data).")
 @click.option("--no-memory", is_flag=True,
               help="Skip the whole-capture peak-memory run (minutes).")
+@click.option("--head", "head_path", type=click.Path(exists=True, dir_okay=False),
+              default=None, help="Measure this head file instead of fitting the astronaut "
+                                 "photo (no fit, so no dlib unless fidelity is measured).")
+@click.option("--no-fidelity", is_flag=True,
+              help="Skip the expression-fidelity parts (dlib landmarks on frames).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
               type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
-                      stream_path: str | None, no_memory: bool, out_dir: str) -> None:
+                      stream_path: str | None, no_memory: bool, head_path: str | None,
+                      no_fidelity: bool, out_dir: str) -> None:
     """Animation: frames per second with and without reuse of decoded points between
     frames, against samples and precision (with PSNR), peak memory over a whole capture,
     a turning head (--head-pose), expression fidelity by dlib landmarks (fitted and
     sampled heads, with bootstrap intervals, beside dlib on ground-truth SynHead-P
     renders of the same frames), face PSNR across hair swaps.
+
+    With --device cuda the heads are rendered on the GPU, and frames per second against
+    frames per generator call (animate --batch) replace the reuse part, a CPU path.
 
     \b
     Examples:
@@ -578,11 +586,13 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
       head360 bench animate --frames 60 --stride 6 --no-memory
       head360 bench animate --stride 6 --fidelity-size 512
       head360 bench animate --stream examples/smile_blink_livelinkface.csv --stride 1
+      head360 bench animate --device cuda --head me.h360 --no-fidelity --frames 480
     """
     from head360cli.bench.animate import bench_animate
     from head360cli.bench.report import save
+    from head360cli.devices import resolve_device
 
-    _cpu_only("bench animate")
+    device = str(resolve_device(_settings().device))
     if frames < 8 or stride < 1:
         raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
                             f"{stride}")
@@ -596,8 +606,21 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
             load_generator()[0].image_size(fidelity_size)
         except ValueError as exc:
             raise BadInputError(f"--fidelity-size: {exc}") from None
+    if no_fidelity and fidelity_size is not None:
+        raise BadInputError("--fidelity-size sets the size of the fidelity frames; "
+                            "expected it without --no-fidelity")
+    if head_path is not None:
+        from head360cli.fitting.pipeline import generator_hash
+        from head360cli.io.headfile import read_head
+
+        if not Path(head_path).is_file():  # a pipe: every part opens the head again
+            raise BadInputError(f"--head: expected a regular file, found {head_path!r} (a "
+                                "pipe or device); the bench reads it once per part")
+        read_head(head_path, expected_model_hash=generator_hash())  # now, not after minutes
     result, md = bench_animate(frames, stride, memory=not no_memory,
                                fidelity_size=fidelity_size, stream_path=stream_path,
+                               device=device, head_path=head_path,
+                               fidelity=not no_fidelity,
                                progress=None if _settings().quiet else
                                (lambda t: click.echo(f"bench animate: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "animate")

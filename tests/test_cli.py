@@ -272,12 +272,33 @@ def test_cpu_benches_say_that_device_is_not_used(run_cli):
     than ignore it (bench onnx and bench generator use it)."""
     r = run_cli("bench", "fit", "--device", "cuda", "--identities", "0")
     assert r.code == 3 and "bench fit measures on the CPU; --device cuda is not used" in r.err
-    r = run_cli("bench", "animate", "--device", "cuda:1", "--frames", "2")
-    assert r.code == 3 and "--device cuda:1 is not used" in r.err
     r = run_cli("bench", "fit", "--device", "cpu", "--identities", "0")
     assert r.code == 3 and "warning" not in r.err
     r = run_cli("bench", "fit", "-q", "--device", "cuda", "--identities", "0")
     assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
+
+
+def test_bench_animate_takes_the_device_and_checks_it_first(run_cli, monkeypatch):
+    """bench animate measures on --device (its GPU numbers come from the project's own
+    command): a device that is not there is refused before any work, as every command
+    refuses it."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    r = run_cli("bench", "animate", "--device", "cuda:1", "--frames", "8")
+    assert r.code == 3 and "not used" not in r.err
+    assert "--device cuda:1 asked for CUDA, but no CUDA device is available" in r.err
+
+
+def test_bench_animate_refuses_a_piped_head_and_fidelity_size_without_fidelity(
+        run_cli, pipe, head_file, tmp_path):
+    r = run_cli("bench", "animate", "--head", pipe(b"not read", "h.h360"),
+                "--no-fidelity", "--out", tmp_path / "out")
+    assert r.code == 3 and "--head: expected a regular file" in r.err
+    r = run_cli("bench", "animate", "--head", head_file, "--no-fidelity",
+                "--fidelity-size", "512", "--out", tmp_path / "out")
+    assert r.code == 3 and "expected it without --no-fidelity" in r.err
+    assert not (tmp_path / "out").exists()
 
 
 def test_bench_fit_refuses_a_negative_corpus_seed(run_cli):

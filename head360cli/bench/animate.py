@@ -30,6 +30,15 @@ stream given with ``--stream``.
 - Hair swap: PSNR of the face (the landmarks' hull, less the pixels either hairstyle
   covers) between the head with its own hair and with each other style; and over the
   whole hull.
+- On a GPU (``device`` other than the CPU): frames per second against frames per
+  generator call (``animate --batch``), with and without hair, in each precision the
+  device computes natively; reuse between frames, a CPU path (it decodes one frame a
+  call), is left out.
+
+Every part runs on ``device`` except the ground-truth fidelity column (the corpus
+renderer, on the CPU). With ``head_path`` no photo is fitted, so neither dlib's detector
+nor its model files are needed unless the fidelity parts run (``fidelity=False`` leaves
+them out): what a GPU machine without dlib can measure.
 """
 
 from __future__ import annotations
@@ -109,49 +118,88 @@ def _psnr(a, b) -> float:
     return 10 * np.log10(1 / max(mse, 1e-12))
 
 
-def _render(r, weights: np.ndarray, size: int):
-    """``(N, 3, S, S)`` float frames of ``weights`` seen from the front."""
+def _render(r, weights: np.ndarray, size: int, hair: bool = True):
+    """``(N, 3, S, S)`` float frames of ``weights`` seen from the front, on the CPU."""
     import torch
 
     from head360cli.drive.views import view_cameras, view_intrinsics
 
     cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
-    return torch.cat([torch.as_tensor(f) for f in
-                      r.frames(cams, weights, view_intrinsics(size), uint8=False)])
+    return torch.cat([torch.as_tensor(f).cpu() for f in
+                      r.frames(cams, weights, view_intrinsics(size), hair=hair,
+                               uint8=False)])
 
 
-def _timed(r, weights: np.ndarray, size: int) -> dict[str, float]:
-    """Frames per second of rendering ``weights`` (after two warm-up frames)."""
+def _timed(r, weights: np.ndarray, size: int, hair: bool = True,
+           batch: int | None = None) -> dict[str, float]:
+    """Frames per second of rendering ``weights`` as ``head360 animate`` does (uint8
+    frames brought to the CPU, ``batch`` a generator call: default the renderer's), after
+    a warm-up call of one batch."""
     from head360cli.drive.views import view_cameras, view_intrinsics
 
     cams = view_cameras(0.0, 0.0).expand(len(weights), 4, 4)
     k = view_intrinsics(size)
-    list(r.frames(cams[:2], weights[:2], k))  # warm up
+    warm = batch or (2 if r.device.type == "cpu" else 32)
+    list(r.frames(cams[:warm], weights[:warm], k, hair=hair, batch=batch))  # warm up
     t0 = time.perf_counter()
-    for _ in r.frames(cams, weights, k):
+    for _ in r.frames(cams, weights, k, hair=hair, batch=batch):
         pass
     seconds = time.perf_counter() - t0
     return {"fps": round(len(weights) / seconds, 2),
             "ms_per_frame": round(1000 * seconds / len(weights), 1)}
 
 
-def _speed(head: Path, weights: np.ndarray) -> list[dict[str, Any]]:
-    """Throughput and error by samples per ray, in float32 and, where the CPU computes it
-    natively, bfloat16 (emulated bfloat16 is many times slower and never chosen)."""
+def _precisions(device: str) -> tuple[str, ...]:
+    """float32, and bfloat16 where ``device`` computes it natively (emulated bfloat16 is
+    many times slower and never chosen)."""
     from head360cli.devices import fast_bfloat16
+
+    return ("fp32", "bf16") if fast_bfloat16(device) else ("fp32",)
+
+
+def _speed(head: Path, weights: np.ndarray, device: str = "cpu") -> list[dict[str, Any]]:
+    """Throughput and error by samples per ray, in each of :func:`_precisions`."""
     from head360cli.fitting.pipeline import load_head_renderer
 
     pick = weights[np.linspace(0, len(weights) - 1, 8).astype(int)]
-    ref = _render(load_head_renderer(head, samples=32, precision="fp32", reuse=None), pick,
-                  256)
+    ref = _render(load_head_renderer(head, device=device, samples=32, precision="fp32",
+                                     reuse=None), pick, 256)
     rows = []
-    precisions = ("fp32", "bf16") if fast_bfloat16("cpu") else ("fp32",)
     for samples in (6, 8, 12):
-        for precision in precisions:
-            r = load_head_renderer(head, samples=samples, precision=precision)
+        for precision in _precisions(device):
+            r = load_head_renderer(head, device=device, samples=samples,
+                                   precision=precision)
             rows.append({"samples": samples, "precision": precision,
                          **_timed(r, weights, 256),
                          "psnr_vs_32_samples": round(_psnr(_render(r, pick, 256), ref), 2)})
+    return rows
+
+
+GPU_BATCHES = (8, 32, 64)
+"""Frames per generator call that the GPU part times (32 is the GPU default)."""
+
+
+def _batches(head: Path, weights: np.ndarray, device: str,
+             batches: tuple[int, ...] = GPU_BATCHES, samples: int = 8,
+             size: int = 256) -> list[dict[str, Any]]:
+    """Frames per second against frames per generator call (``animate --batch``), with
+    and without hair, in each of :func:`_precisions`; each precision's frames scored
+    against float32's (uint8 frames, as written)."""
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    pick = weights[np.linspace(0, len(weights) - 1, 8).astype(int)]
+    rows, refs = [], {}
+    for precision in _precisions(device):
+        r = load_head_renderer(head, device=device, samples=samples, size=size,
+                               precision=precision)
+        for hair in (True, False):
+            got = np.round(255 * _render(r, pick, size, hair=hair).numpy()) / 255
+            ref = refs.setdefault(hair, got)
+            for batch in batches:
+                rows.append({"precision": r.precision, "hair": hair, "batch": batch,
+                             "samples": samples, "size": size,
+                             **_timed(r, weights, size, hair=hair, batch=batch),
+                             "psnr_vs_fp32": round(_psnr(got, ref), 2)})
     return rows
 
 
@@ -160,7 +208,7 @@ RESOLUTION_SIZES = (128, 256, 384, 512)
 
 
 def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
-                samples: int = 8) -> list[dict[str, Any]]:
+                samples: int = 8, device: str = "cpu") -> list[dict[str, Any]]:
     """Frames per second and error against image size at the animation defaults.
 
     Each size is scored twice against 32-sample float32 renders of the same frames: at its
@@ -172,11 +220,12 @@ def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
 
     pick = weights[np.linspace(0, len(weights) - 1, 4).astype(int)]
     top = max(sizes)
-    refs = {size: _render(load_head_renderer(head, samples=32, size=size, precision="fp32",
-                                             reuse=None), pick, size) for size in sizes}
+    refs = {size: _render(load_head_renderer(head, device=device, samples=32, size=size,
+                                             precision="fp32", reuse=None), pick, size)
+            for size in sizes}
     rows = []
     for size in sizes:
-        r = load_head_renderer(head, samples=samples, size=size)
+        r = load_head_renderer(head, device=device, samples=samples, size=size)
         got = _render(r, pick, size)
         up = F.interpolate(got, size=(top, top), mode="bilinear", align_corners=False)
         rows.append({"size": size, "samples": samples, "precision": r.precision,
@@ -241,11 +290,12 @@ def _run_cli(args: list[str]) -> dict[str, Any]:
     return {**out, "peak_rss_mib": round(peak, 1), "wall_s": round(wall, 1)}
 
 
-def _memory(head: Path, capture: Path, work: Path) -> dict[str, Any]:
+def _memory(head: Path, capture: Path, work: Path, device: str = "cpu") -> dict[str, Any]:
+    on = ["--device", device]
     short = _run_cli(["animate", str(head), "--arkit", str(capture), "--end", "10",
-                      "-o", str(work / "short.mp4")])
+                      "-o", str(work / "short.mp4"), *on])
     full = _run_cli(["animate", str(head), "--arkit", str(capture),
-                     "-o", str(work / "full.mp4")])
+                     "-o", str(work / "full.mp4"), *on])
     keep = ("frames", "render_fps", "peak_rss_mib", "wall_s", "workers")
     return {"first_10_s": {k: short[k] for k in keep}, "whole": {k: full[k] for k in keep},
             "capture": capture.name}
@@ -265,9 +315,10 @@ def _turning_capture(data: Path) -> tuple[Path, float] | None:
     return best
 
 
-def _head_pose(head: Path, capture: Path, turn: float, work: Path) -> dict[str, Any]:
+def _head_pose(head: Path, capture: Path, turn: float, work: Path,
+               device: str = "cpu") -> dict[str, Any]:
     runs = {name: _run_cli(["animate", str(head), "--arkit", str(capture), *extra,
-                            "-o", str(work / f"{name}.mp4")])
+                            "-o", str(work / f"{name}.mp4"), "--device", device])
             for name, extra in (("head_pose", ["--head-pose"]), ("still", []),
                                 ("head_pose_one", ["--head-pose", "--workers", "1"]),
                                 ("still_one", ["--workers", "1"]))}
@@ -352,7 +403,8 @@ def _correlations(w: np.ndarray, found: np.ndarray, seen: np.ndarray, stride: in
             if len(found) else None}
 
 
-def _fidelity(head: Path, stream, stride: int, size: int | None = None) -> dict[str, Any]:
+def _fidelity(head: Path, stream, stride: int, size: int | None = None,
+              device: str = "cpu") -> dict[str, Any]:
     """dlib's reading of a head file's frames driven by every ``stride``-th frame of
     ``stream``, at ``size`` pixels (default: the renderer's), with the same measures read
     off the mesh's own landmarks (``mesh``)."""
@@ -360,7 +412,7 @@ def _fidelity(head: Path, stream, stride: int, size: int | None = None) -> dict[
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.mesh.arkit52 import INDEX
 
-    r = load_head_renderer(head, samples=8, size=size)
+    r = load_head_renderer(head, device=device, samples=8, size=size)
     w = stream.weights[::stride]
     cams = view_cameras(0.0, 0.0).expand(len(w), 4, 4)
     found, seen = _dlib_openings(
@@ -399,16 +451,16 @@ def _fidelity_reference(stream, stride: int, size: int,
     return out
 
 
-def _fidelity_sampled(stream, stride: int, work: Path, size: int | None = None
-                      ) -> list[dict[str, Any]]:
+def _fidelity_sampled(stream, stride: int, work: Path, size: int | None = None,
+                      device: str = "cpu") -> list[dict[str, Any]]:
     """:func:`_fidelity` of the heads ``head360 sample --seed 0`` draws first."""
     from head360cli.drive.sample import sample_heads, write_samples
 
     paths = write_samples(sample_heads(FIDELITY_SAMPLES, seed=0), work / "sampled")
-    return [{"head": p.name, **_fidelity(p, stream, stride, size)} for p in paths]
+    return [{"head": p.name, **_fidelity(p, stream, stride, size, device)} for p in paths]
 
 
-def _swap(head: Path) -> dict[str, Any]:
+def _swap(head: Path, device: str = "cpu") -> dict[str, Any]:
     import cv2
     import torch
 
@@ -417,7 +469,7 @@ def _swap(head: Path) -> dict[str, Any]:
     from head360cli.geometry.cameras import project
     from head360cli.synth.hair import HAIRSTYLES
 
-    r = load_head_renderer(head, precision="fp32")
+    r = load_head_renderer(head, device=device, precision="fp32")
     yaws = np.array([0.0, 30.0, -30.0])
     cams = view_cameras(yaws, 0.0)
     k = view_intrinsics(r.size)
@@ -452,14 +504,29 @@ def _swap(head: Path) -> dict[str, Any]:
 
 def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
                   progress=None, fidelity_size: int | None = None,
-                  stream_path: str | Path | None = None) -> tuple[dict[str, Any], str]:
-    """Run every part; returns ``(result, markdown)``. ``fidelity_size``: image size of
-    the expression-fidelity frames (default: the generator's, as ``head360 animate``
-    renders them). ``stream_path``: an ARKit CSV to drive the heads with (default: the
-    longest Live Link Face capture in ``../shared/data``, else a synthetic stream)."""
+                  stream_path: str | Path | None = None, device: str = "cpu",
+                  head_path: str | Path | None = None,
+                  fidelity: bool = True) -> tuple[dict[str, Any], str]:
+    """Run every part; returns ``(result, markdown)``.
+
+    Args:
+        frames: Frames of the stream per throughput measurement.
+        stride: Every ``stride``-th frame of the stream for expression fidelity.
+        memory: Whether to run ``head360 animate`` over the whole capture for its peak
+            memory (minutes on a CPU).
+        progress: Called with a line of text as each part starts.
+        fidelity_size: Image size of the expression-fidelity frames (default: the
+            generator's, as ``head360 animate`` renders them).
+        stream_path: An ARKit CSV to drive the heads with (default: the longest Live Link
+            Face capture in ``../shared/data``, else a synthetic stream).
+        device: Where the heads are rendered (``cpu``, ``cuda``, ``cuda:N``); on another
+            device than the CPU the reuse part is replaced by the frames-per-call part.
+        head_path: A head file to measure instead of fitting the astronaut photo (the fit
+            needs dlib and its model files).
+        fidelity: Whether to run the expression-fidelity parts (dlib on frames).
+    """
     import torch
 
-    from head360cli.fitting.pipeline import run_demo
     from head360cli.paths import shared_data_dir
 
     say = progress or (lambda text: None)
@@ -476,76 +543,66 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
 
             raise BadInputError(f"expected a stream of at least {frames} frames (--frames), "
                                 f"found {stream.num_frames} in {capture.name}")
-    result: dict[str, Any] = {"threads": torch.get_num_threads(),
+    on_cpu = torch.device(device).type == "cpu"
+    result: dict[str, Any] = {"threads": torch.get_num_threads(), "device": device,
                               "stream": capture.name if capture else "synthetic",
                               "stream_frames": stream.num_frames}
+    if not on_cpu:
+        result["gpu"] = torch.cuda.get_device_name(torch.device(device))
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        say("fitting the astronaut (fast preset)")
-        run_demo(work, frames=4)
-        head = work / "astronaut.h360"
+        if head_path is None:
+            from head360cli.fitting.pipeline import run_demo
+
+            say("fitting the astronaut (fast preset)")
+            run_demo(work, frames=4, device=device)
+            head = work / "astronaut.h360"
+        else:
+            head = Path(head_path)
+        result["head"] = "astronaut, fitted (fast preset)" if head_path is None else head.name
+        weights = stream.weights[:frames]
         say("throughput against samples and precision")
-        result["speed"] = _speed(head, stream.weights[:frames])
-        say("reuse of decoded points between frames")
-        result["reuse"] = _reuse(head, stream.weights[:frames])
+        result["speed"] = _speed(head, weights, device)
+        if on_cpu:
+            say("reuse of decoded points between frames")
+            result["reuse"] = _reuse(head, weights)
+        else:
+            say("throughput against frames per generator call")
+            result["batch"] = _batches(head, weights, device)
         say("throughput and error against image size")
-        result["resolution"] = _resolution(head, stream.weights[:frames])
-        say("expression fidelity (dlib landmarks on frames)")
-        result["fidelity"] = _fidelity(head, stream, stride, fidelity_size)
-        say(f"expression fidelity of {FIDELITY_SAMPLES} heads sampled from the model")
-        result["fidelity_sampled"] = _fidelity_sampled(stream, stride, work, fidelity_size)
-        say(f"expression fidelity of {FIDELITY_REFERENCE} SynHead-P ground-truth renders")
-        result["fidelity_reference"] = _fidelity_reference(stream, stride,
-                                                           result["fidelity"]["size"])
+        result["resolution"] = _resolution(head, weights, device=device)
+        if fidelity:
+            say("expression fidelity (dlib landmarks on frames)")
+            result["fidelity"] = _fidelity(head, stream, stride, fidelity_size, device)
+            say(f"expression fidelity of {FIDELITY_SAMPLES} heads sampled from the model")
+            result["fidelity_sampled"] = _fidelity_sampled(stream, stride, work,
+                                                           fidelity_size, device)
+            say(f"expression fidelity of {FIDELITY_REFERENCE} SynHead-P ground-truth "
+                "renders")
+            result["fidelity_reference"] = _fidelity_reference(stream, stride,
+                                                               result["fidelity"]["size"])
         say("hair swap: face before and after")
-        result["swap"] = _swap(head)
+        result["swap"] = _swap(head, device)
         if memory and capture is not None:
             say(f"peak memory: head360 animate on {capture.name}")
-            result["memory"] = _memory(head, capture, work)
+            result["memory"] = _memory(head, capture, work, device)
         turning = _turning_capture(data) if data is not None else None
         if turning is not None:
             say(f"a turning head: head360 animate --head-pose on {turning[0].name}")
-            result["head_pose"] = _head_pose(head, *turning, work)
+            result["head_pose"] = _head_pose(head, *turning, work, device)
     result["seconds"] = round(time.perf_counter() - t0, 1)
     return result, _markdown(result)
 
 
-def _markdown(r: dict[str, Any]) -> str:
-    lines = ["# head360 bench animate", "",
-             f"Stream: {r['stream']} ({r['stream_frames']} frames); {r['threads']} threads.",
-             "", "## Throughput, 256 x 256 (render only)", "",
-             "| samples | networks | frames/s | ms/frame | PSNR vs 32 samples |",
-             "|---|---|---|---|---|"]
-    lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
-              f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples']:.2f} |"
-              for s in r["speed"]]
-    if "reuse" in r:
-        u = r["reuse"]
-        lines += ["", f"## Reuse of decoded points between frames ({u['size']} px, "
-                  f"{u['samples']} samples, {u.get('precision', 'fp32')} networks, "
-                  f"{u['frames']} consecutive frames, tol {u['tol']:g})", "",
-                  "| | frames/s | ms/frame |", "|---|---|---|",
-                  f"| reuse (default) | {u['fps']:.1f} | {u['ms_per_frame']:.0f} |",
-                  f"| every point decoded (--exact) | {u['fps_exact']:.1f} | "
-                  f"{u['ms_per_frame_exact']:.0f} |", "",
-                  f"{100 * u['decoded_share']:.0f} % of the points decoded; frames within "
-                  f"{u['max_abs_vs_exact']:.1e} of the exact ones (lowest PSNR "
-                  f"{u['psnr_vs_exact_min']:.1f} dB)."]
-    if "resolution" in r:
-        top = max(s["size"] for s in r["resolution"])
-        lines += ["", "## Throughput and error against image size (render only)", "",
-                  f"| size | samples | networks | frames/s | ms/frame | PSNR vs 32 samples, "
-                  f"same size | PSNR vs 32 samples at {top} px |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {s['size']} | {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
-                  f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples_same_size']:.2f} | "
-                  f"{s[f'psnr_vs_32_samples_{top}px']:.2f} |" for s in r["resolution"]]
+def _fidelity_markdown(r: dict[str, Any]) -> list[str]:
+    """The expression-fidelity section of :func:`_markdown`."""
     f = r["fidelity"]
     size = f" at {f['size']} x {f['size']}" if "size" in f else ""
-    lines += ["", "## Expression fidelity (dlib landmarks on frames)", "",
-              f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}){size} with "
-              "a face found. The mesh column reads the same measures off the mesh's own "
-              "landmarks (no renderer, no detector).", ""]
+    lines = ["", "## Expression fidelity (dlib landmarks on frames)", "",
+             f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}){size} with "
+             "a face found. The mesh column reads the same measures off the mesh's own "
+             "landmarks (no renderer, no detector).", ""]
     sampled = r.get("fidelity_sampled", [])
     reference = r.get("fidelity_reference", [])
     columns = (["weight", "image measure", "correlation, dlib on frames",
@@ -567,6 +624,51 @@ def _markdown(r: dict[str, Any]) -> str:
                   "heads come from `head360 sample --seed 0` (no fit); the ground-truth "
                   "columns are the corpus renderer's own frames of held-out SynHead-P "
                   "heads (no generator): what dlib reads off faces that are exactly right."]
+    return lines
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    where = r.get("gpu") or f"{r.get('device', 'cpu')}, {r['threads']} threads"
+    head = f"Head: {r['head']}. " if "head" in r else ""
+    lines = ["# head360 bench animate", "",
+             f"{head}Stream: {r['stream']} ({r['stream_frames']} frames); on {where}.",
+             "", "## Throughput, 256 x 256 (render only)", "",
+             "| samples | networks | frames/s | ms/frame | PSNR vs 32 samples |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
+              f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples']:.2f} |"
+              for s in r["speed"]]
+    if "reuse" in r:
+        u = r["reuse"]
+        lines += ["", f"## Reuse of decoded points between frames ({u['size']} px, "
+                  f"{u['samples']} samples, {u.get('precision', 'fp32')} networks, "
+                  f"{u['frames']} consecutive frames, tol {u['tol']:g})", "",
+                  "| | frames/s | ms/frame |", "|---|---|---|",
+                  f"| reuse (default) | {u['fps']:.1f} | {u['ms_per_frame']:.0f} |",
+                  f"| every point decoded (--exact) | {u['fps_exact']:.1f} | "
+                  f"{u['ms_per_frame_exact']:.0f} |", "",
+                  f"{100 * u['decoded_share']:.0f} % of the points decoded; frames within "
+                  f"{u['max_abs_vs_exact']:.1e} of the exact ones (lowest PSNR "
+                  f"{u['psnr_vs_exact_min']:.1f} dB)."]
+    if "batch" in r:
+        lines += ["", "## Throughput against frames per generator call (render only, "
+                  "`animate --batch`)", "",
+                  "| frames a call | hair | networks | frames/s | ms/frame | "
+                  "PSNR vs float32 |", "|---|---|---|---|---|---|"]
+        lines += [f"| {b['batch']} | {'yes' if b['hair'] else 'no'} | {b['precision']} | "
+                  f"{b['fps']:.1f} | {b['ms_per_frame']:.1f} | "
+                  f"{'-' if b['psnr_vs_fp32'] >= 120 else format(b['psnr_vs_fp32'], '.1f')} |"
+                  for b in r["batch"]]
+    if "resolution" in r:
+        top = max(s["size"] for s in r["resolution"])
+        lines += ["", "## Throughput and error against image size (render only)", "",
+                  f"| size | samples | networks | frames/s | ms/frame | PSNR vs 32 samples, "
+                  f"same size | PSNR vs 32 samples at {top} px |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {s['size']} | {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
+                  f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples_same_size']:.2f} | "
+                  f"{s[f'psnr_vs_32_samples_{top}px']:.2f} |" for s in r["resolution"]]
+    if "fidelity" in r:
+        lines += _fidelity_markdown(r)
     s = r["swap"]
     lines += ["", f"## Hair swap (own style: {s['own_style']}; views at yaw "
               f"{', '.join(f'{y:g}' for y in s['views_yaw'])})", "",

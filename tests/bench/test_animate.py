@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from head360cli.bench.animate import (
@@ -167,3 +169,78 @@ def test_reference_fidelity_reads_the_corpus_renderer_s_own_blinks():
     assert f["blink_left_vs_right_image_eye_opening"] < -0.9
     assert f["blink_right_vs_left_image_eye_opening"] < -0.9
     assert f["jaw_open_range"] == [0.0, 1.0]
+
+
+def test_frames_per_call_rows_time_each_batch_with_and_without_hair(head_file):
+    """The GPU part (``--device cuda``), run here on the CPU at a tiny size: a row per
+    precision, hair and batch, each timed, float32's frames its own reference."""
+    from head360cli.bench.animate import _batches, _precisions
+
+    weights = np.zeros((4, 52), np.float32)
+    weights[:, 24] = np.linspace(0.0, 0.8, 4)  # jawOpen
+    rows = _batches(head_file, weights, "cpu", batches=(1, 3), samples=4, size=64)
+    precisions = _precisions("cpu")
+    assert [(r["precision"], r["hair"], r["batch"]) for r in rows] == [
+        (p, h, b) for p in precisions for h in (True, False) for b in (1, 3)]
+    for r in rows:
+        assert r["fps"] > 0 and r["ms_per_frame"] > 0 and r["samples"] == 4
+        if r["precision"] == "fp32":
+            assert r["psnr_vs_fp32"] >= 119.0  # its own reference
+        else:  # bfloat16 networks, where this CPU has them: close, not the same
+            assert 30.0 < r["psnr_vs_fp32"] < 119.0
+    md = _markdown({"stream": "s", "stream_frames": 4, "threads": 2, "device": "cuda",
+                    "gpu": "NVIDIA H200", "head": "me.h360", "speed": [], "batch": rows,
+                    "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
+                             "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0}})
+    assert "Head: me.h360. Stream: s (4 frames); on NVIDIA H200." in md
+    assert "| 3 | no | fp32 |" in md and "Expression fidelity" not in md
+
+
+def test_bench_on_a_given_head_without_fidelity_needs_no_dlib(head_file, monkeypatch):
+    """``--head`` and ``--no-fidelity``: no photo is fitted and no landmarks are read, so
+    the bench runs where dlib's model files are not (a GPU machine); every part is
+    handed the device."""
+    import head360cli.bench.animate as bench
+    import head360cli.fitting.landmarks as landmarks
+    import head360cli.fitting.pipeline as pipeline
+    import head360cli.paths as paths
+    from head360cli.io.arkit import ArkitStream
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("dlib or the fit was called")
+
+    monkeypatch.setattr(landmarks, "LandmarkDetector", refuse)
+    monkeypatch.setattr(pipeline, "run_demo", refuse)
+    monkeypatch.setattr(paths, "shared_data_dir", lambda: None)  # no capture runs
+    seen = []
+
+    def record(name, value):
+        def part(head, *args, **kwargs):
+            seen.append((name, Path(head), kwargs.get("device", args[-1] if args else None)))
+            return value
+        return part
+
+    speed = [{"samples": 8, "precision": "fp32", "fps": 1.0, "ms_per_frame": 1.0,
+              "psnr_vs_32_samples": 40.0}]
+    swap = {"own_style": "bob", "views_yaw": [0], "styles": [], "mean_psnr_face": 0.0,
+            "mean_psnr_hull": 0.0}
+    monkeypatch.setattr(bench, "_speed", record("speed", speed))
+    reuse = {"tol": 1e-3, "samples": 8, "size": 256, "frames": 8, "precision": "fp32",
+             "fps": 2.0, "ms_per_frame": 500.0, "fps_exact": 1.0, "ms_per_frame_exact": 1e3,
+             "decoded_share": 0.2, "psnr_vs_exact_min": 70.0, "max_abs_vs_exact": 1e-4}
+    monkeypatch.setattr(bench, "_reuse", record("reuse", reuse))
+    resolution = [{"size": 256, "samples": 8, "precision": "fp32", "fps": 1.0,
+                   "ms_per_frame": 1.0, "psnr_vs_32_samples_same_size": 40.0,
+                   "psnr_vs_32_samples_256px": 40.0}]
+    monkeypatch.setattr(bench, "_resolution", record("resolution", resolution))
+    monkeypatch.setattr(bench, "_swap", record("swap", swap))
+    monkeypatch.setattr(bench, "_stream", lambda data: (
+        ArkitStream(np.zeros((10, 52), np.float32), np.arange(10) / 30.0, 30.0), None))
+    result, md = bench.bench_animate(frames=8, memory=False, head_path=head_file,
+                                     fidelity=False, device="cpu")
+    assert [name for name, _, _ in seen] == ["speed", "reuse", "resolution", "swap"]
+    assert all(head == head_file for _, head, _ in seen)
+    assert [device for name, _, device in seen if name != "reuse"] == ["cpu"] * 3
+    assert result["device"] == "cpu" and result["head"] == head_file.name
+    assert "fidelity" not in result and "memory" not in result
+    assert "Expression fidelity" not in md and "on cpu, " in md
