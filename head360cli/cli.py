@@ -839,11 +839,13 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
       head360 bench fit
       head360 bench fit --preset fast --identities 1 --no-sweep --stability 0
       head360 bench fit --preset fast --identities 6 --corpus-seed 1 --no-sweep
+      head360 bench fit --device cuda          the fits on the GPU (dlib still needed)
     """
     from head360cli.bench.fit import bench_fit
     from head360cli.bench.report import save
+    from head360cli.devices import resolve_device
 
-    _cpu_only("bench fit")
+    device = str(resolve_device(_settings().device))
     if identities < 1:
         raise BadInputError(f"expected --identities >= 1, found {identities}")
     if stability < 0:
@@ -852,7 +854,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
         raise BadInputError(f"expected --corpus-seed >= 0, found {corpus_seed}")
     result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),
                            sweep=() if no_sweep else (5, 10, 20, 40), stability=stability,
-                           corpus_seed=corpus_seed,
+                           corpus_seed=corpus_seed, device=device,
                            progress=None if _settings().quiet else
                            (lambda t: click.echo(f"bench fit: {t}", err=True)))
     result["files"] = save(result, md, out_dir, "fit")

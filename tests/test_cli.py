@@ -269,23 +269,24 @@ def test_console_script_exit_code_in_a_real_process(tmp_path):
 
 def test_cpu_benches_say_that_device_is_not_used(run_cli):
     """Every command takes --device; the benches that measure on the CPU say so rather
-    than ignore it (bench onnx and bench generator use it)."""
-    r = run_cli("bench", "fit", "--device", "cuda", "--identities", "0")
-    assert r.code == 3 and "bench fit measures on the CPU; --device cuda is not used" in r.err
-    r = run_cli("bench", "fit", "--device", "cpu", "--identities", "0")
+    than ignore it (bench fit, animate, onnx and generator use it)."""
+    r = run_cli("bench", "synth", "--device", "cuda", "--identities", "0")
+    assert r.code == 3 and "bench synth measures on the CPU; --device cuda is not used" in r.err
+    r = run_cli("bench", "synth", "--device", "cpu", "--identities", "0")
     assert r.code == 3 and "warning" not in r.err
-    r = run_cli("bench", "fit", "-q", "--device", "cuda", "--identities", "0")
+    r = run_cli("bench", "synth", "-q", "--device", "cuda", "--identities", "0")
     assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
 
 
-def test_bench_animate_takes_the_device_and_checks_it_first(run_cli, monkeypatch):
-    """bench animate measures on --device (its GPU numbers come from the project's own
-    command): a device that is not there is refused before any work, as every command
-    refuses it."""
+@pytest.mark.parametrize("bench", ["animate", "fit"])
+def test_benches_that_take_the_device_check_it_first(run_cli, monkeypatch, bench):
+    """bench animate and bench fit measure on --device (their GPU numbers come from the
+    project's own commands): a device that is not there is refused before any work, as
+    every command refuses it."""
     import torch
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    r = run_cli("bench", "animate", "--device", "cuda:1", "--frames", "8")
+    r = run_cli("bench", bench, "--device", "cuda:1")
     assert r.code == 3 and "not used" not in r.err
     assert "--device cuda:1 asked for CUDA, but no CUDA device is available" in r.err
 

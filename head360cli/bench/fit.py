@@ -219,8 +219,8 @@ def _hair_parse_no_face(heads: int = 30, seed: int = 0) -> dict[str, Any]:
     return out
 
 
-def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0
-                   ) -> dict[str, Any]:
+def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0,
+                   device: str = "cpu") -> dict[str, Any]:
     import torch
     from PIL import Image
 
@@ -255,8 +255,9 @@ def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0
                         .astype(np.uint8)).save(photo)
         # The render's camera is known: its focal and its distance to the head (a rig).
         summary = fit_photo(photo, work / f"synthetic_{i}.h360", preset=preset, focal=focal,
-                            distance=RIG_DISTANCE)
-        head = load_head_renderer(work / f"synthetic_{i}.h360", precision="fp32")
+                            distance=RIG_DISTANCE, device=device)
+        head = load_head_renderer(work / f"synthetic_{i}.h360", device=device,
+                                  precision="fp32")
         pose = torch.tensor(read_head(work / f"synthetic_{i}.h360").arrays["pose"])
         # Ground-truth world -> fitted head's world: c2w_fit @ inv(c2w_in).
         to_fit = pose @ torch.linalg.inv(cam_in[0])
@@ -264,10 +265,10 @@ def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0
         for j in range(0, 72, 8):
             cams = rig[j:j + 8]
             gt = truth.render(i, np.zeros(52, np.float32), cams, with_hair=True).rgb
-            pred = head.render(to_fit @ cams, k, expression=np.zeros(52))
+            pred = head.render(to_fit @ cams, k, expression=np.zeros(52)).cpu()
             scores += [(psnr(pred[b], gt[b]), ssim(pred[b], gt[b])) for b in range(len(cams))]
         gt_in = truth.render(i, np.zeros(52, np.float32), cam_in, with_hair=True).rgb
-        pred_in = head.render(to_fit @ cam_in, k, expression=np.zeros(52))
+        pred_in = head.render(to_fit @ cam_in, k, expression=np.zeros(52)).cpu()
         rows.append({"identity": i, "psnr_all_views": round(float(np.mean(
             [s[0] for s in scores])), 3), "ssim_all_views": round(float(np.mean(
                 [s[1] for s in scores])), 4),
@@ -366,7 +367,8 @@ def _descriptor(rgb: np.ndarray):
     return np.array(cache["rec"].compute_face_descriptor(img, shape))
 
 
-def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
+def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
+          ) -> dict[str, Any]:
     import torch
 
     from head360cli.fitting.pipeline import fit_photo, load_head_renderer
@@ -383,11 +385,11 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
     for photo in photos:
         out = work / f"{photo.stem}.h360"
         try:
-            s = fit_photo(photo, out, preset=preset)
+            s = fit_photo(photo, out, preset=preset, device=device)
         except Exception as exc:  # reported, not fatal: one photo must not stop the rest
             rows.append({"photo": photo.name, "error": str(exc)})
             continue
-        head = load_head_renderer(out, precision="fp32")
+        head = load_head_renderer(out, device=device, precision="fp32")
         res = head.gen.cfg.image_res
         ref = _descriptor(load_image(photo).pixels)
         yaws = (0.0, 30.0, -30.0)
@@ -421,8 +423,8 @@ def _real(photos: list[Path], preset: str, work: Path) -> dict[str, Any]:
         "seconds": mean([r["seconds"] for r in ok])}}
 
 
-def _cold_fit(photo: Path, preset: str, work: Path, timeout: float = 1800.0
-              ) -> dict[str, Any]:
+def _cold_fit(photo: Path, preset: str, work: Path, timeout: float = 1800.0,
+              device: str = "cpu") -> dict[str, Any]:
     """``head360 fit`` in a new process, as a user runs it: wall time from the command to
     its exit (Python, imports and model loads included), and the fit's own total.
 
@@ -435,7 +437,8 @@ def _cold_fit(photo: Path, preset: str, work: Path, timeout: float = 1800.0
     t0 = time.perf_counter()
     try:
         run = subprocess.run([sys.executable, "-m", "head360cli", "fit", str(photo), "-o",
-                              str(work / f"cold_{preset}.h360"), "--preset", preset, "--json"],
+                              str(work / f"cold_{preset}.h360"), "--preset", preset, "--json",
+                              "--device", device],
                              capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"photo": photo.name, "error": f"no result within {timeout:.0f} s"}
@@ -448,7 +451,8 @@ def _cold_fit(photo: Path, preset: str, work: Path, timeout: float = 1800.0
             "total_s": round(summary["timings"]["total"], 2)}
 
 
-def _sweep(photo: Path, work: Path, steps: tuple[int, ...]) -> list[dict[str, Any]]:
+def _sweep(photo: Path, work: Path, steps: tuple[int, ...], device: str = "cpu"
+           ) -> list[dict[str, Any]]:
     from head360cli.fitting import texture
     from head360cli.fitting.pipeline import fit_photo
 
@@ -457,7 +461,7 @@ def _sweep(photo: Path, work: Path, steps: tuple[int, ...]) -> list[dict[str, An
     try:
         for n in steps:
             texture.PRESETS["sweep"] = dataclasses.replace(fast, steps=n, patience=n + 1)
-            s = fit_photo(photo, work / f"sweep_{n}.h360", preset="sweep")
+            s = fit_photo(photo, work / f"sweep_{n}.h360", preset="sweep", device=device)
             rows.append({"texture_steps": n, "psnr_face": s["psnr_face_input_view"],
                          "invert_s": s["timings"]["invert"],
                          "total_s": s["timings"]["total"]})
@@ -473,7 +477,7 @@ def noisy_copy(rgb: np.ndarray, seed: int) -> np.ndarray:
     return np.clip(rgb.astype(np.int16) + step, 0, 255).astype(np.uint8)
 
 
-def _stability(photo: Path, work: Path, draws: int) -> dict[str, Any]:
+def _stability(photo: Path, work: Path, draws: int, device: str = "cpu") -> dict[str, Any]:
     """Fast fits of ``photo`` and of ``draws`` :func:`noisy_copy`-s of it (seeds 1..draws):
     how far the fit's results move when the input moves by one grey level."""
     from PIL import Image
@@ -486,7 +490,7 @@ def _stability(photo: Path, work: Path, draws: int) -> dict[str, Any]:
     for seed in range(draws + 1):
         path = work / f"stability_{seed}.png"
         Image.fromarray(rgb if seed == 0 else noisy_copy(rgb, seed)).save(path)
-        s = fit_photo(path, work / f"stability_{seed}.h360", preset="fast")
+        s = fit_photo(path, work / f"stability_{seed}.h360", preset="fast", device=device)
         rows.append({"seed": seed, "psnr_face": s["psnr_face_input_view"],
                      "psnr_face_bald": s["psnr_face_input_view_bald"],
                      "hair": s["hair_style"]["name"], "colour": s["hair_color_name"]})
@@ -499,11 +503,14 @@ def _stability(photo: Path, work: Path, draws: int) -> dict[str, Any]:
 
 def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"),
               sweep: tuple[int, ...] = (5, 10, 20, 40), stability: int = 3,
-              progress=None, corpus_seed: int = 0) -> tuple[dict, str]:
+              progress=None, corpus_seed: int = 0, device: str = "cpu") -> tuple[dict, str]:
     """Run every part that its data allows; returns ``(result, markdown)``. The
     synthetic parts use the held-out heads of corpus seed ``corpus_seed`` (0: the
     bench's; other seeds are for development, so that choices are not tuned on the
-    heads the bench reports)."""
+    heads the bench reports). The fits (synthetic and real, from the command line, the
+    sweep and the stability draws) and their renders run on ``device``; the hair parts
+    (which run on the CPU in every fit) and the known-geometry diagnostic stay on the
+    CPU."""
     import torch
 
     from head360cli.paths import shared_data_dir
@@ -511,7 +518,10 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
     torch.manual_seed(0)
     say = progress or (lambda text: None)
     data = shared_data_dir()
-    result: dict[str, Any] = {"threads": torch.get_num_threads(), "corpus_seed": corpus_seed}
+    result: dict[str, Any] = {"threads": torch.get_num_threads(), "corpus_seed": corpus_seed,
+                              "device": device}
+    if torch.device(device).type != "cpu":
+        result["gpu"] = torch.cuda.get_device_name(torch.device(device))
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -527,7 +537,7 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
         for preset in presets:
             say(f"synthetic fit, {preset}")
             result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work,
-                                                             corpus_seed)
+                                                             corpus_seed, device)
             say(f"synthetic heads, true mesh, camera and hair, {preset}")
             result["synthetic_fit"][preset]["known_geometry"] = _known_geometry(
                 identities, preset, seed=corpus_seed)
@@ -540,14 +550,15 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
             result["real"] = {}
             for preset in presets:
                 say(f"real photos, {preset}")
-                result["real"][preset] = _real(photos, preset, work)
-                result["real"][preset]["cold"] = _cold_fit(photos[0], preset, work)
+                result["real"][preset] = _real(photos, preset, work, device)
+                result["real"][preset]["cold"] = _cold_fit(photos[0], preset, work,
+                                                           device=device)
             if sweep:
                 say("inversion steps against quality")
-                result["sweep"] = _sweep(photos[0], work, sweep)
+                result["sweep"] = _sweep(photos[0], work, sweep, device)
             if stability:
                 say("stability: the first photo with one grey level of noise")
-                result["stability"] = _stability(photos[0], work, stability)
+                result["stability"] = _stability(photos[0], work, stability, device)
     result["seconds"] = round(time.perf_counter() - t0, 1)
     return result, _markdown(result)
 
@@ -571,6 +582,9 @@ def _pct(value: float | None) -> str:
 
 def _markdown(r: dict[str, Any]) -> str:
     lines = ["# head360 bench fit", ""]
+    if r.get("device", "cpu") != "cpu":
+        lines += [f"Fits on {r.get('gpu') or r['device']} (`--device {r['device']}`); the "
+                  "hair parts and the known-geometry rows on the CPU.", ""]
     if r.get("corpus_seed", 0) != 0:
         lines += [f"Synthetic heads: held-out heads of corpus seed {r['corpus_seed']} "
                   "(development heads, not the bench's seed 0).", ""]

@@ -132,7 +132,8 @@ def test_stability_fits_the_photo_and_its_noisy_copies(tmp_path, monkeypatch):
     Image.fromarray(rgb).save(tmp_path / "p.png")
     seen = []
 
-    def fake_fit(path, out, preset):
+    def fake_fit(path, out, preset, device):
+        assert device == "cpu"
         seen.append(np.asarray(Image.open(path)))
         n = len(seen)
         return {"psnr_face_input_view": 20.0 + n, "psnr_face_input_view_bald": 30.0 - n / 4,
@@ -172,7 +173,7 @@ def test_every_synthetic_part_uses_the_corpus_seed_asked_for(monkeypatch):
     monkeypatch.setattr(bench, "_hair_style", lambda seed: seen.append(("style", seed)))
     monkeypatch.setattr(bench, "_hair_parse_no_face",
                         lambda seed: seen.append(("no_face", seed)))
-    monkeypatch.setattr(bench, "_synthetic_fit", lambda n, preset, work, seed: {
+    monkeypatch.setattr(bench, "_synthetic_fit", lambda n, preset, work, seed, device: {
         "seen": seen.append(("fit", seed))})
     monkeypatch.setattr(bench, "_known_geometry",
                         lambda n, preset, seed: seen.append(("known", seed)))
@@ -191,3 +192,60 @@ def test_markdown_names_a_development_seed():
          "synthetic_fit": {}}
     assert "held-out heads of corpus seed 1" in _markdown(r)
     assert "corpus seed" not in _markdown({**r, "corpus_seed": 0})
+
+
+def test_every_fit_part_runs_on_the_device_asked_for(monkeypatch, tmp_path):
+    """``bench fit --device``: the device reaches the synthetic and real fits, the fit from
+    the command line, the sweep and the stability draws (stubbed here: the wiring is what
+    is tested; the GPU itself is not on this machine), and the report names it."""
+    import torch
+
+    import head360cli.bench.fit as bench
+    import head360cli.paths
+
+    (tmp_path / "faces").mkdir()
+    (tmp_path / "faces" / "astronaut.png").write_bytes(b"")
+    seen = []
+
+    def part(name, value=None):
+        def run(*args, **kwargs):
+            seen.append((name, kwargs.get("device", args[-1])))
+            return {} if value is None else value
+        return run
+
+    monkeypatch.setattr(head360cli.paths, "shared_data_dir", lambda: tmp_path)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda device: "Fake GPU")
+    for name in ("_hair_parse", "_figaro_classes", "_hair_style", "_hair_parse_no_face",
+                 "_known_geometry"):
+        monkeypatch.setattr(bench, name, lambda *args, **kwargs: {})
+    for name in ("_synthetic_fit", "_real", "_cold_fit", "_sweep", "_stability"):
+        monkeypatch.setattr(bench, name, part(name))
+    markdown = bench._markdown
+    monkeypatch.setattr(bench, "_markdown", lambda r: "md")
+    result, _ = bench.bench_fit(identities=1, presets=("fast",), sweep=(5,), stability=1,
+                                device="cuda")
+    assert seen == [("_synthetic_fit", "cuda"), ("_real", "cuda"), ("_cold_fit", "cuda"),
+                    ("_sweep", "cuda"), ("_stability", "cuda")]
+    assert result["device"] == "cuda" and result["gpu"] == "Fake GPU"
+    r = {"device": "cuda", "gpu": "Fake GPU",
+         "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0}, "parsed_iou": 0.9},
+         "hair_parse_no_face": {"back_view": {"mean_iou": 0.9, "views": 2},
+                                "close_up": {"mean_iou": 0.9, "views": 2}},
+         "synthetic_fit": {}}
+    assert "Fits on Fake GPU (`--device cuda`)" in markdown(r)
+    assert "Fits on" not in markdown({**r, "device": "cpu"})
+
+
+def test_cold_fit_runs_the_command_on_the_device(tmp_path, monkeypatch):
+    import subprocess
+
+    calls = []
+
+    def fake_run(args, **kwargs):
+        calls.append(args)
+        return subprocess.CompletedProcess(args, 0, '{"timings": {"total": 1.0}}', "")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    row = _cold_fit(tmp_path / "p.png", "fast", tmp_path, device="cuda:1")
+    assert row["total_s"] == 1.0
+    assert calls[0][-2:] == ["--device", "cuda:1"] and "fit" in calls[0]
