@@ -809,6 +809,8 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
     from head360cli.bench.report import save
 
     _cpu_only("bench fit-shape")
+    if trials < 1:  # zero trials failed after the real-photo part, as an internal error
+        raise BadInputError(f"expected --trials >= 1, found {trials}")
     result, md = bench_fit_shape(trials=trials)
     result["files"] = save(result, md, out_dir, "fit_shape")
     _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")

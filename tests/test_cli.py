@@ -302,6 +302,13 @@ def test_bench_animate_refuses_a_piped_head_and_fidelity_size_without_fidelity(
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("trials", ["0", "-5"])
+def test_bench_fit_shape_refuses_no_trials(run_cli, tmp_path, trials):
+    r = run_cli("bench", "fit-shape", "--trials", trials, "--out", tmp_path / "out")
+    assert r.code == 3 and f"expected --trials >= 1, found {trials}" in r.err
+    assert not (tmp_path / "out").exists()
+
+
 def test_bench_fit_refuses_a_negative_corpus_seed(run_cli):
     r = run_cli("bench", "fit", "--corpus-seed", "-1")
     assert r.code == 3 and "expected --corpus-seed >= 0, found -1" in r.err
