@@ -155,7 +155,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     if not (np.isfinite(yaw) and np.isfinite(pitch) and abs(pitch) <= 90):
         raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
                             f"{yaw}, {pitch}")
-    if turntable and views:
+    if turntable and views is not None:
         raise BadInputError("expected --turntable or --views, found both")
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
@@ -182,7 +182,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 
     from head360cli.io.atomic import atomic_path
 
-    pairs = parse_views(views) if views else [(yaw, pitch)]
+    pairs = parse_views(views) if views is not None else [(yaw, pitch)]
     cams = view_cameras([p[0] for p in pairs], [p[1] for p in pairs])
     frames_ = np.concatenate(list(r.frames(cams, np.broadcast_to(w, (len(pairs), 52)),
                                            view_intrinsics(r.size), hair=not no_hair)))

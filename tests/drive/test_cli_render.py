@@ -43,6 +43,8 @@ def test_render_turntable_and_errors(run_cli, head_file, tmp_path):
         (["--pitch", "100"], "pitch"),
         (["--size", "63"], "multiple of 2"),
         (["--turntable", "--views", "0"], "both"),
+        (["--views", ""], "expected at least one view, found ''"),  # was one front view
+        (["--views", " , "], "expected at least one view"),
     ]
     for extra, words in cases:
         r = run_cli("render", head_file, *extra, "-o", tmp_path / "x.png")
