@@ -194,6 +194,7 @@ def _format_image(r: dict[str, Any]) -> str:
         f"{r['display_size'][0]}x{r['display_size'][1]}",
         f"  frames       {r['frames']}",
         f"  file size    {r['bytes']} bytes",
+        f"  pixels       {r.get('problem') or 'decoded without error'}",
     ])
 
 

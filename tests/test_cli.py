@@ -128,6 +128,13 @@ def test_inspect_image_and_head(run_cli, tmp_path):
     Image.fromarray(np.zeros((20, 30), np.uint8)).save(img)
     j = json.loads(run_cli("inspect", img, "--json").out)
     assert (j["kind"], j["width"], j["height"], j["mode"]) == ("image", 30, 20, "L")
+    assert j["problem"] is None
+    assert "pixels       decoded without error" in run_cli("inspect", img).out
+    cut = tmp_path / "cut.png"  # the header reads; fit and parse-hair refuse the pixels
+    cut.write_bytes(img.read_bytes()[:-30])
+    r = run_cli("inspect", cut)
+    assert r.code == 0 and "size         30x20" in r.out
+    assert "pixels       truncated or corrupted" in r.out
     head = write_head(HeadFile(arrays={"shape": np.zeros(50, np.float32)},
                                info={"source": "x.jpg"}), tmp_path / "h.h360")
     r = run_cli("inspect", head, "--json")

@@ -118,15 +118,36 @@ def _orientation(img) -> int:
     return value if value in _ORIENTATION_NAMES else 1
 
 
-def describe_image(path: str | os.PathLike[str] | NamedBytes) -> dict[str, object]:
-    """What an image file is, read from its header only (no pixel decoding).
+def _decode_problem(img, max_pixels: int) -> str | None:
+    """Why :func:`load_image` would refuse an open image's pixels, or ``None``: over
+    ``max_pixels`` (not decoded), or truncated or corrupted (a JPEG is decoded at an
+    eighth of its size, which reads its whole stream at a fraction of the cost)."""
+    w, h = img.size
+    if w * h > max_pixels:
+        return (f"not decoded: {w * h / 1e6:.0f} megapixels, over the "
+                f"{max_pixels / 1e6:.0f} the commands take (downscale it first)")
+    if img.format == "JPEG":
+        img.draft("RGB", (max(1, w // 8), max(1, h // 8)))
+    try:
+        img.load()
+    except (OSError, SyntaxError, ValueError) as exc:
+        return f"truncated or corrupted: {exc}"
+    return None
+
+
+def describe_image(path: str | os.PathLike[str] | NamedBytes,
+                   max_pixels: int = MAX_PIXELS) -> dict[str, object]:
+    """What an image file is: its header, and whether its pixels decode.
 
     Args:
         path: The image file, a pipe, or a pipe's content already read.
+        max_pixels: Images with more pixels are not decoded (the commands refuse them).
 
     Returns:
         ``format``, ``mode``, ``width`` and ``height`` as stored, ``orientation`` (code and
-        name), upright ``display_size``, ``frames`` and ``bytes``.
+        name), upright ``display_size``, ``frames``, ``bytes``, ``megapixels``, and
+        ``problem``: why the commands would refuse the pixels (over ``max_pixels``,
+        truncated or corrupted), or ``None``.
     """
     from head360cli.io.sources import NamedBytes
 
@@ -136,19 +157,25 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes) -> dict[str, objec
         w, h = img.size
         orient = _orientation(img)
         upright = (h, w) if orient in (5, 6, 7, 8) else (w, h)
+        header = {
+            "format": img.format, "mode": img.mode,
+            "frames": int(getattr(img, "n_frames", 1)),
+        }
+        problem = _decode_problem(img, max_pixels)  # after the header: draft changes mode
         return {
             "kind": "image",
             "path": name,
-            "format": img.format,
-            "mode": img.mode,
+            "format": header["format"],
+            "mode": header["mode"],
             "width": w,
             "height": h,
             "orientation": orient,
             "orientation_name": _ORIENTATION_NAMES[orient],
             "display_size": list(upright),
-            "frames": int(getattr(img, "n_frames", 1)),
+            "frames": header["frames"],
             "bytes": size,
             "megapixels": round(w * h / 1e6, 3),
+            "problem": problem,
         }
 
 

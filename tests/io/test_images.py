@@ -126,6 +126,7 @@ def test_absurdly_large_images_are_refused_before_decoding(tmp_path):
     path = tmp_path / "bomb.png"
     path.write_bytes(_png_claiming(60000, 60000))
     assert describe_image(path)["megapixels"] == 3600.0
+    assert describe_image(path)["problem"].startswith("not decoded: 3600 megapixels")
     with pytest.raises(BadInputError, match="3600 megapixels"):
         load_image(path)
 
@@ -159,6 +160,12 @@ def test_unreadable_truncated_empty_and_missing(tmp_path):
         load_image(tmp_path / "missing.jpg")
     with pytest.raises(BadInputError, match="folder"):
         load_image(tmp_path)
+    # inspect says what the commands would find: the header reads, the pixels do not
+    for bad in (truncated, tjpg):
+        d = describe_image(bad)
+        assert d["width"] == 64 and d["problem"].startswith("truncated or corrupted")
+    assert describe_image(good)["problem"] is None and describe_image(jpg)["problem"] is None
+    assert describe_image(good)["mode"] == "RGB"
 
 
 @pytest.mark.shared_data
