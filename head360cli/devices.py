@@ -6,7 +6,7 @@ import re
 
 from head360cli.errors import BadInputError
 
-__all__ = ["fast_bfloat16", "resolve_device"]
+__all__ = ["fast_bfloat16", "gpu_peak_mib", "resolve_device"]
 
 _PATTERN = re.compile(r"^(cpu|cuda|auto)(:\d+)?$")
 
@@ -54,3 +54,14 @@ def fast_bfloat16(device) -> bool:
     except OSError:  # not Linux: be safe
         return False
     return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+def gpu_peak_mib(device) -> float | None:
+    """The most GPU memory torch has held on ``device`` in this process, in MiB (its
+    allocations, not the driver's reserve); ``None`` on a CPU."""
+    import torch
+
+    device = torch.device(device)
+    if device.type != "cuda":
+        return None
+    return round(torch.cuda.max_memory_allocated(device) / 2**20, 1)

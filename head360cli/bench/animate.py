@@ -296,9 +296,9 @@ def _memory(head: Path, capture: Path, work: Path, device: str = "cpu") -> dict[
                       "-o", str(work / "short.mp4"), *on])
     full = _run_cli(["animate", str(head), "--arkit", str(capture),
                      "-o", str(work / "full.mp4"), *on])
-    keep = ("frames", "render_fps", "peak_rss_mib", "wall_s", "workers")
-    return {"first_10_s": {k: short[k] for k in keep}, "whole": {k: full[k] for k in keep},
-            "capture": capture.name}
+    keep = ("frames", "render_fps", "peak_rss_mib", "wall_s", "workers", "gpu_peak_mib")
+    return {"first_10_s": {k: short[k] for k in keep if k in short},
+            "whole": {k: full[k] for k in keep if k in full}, "capture": capture.name}
 
 
 def _turning_capture(data: Path) -> tuple[Path, float] | None:
@@ -678,12 +678,15 @@ def _markdown(r: dict[str, Any]) -> str:
     lines.append(f"| mean | {s['mean_psnr_face']:.2f} | {s['mean_psnr_hull']:.2f} |")
     if "memory" in r:
         m = r["memory"]
+        gpu = "gpu_peak_mib" in m["whole"]
         lines += ["", f"## Peak memory of `head360 animate` ({m['capture']})", "",
-                  "| run | frames | frames/s with encoding | peak RSS MiB | wall s |",
-                  "|---|---|---|---|---|"]
+                  "| run | frames | frames/s with encoding | peak RSS MiB | wall s |"
+                  + (" GPU peak MiB |" if gpu else ""),
+                  "|---|---|---|---|---|" + ("---|" if gpu else "")]
         for name, v in (("first 10 s", m["first_10_s"]), ("whole capture", m["whole"])):
             lines.append(f"| {name} | {v['frames']} | {v['render_fps']:.1f} | "
-                         f"{v['peak_rss_mib']:.0f} | {v['wall_s']:.0f} |")
+                         f"{v['peak_rss_mib']:.0f} | {v['wall_s']:.0f} |"
+                         + (f" {v.get('gpu_peak_mib', 0):.0f} |" if gpu else ""))
     if "head_pose" in r:
         h = r["head_pose"]
         lines += ["", f"## A turning head: `head360 animate --head-pose` ({h['capture']}, "

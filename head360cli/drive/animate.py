@@ -131,7 +131,8 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
 
     Returns:
         A summary: frames, duration, fps, render seconds and frames per second, the share
-        of points decoded when frames reused the previous ones (``decoded_share``), paths.
+        of points decoded when frames reused the previous ones (``decoded_share``), the
+        GPU memory peak on a GPU (``gpu_peak_mib``), paths.
     """
     from head360cli.drive.parallel import Workers, auto_workers
 
@@ -171,6 +172,7 @@ def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress, work
     """:func:`animate` once the head is loaded and the stream prepared: ``workers``
     processes render the frames if the renderer is torch's on a CPU (``pool``: those
     started already, or ``None``)."""
+    from head360cli.devices import gpu_peak_mib
     from head360cli.drive.views import view_cameras, view_intrinsics
     from head360cli.io.video import VideoWriter
 
@@ -217,5 +219,9 @@ def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress, work
             result["worker_peak_rss_mib"] = round(sum(counts["peaks"].values()), 1)
         if counts.get("points"):  # the share of points decoded afresh
             result["decoded_share"] = round(counts["decoded"] / counts["points"], 4)
+        device = getattr(renderer, "device", None)
+        peak = None if device is None else gpu_peak_mib(device)
+        if peak is not None:  # the command's peak on the GPU: loading and frames
+            result["gpu_peak_mib"] = peak
         result["files"]["video"] = str(out)
     return result

@@ -194,6 +194,15 @@ def test_frames_per_call_rows_time_each_batch_with_and_without_hair(head_file):
                              "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0}})
     assert "Head: me.h360. Stream: s (4 frames); on NVIDIA H200." in md
     assert "| 3 | no | fp32 |" in md and "Expression fidelity" not in md
+    run = {"frames": 600, "render_fps": 389.0, "peak_rss_mib": 1807.0, "wall_s": 14.4,
+           "gpu_peak_mib": 2867.0}
+    md = _markdown({"stream": "s", "stream_frames": 4, "threads": 2, "device": "cuda",
+                    "speed": [], "swap": {"own_style": "bob", "views_yaw": [0],
+                                          "styles": [], "mean_psnr_face": 0.0,
+                                          "mean_psnr_hull": 0.0},
+                    "memory": {"capture": "take.csv", "first_10_s": run, "whole": run}})
+    assert "| whole capture | 600 | 389.0 | 1807 | 14 | 2867 |" in md
+    assert "GPU peak MiB" in md
 
 
 def test_bench_on_a_given_head_without_fidelity_needs_no_dlib(head_file, monkeypatch):

@@ -186,6 +186,7 @@ def test_cli_animate_batch_renders_the_same_frames(run_cli, head_file, tmp_path)
         assert r.code == 0, r.err
         res = json.loads(r.out)
         assert res["workers"] == 1
+        assert "gpu_peak_mib" not in res  # a GPU's memory peak, reported there only
         # decoded points are reused between frames one at a time only
         assert ("decoded_share" in res) == (name == "one")
         got[name] = np.stack([iio.imread(p) for p in sorted((tmp_path / name).iterdir())])
