@@ -596,6 +596,9 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
     if frames < 8 or stride < 1:
         raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
                             f"{stride}")
+    if no_fidelity and fidelity_size is not None:
+        raise BadInputError("--fidelity-size sets the size of the fidelity frames; "
+                            "expected it without --no-fidelity")
     if fidelity_size is not None:
         if not 64 <= fidelity_size <= 1024:
             raise BadInputError(f"expected --fidelity-size between 64 and 1024, found "
@@ -606,9 +609,6 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
             load_generator()[0].image_size(fidelity_size)
         except ValueError as exc:
             raise BadInputError(f"--fidelity-size: {exc}") from None
-    if no_fidelity and fidelity_size is not None:
-        raise BadInputError("--fidelity-size sets the size of the fidelity frames; "
-                            "expected it without --no-fidelity")
     if head_path is not None:
         from head360cli.fitting.pipeline import generator_hash
         from head360cli.io.headfile import read_head

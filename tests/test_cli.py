@@ -306,6 +306,11 @@ def test_bench_animate_refuses_a_piped_head_and_fidelity_size_without_fidelity(
     r = run_cli("bench", "animate", "--head", head_file, "--no-fidelity",
                 "--fidelity-size", "512", "--out", tmp_path / "out")
     assert r.code == 3 and "expected it without --no-fidelity" in r.err
+    other = write_head(HeadFile(arrays={"shape": np.zeros(50, np.float32)}),
+                       tmp_path / "other.h360")  # another model's head: refused at once
+    r = run_cli("bench", "animate", "--head", other, "--no-fidelity", "--out",
+                tmp_path / "out")
+    assert r.code == 6 and "was made with model" in r.err
     assert not (tmp_path / "out").exists()
 
 
