@@ -713,18 +713,24 @@ def bench_all_cmd(out_dir: str, quick: bool, skip: tuple[str, ...]) -> None:
       head360 bench all
       head360 bench all --quick --out bench-quick
       head360 bench all --skip generator --skip synth
+      head360 bench all --device cuda     fit, generator, animate and onnx on the GPU
     """
     import subprocess
     import time
 
     from head360cli.bench.summary import STAGE_RUNS, summarize
+    from head360cli.devices import resolve_device
 
+    device = _settings().device
+    resolve_device(device)  # a device that is not there stops it before the first stage
+    # the stages that measure on a device take it; the CPU-only ones say they do not
+    on = ["--device", device] if device.strip().lower() != "cpu" else []
     failed, timings = [], {}
     for stage, (full, small) in STAGE_RUNS.items():
         if stage in skip:
             continue
         cmd = [sys.executable, "-m", "head360cli", "bench", stage, "--out", out_dir,
-               *(small if quick else full)]
+               *(small if quick else full), *on]
         if not _settings().quiet:
             click.echo(f"bench all: {stage}: {' '.join(cmd[3:])}", err=True)
         t0 = time.perf_counter()

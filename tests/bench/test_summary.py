@@ -82,3 +82,34 @@ def test_summary_and_all_on_the_command_line(run_cli, tmp_path):
     res = json.loads(r.out)
     assert res["failed"] == [] and res["stages"] == ["onnx"]
     assert (tmp_path / "bench.md").is_file() and (tmp_path / "bench.png").is_file()
+
+
+def test_bench_all_hands_the_device_to_every_stage(run_cli, tmp_path, monkeypatch):
+    """``head360 --device cuda bench all``: each stage's command gets --device (the CPU-only
+    stages then say they do not use it); with the default CPU none does, and a device that
+    is not there stops it before the first stage. The stages' processes are stubbed."""
+    import subprocess
+
+    import torch
+
+    calls = []
+
+    def fake_run(cmd, **kwargs):
+        calls.append(cmd)
+        return subprocess.CompletedProcess(cmd, 0)
+
+    (tmp_path / "onnx.json").write_text(json.dumps(STAGES["onnx"]))
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    r = run_cli("--device", "cuda", "bench", "all", "--out", tmp_path, "--skip", "synth")
+    assert r.code == 0, r.err
+    assert [c[4] for c in calls] == ["fit-shape", "fit", "generator", "animate", "onnx"]
+    assert all(c[-2:] == ["--device", "cuda"] for c in calls)
+    calls.clear()
+    assert run_cli("bench", "all", "--out", tmp_path, "--skip", "synth").code == 0
+    assert len(calls) == 5 and not any("--device" in c for c in calls)
+    calls.clear()
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    r = run_cli("bench", "all", "--device", "cuda", "--out", tmp_path)
+    assert r.code == 3 and "no CUDA device is available" in r.err and calls == []
