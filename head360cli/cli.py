@@ -92,12 +92,13 @@ def _warn(message: str) -> None:
         click.echo(f"head360: warning: {message}", err=True)
 
 
-def _cpu_only(command: str) -> None:
-    """Warn that ``command`` measures on the CPU when --device names another device (every
-    command takes --device; these benches would otherwise ignore it silently)."""
+def _cpu_only(command: str, does: str = "measures") -> None:
+    """Warn that ``command`` ``does`` (measures, renders, ...) on the CPU when --device
+    names another device (every command takes --device; these would otherwise ignore it
+    silently)."""
     device = _settings().device
     if device and device.lower() != "cpu":
-        _warn(f"{command} measures on the CPU; --device {device} is not used")
+        _warn(f"{command} {does} on the CPU; --device {device} is not used")
 
 
 @click.group(
@@ -286,6 +287,7 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
     """
     from head360cli.progress import progress_bar
 
+    _cpu_only("synth", "renders")
     settings = _settings()
     if preview:
         from head360cli.synth.corpus import write_previews
@@ -471,6 +473,7 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
     """
     from head360cli.fitting.pipeline import parse_photo
 
+    _cpu_only("parse-hair", "parses")
     r = parse_photo(photo, out_dir, face=face, detector=detector, learned_prior=not no_prior)
     _emit(r, f"hair {100 * r['hair_fraction']:.1f}% and face {100 * r['face_fraction']:.1f}% "
           f"of the image{'' if r['seeded'] else _unseeded(r)}; wrote "
@@ -587,6 +590,7 @@ def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, s
     """
     from head360cli.mesh.build import build_model
 
+    _cpu_only("build-model", "builds")
     if out is None:
         if corpus != "synthead-p":
             from head360cli.errors import BadInputError

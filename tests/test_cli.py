@@ -285,6 +285,24 @@ def test_cpu_benches_say_that_device_is_not_used(run_cli):
     assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
 
 
+def test_commands_that_run_on_the_cpu_say_that_device_is_not_used(run_cli, tmp_path):
+    """synth, build-model and parse-hair run on the CPU whatever --device says (on a
+    machine without CUDA they used to succeed without a word, where every command that
+    uses the device refuses a missing one): they warn, and still do their work."""
+    r = run_cli("synth", tmp_path / "c", "--preview", "--device", "cuda")
+    assert r.code == 0, r.err
+    assert "synth renders on the CPU; --device cuda is not used" in r.err
+    r = run_cli("build-model", "--corpus", "ict", "--device", "cuda:1")  # refused: no -o
+    assert r.code == 3 and "needs -o" in r.err
+    assert "build-model builds on the CPU; --device cuda:1 is not used" in r.err
+    img = tmp_path / "grey.png"
+    Image.fromarray(np.full((64, 64, 3), 128, np.uint8)).save(img)
+    r = run_cli("parse-hair", img, "-o", tmp_path / "m", "--device", "cuda")
+    assert r.code == 0, r.err
+    assert "parse-hair parses on the CPU; --device cuda is not used" in r.err
+    assert (tmp_path / "m" / "grey_hair.png").is_file()
+
+
 @pytest.mark.parametrize("bench", ["animate", "fit"])
 def test_benches_that_take_the_device_check_it_first(run_cli, monkeypatch, bench):
     """bench animate and bench fit measure on --device (their GPU numbers come from the
