@@ -115,7 +115,8 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
 @click.option("--frames", default=48, show_default=True, help="Turntable frames.")
 @click.option("--fps", default=24.0, show_default=True, help="Turntable frame rate.")
 @click.option("--yaw", default=0.0, show_default=True,
-              help="Degrees; 0 = the canonical frontal view, + shows the head's left side.")
+              help="Degrees; 0 = the canonical frontal view, + shows the head's left side "
+                   "(a turntable starts there).")
 @click.option("--pitch", default=0.0, show_default=True, help="Degrees; + looks from above.")
 @click.option("--views", default=None,
               help="A PNG grid of views: yaws '0,45,90' or yaw:pitch pairs '0:0,90:20'.")
@@ -159,6 +160,15 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         raise BadInputError("expected --turntable or --views, found both")
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
+    if not turntable:
+        from click.core import ParameterSource
+
+        ctx = click.get_current_context()
+        given = [f"--{name}" for name in ("frames", "fps")
+                 if ctx.get_parameter_source(name) is not ParameterSource.DEFAULT]
+        if given:
+            _warn(f"{' and '.join(given)} set a turntable's video; not used without "
+                  "--turntable")
     image_format = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(
         Path(out).suffix.lower())
     if not turntable and image_format is None:
@@ -175,7 +185,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
-                        progress=_progress_printer())
+                        progress=_progress_printer(), hair=not no_hair, yaw=yaw)
         _emit({"out": out, "frames": frames}, f"wrote {out} ({frames} frames)")
         return
     from PIL import Image
@@ -266,6 +276,15 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
     if batch is not None and not 1 <= batch <= 1024:
         raise BadInputError(f"expected --batch between 1 and 1024, found {batch}")
+    if workers is not None and workers > 1:  # processes render one-frame batches on a CPU
+        why = ("--batch above 1" if batch is not None and batch > 1 else
+               "--backend onnx" if backend == "onnx" else
+               f"--device {_settings().device}"
+               if _settings().device.strip().lower() != "cpu" else
+               "no video (-o)" if out is None else None)
+        if why is not None:
+            _warn(f"--workers {workers} is not used with {why}: this process renders "
+                  "every frame")
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         raise BadInputError(f"ARKit stream {arkit!r} does not exist")
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)

@@ -125,21 +125,21 @@ def grid_image(images: np.ndarray, labels: list[str] | None = None, cols: int | 
 
 def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 0.0,
                     fps: float = 24.0, expression: np.ndarray | None = None,
-                    progress: Any = None) -> Path:
+                    progress: Any = None, hair: bool = True, yaw: float = 0.0) -> Path:
     """Render ``frames`` views turning once around a head (neutral expression unless one
-    is given) into a video (mp4, GIF or PNG folder by name), streaming frames to the
-    encoder."""
+    is given), starting at ``yaw`` degrees, with or without its ``hair``, into a video
+    (mp4, GIF or PNG folder by name), streaming frames to the encoder."""
     from head360cli.io.video import VideoWriter
 
     if frames < 1:
         raise BadInputError(f"expected at least 1 frame, found {frames}")
-    yaws = np.arange(frames) * (360.0 / frames)
+    yaws = yaw + np.arange(frames) * (360.0 / frames)
     cams = view_cameras(yaws, np.full(frames, pitch))
     w = np.zeros(52) if expression is None else np.asarray(expression)
     done = 0
     with VideoWriter(out, fps=fps) as video:
         for batch in renderer.frames(cams, np.broadcast_to(w, (frames, 52)),
-                                     view_intrinsics(renderer.size)):
+                                     view_intrinsics(renderer.size), hair=hair):
             for frame in batch:
                 video.write(frame)
             done += len(batch)

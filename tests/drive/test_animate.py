@@ -197,6 +197,11 @@ def test_cli_animate_batch_renders_the_same_frames(run_cli, head_file, tmp_path)
                 tmp_path / "zero", "--batch", "0")
     assert r.code == 3 and "--batch between 1 and 1024, found 0" in r.err
     assert not (tmp_path / "zero").exists()
+    r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
+                tmp_path / "both", "--size", "64", "--samples", "4", "--batch", "3",
+                "--workers", "2")
+    assert r.code == 0, r.err  # one process batches: the workers are said to be unused
+    assert "--workers 2 is not used with --batch above 1" in r.err
 
 
 def test_cli_animate_out_of_memory_midway_leaves_no_video(run_cli, head_file, tmp_path,

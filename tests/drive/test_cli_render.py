@@ -112,3 +112,31 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_head_loads(
     assert "found a folder" in run_cli(*cases[1][0]).err
     assert [p.name for p in taken.iterdir()] == ["keep.txt"]
     assert not (tmp_path / "no").exists()
+
+
+def test_turntable_honours_no_hair_and_starts_at_yaw(run_cli, head_file, tmp_path):
+    """--no-hair reached single views only: a turntable with it wore the hair (it was not
+    passed on). --yaw is where the turn starts; --frames and --fps without --turntable
+    are said to be unused."""
+    import imageio.v3 as iio
+
+    def turn(name, *extra):
+        r = run_cli("render", head_file, "--turntable", "--frames", "2", "--size", "64",
+                    "--samples", "2", "-o", tmp_path / name, *extra)
+        assert r.code == 0, r.err
+        return np.stack([iio.imread(p) for p in sorted((tmp_path / name).iterdir())])
+
+    hair, bald = turn("hair"), turn("bald", "--no-hair")
+    assert hair.shape == bald.shape == (2, 64, 64, 3)
+    assert np.abs(hair.astype(int) - bald).max() > 50  # the hair is gone
+    start = turn("start", "--yaw", "180")  # frames at 180 and 360: the default's, swapped
+    assert np.abs(start[0].astype(int) - hair[1]).max() <= 2
+    assert np.abs(start[1].astype(int) - hair[0]).max() <= 2
+    for extra in (["--no-hair"], ["--yaw", "180"]):  # the same options on single views
+        r = run_cli("render", head_file, "--size", "64", "--samples", "2", *extra,
+                    "-o", tmp_path / "v.png")
+        assert r.code == 0 and "warning" not in r.err
+    r = run_cli("render", head_file, "--frames", "10", "--fps", "5", "--size", "64",
+                "--samples", "2", "-o", tmp_path / "w.png")
+    assert r.code == 0
+    assert "--frames and --fps set a turntable's video; not used without --turntable" in r.err
