@@ -92,6 +92,19 @@ def _warn(message: str) -> None:
         click.echo(f"head360: warning: {message}", err=True)
 
 
+def _unused(names: tuple[str, ...], why: str) -> None:
+    """Warn about the options among ``names`` (parameter names) that were given on the
+    command line but do nothing ``why`` (for example "with --stage shape"): a user
+    should not think they took effect."""
+    from click.core import ParameterSource
+
+    ctx = click.get_current_context()
+    flags = [p.opts[0] for p in ctx.command.params if p.name in names
+             and ctx.get_parameter_source(p.name) is not ParameterSource.DEFAULT]
+    if flags:
+        _warn(f"{' and '.join(flags)} {'is' if len(flags) == 1 else 'are'} not used {why}")
+
+
 def _cpu_only(command: str, does: str = "measures") -> None:
     """Warn that ``command`` ``does`` (measures, renders, ...) on the CPU when --device
     names another device (every command takes --device; these would otherwise ignore it
@@ -402,6 +415,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
         raise BadInputError(f"expected --face N or all, found {face!r}")
     if stage == "shape":
         from head360cli.fitting.pipeline import fit_shape_photo
+
+        _unused(("preset", "hair_style", "no_lid_fit", "no_prior"), "with --stage shape")
 
         result = fit_shape_photo(photo, out or "head360-out",
                                  face=face if face == "all" else int(face),

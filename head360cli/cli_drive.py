@@ -15,6 +15,7 @@ from head360cli.cli import (
     _emit,
     _progress_printer,
     _settings,
+    _unused,
     _warn,
     bench,
     cli,
@@ -161,14 +162,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
     if not turntable:
-        from click.core import ParameterSource
-
-        ctx = click.get_current_context()
-        given = [f"--{name}" for name in ("frames", "fps")
-                 if ctx.get_parameter_source(name) is not ParameterSource.DEFAULT]
-        if given:
-            _warn(f"{' and '.join(given)} set a turntable's video; not used without "
-                  "--turntable")
+        _unused(("frames", "fps"), "without --turntable")
     image_format = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(
         Path(out).suffix.lower())
     if not turntable and image_format is None:

@@ -139,4 +139,4 @@ def test_turntable_honours_no_hair_and_starts_at_yaw(run_cli, head_file, tmp_pat
     r = run_cli("render", head_file, "--frames", "10", "--fps", "5", "--size", "64",
                 "--samples", "2", "-o", tmp_path / "w.png")
     assert r.code == 0
-    assert "--frames and --fps set a turntable's video; not used without --turntable" in r.err
+    assert "--frames and --fps are not used without --turntable" in r.err

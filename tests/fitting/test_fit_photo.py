@@ -349,3 +349,16 @@ def test_the_fit_holds_the_eyes_landmarks():
     np.testing.assert_allclose(points.numpy()[INNER_EYES],
                                model.landmark_points(posed)[36:48], atol=1e-6)
     np.testing.assert_allclose(pixels.numpy()[INNER_EYES], detected[36:48])
+
+
+def test_the_shape_stage_says_which_whole_fit_options_it_does_not_use(run_cli, astronaut,
+                                                                      tmp_path):
+    """--stage shape fits landmarks, pose and identity only: --preset, --hair, --no-prior
+    and --no-lid-fit given with it were silently dropped; now a warning names them."""
+    r = run_cli("fit", "--stage", "shape", astronaut, "-o", tmp_path, "--preset", "quality",
+                "--hair", "bob", "--no-lid-fit")
+    assert r.code == 0, r.err
+    assert ("--preset and --hair and --no-lid-fit are not used with --stage shape"
+            in r.err)
+    r = run_cli("fit", "--stage", "shape", astronaut, "-o", tmp_path, "--detector", "hog")
+    assert r.code == 0 and "not used" not in r.err  # the detector is the shape stage's
