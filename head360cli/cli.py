@@ -241,7 +241,8 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
     """Tell what FILE is and holds: an ARKit stream, an image or a head file.
 
     For an ARKit CSV stream: frames, frame rate, duration, columns found, missing or
-    ignored, and min/mean/max per blendshape. For an image: size, mode, EXIF orientation.
+    ignored, and min/mean/max per blendshape. For an image: size, mode, EXIF orientation,
+    and whether its pixels decode.
     For a head file: its metadata and arrays. FILE may be - to read a stream from stdin,
     or a pipe (<(...)), whose content says which of the three it is.
 
@@ -255,6 +256,8 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
     from head360cli.report import inspect_file
 
     result = inspect_file(file, on_bad=on_bad, plot=plot)
+    if result["kind"] != "arkit_stream":
+        _unused(("on_bad",), f"for {'an image' if result['kind'] == 'image' else 'a head'}")
     for w in result.get("warnings", []):
         _warn(w)
     formatter = {"arkit_stream": _format_stream, "image": _format_image,

@@ -342,6 +342,7 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
     from head360cli.drive.hair_swap import swap_hair as run
 
     if list_:
+        _unused(("hair_style", "colour"), "with --list")
         styles = list_styles()
         result = {"styles": styles}
         text = "\n".join(f"{s['id']:2d}  {s['name']:18s} ({s['figaro']})" for s in styles)

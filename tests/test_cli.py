@@ -130,6 +130,8 @@ def test_inspect_image_and_head(run_cli, tmp_path):
     assert (j["kind"], j["width"], j["height"], j["mode"]) == ("image", 30, 20, "L")
     assert j["problem"] is None
     assert "pixels       decoded without error" in run_cli("inspect", img).out
+    r = run_cli("inspect", img, "--on-bad", "skip")  # a stream's option: said to be unused
+    assert r.code == 0 and "--on-bad is not used for an image" in r.err
     cut = tmp_path / "cut.png"  # the header reads; fit and parse-hair refuse the pixels
     cut.write_bytes(img.read_bytes()[:-30])
     r = run_cli("inspect", cut)

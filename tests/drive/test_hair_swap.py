@@ -71,6 +71,9 @@ def test_swap_leaves_the_face_unchanged(head_file):
 def test_cli_swap_hair(run_cli, head_file, tmp_path):
     r = run_cli("swap-hair", "--list", "--json")
     assert r.code == 0 and len(json.loads(r.out)["styles"]) == 30
+    assert "warning" not in r.err
+    r = run_cli("swap-hair", "--list", "--hair", "bob", "--colour", "blonde")
+    assert r.code == 0 and "--hair and --color are not used with --list" in r.err
     out = tmp_path / "bob.h360"
     r = run_cli("swap-hair", head_file, "--hair", "bob", "--color", "#6b4423", "-o", out)
     assert r.code == 0 and out.is_file() and "bob" in r.out
