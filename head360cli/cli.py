@@ -696,6 +696,9 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
     if not 0.0 <= featured_share <= 1.0:
         raise BadInputError(f"expected --featured-share in [0, 1], found {featured_share}")
     device = str(resolve_device(_settings().device))
+    if init is not None:  # the initial weights' configuration replaces these
+        _unused(("preset", "planes", "no_refine", "no_hair"),
+                "with --init (the weights' own configuration is used)")
     gen_cfg = GeneratorConfig(**PRESETS[preset], planes=planes, refine=not no_refine,
                               hair=not no_hair)
     cfg = TrainConfig(identities=identities, seed=seed, steps=steps, minutes=minutes,

@@ -95,3 +95,14 @@ def test_two_process_data_parallel_on_cpu(tmp_path):
     assert state["rng"][0] != state["rng"][1]  # each drew its own views
     gen, _ = load_generator(tmp_path / "ddp.pt")
     assert gen.cfg.render_res == 16
+
+
+def test_cli_train_says_the_init_weights_configuration_replaces_preset(run_cli, tmp_path):
+    """With --init the weights' own configuration is used: a --preset or ablation flag
+    given beside it was dropped silently; now a warning names it (here before the junk
+    weights are refused)."""
+    (tmp_path / "junk.pt").write_bytes(b"not weights")
+    r = run_cli("train", tmp_path / "run", "--init", tmp_path / "junk.pt", "--preset",
+                "tiny", "--planes", "tri", "--steps", "1", "-n", "2")
+    assert r.code == 5 and "expected head360 generator weights" in r.err
+    assert "--preset and --planes are not used with --init" in r.err
