@@ -467,7 +467,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 @click.argument("photo", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
               type=click.Path(file_okay=False), help="Output folder.")
-@click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
+@click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Which face (0 = the largest).")
 @click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
               show_default=True, help=DETECTOR_HELP)
 @NO_PRIOR
@@ -507,7 +508,8 @@ def _unseeded(r: dict) -> str:
 @cli.command("classify-hair")
 @click.argument("photo", type=click.Path(dir_okay=False))
 @click.option("--top", default=3, show_default=True, help="How many styles to list.")
-@click.option("--face", default=0, show_default=True, help="Which face (0 = the largest).")
+@click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Which face (0 = the largest).")
 @click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
               show_default=True, help=DETECTOR_HELP)
 @NO_PRIOR

@@ -334,6 +334,15 @@ def test_bench_animate_refuses_a_piped_head_and_fidelity_size_without_fidelity(
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("command", ["classify-hair", "parse-hair"])
+def test_a_negative_face_number_is_a_usage_error(run_cli, tmp_path, command):
+    img = tmp_path / "p.png"
+    Image.fromarray(np.full((64, 64, 3), 128, np.uint8)).save(img)
+    r = run_cli(command, img, "--face", "-1", *(["-o", tmp_path / "m"]
+                                                  if command == "parse-hair" else []))
+    assert r.code == 2 and "--face" in r.err and not (tmp_path / "m").exists()
+
+
 @pytest.mark.parametrize("trials", ["0", "-5"])
 def test_bench_fit_shape_refuses_no_trials(run_cli, tmp_path, trials):
     r = run_cli("bench", "fit-shape", "--trials", trials, "--out", tmp_path / "out")

@@ -258,8 +258,11 @@ def pick_face(faces: list[DetectedFace], index: int, kind: str) -> DetectedFace:
     """Face ``index`` of ``faces`` (largest first) found by detector ``kind``.
 
     Raises:
+        BadInputError: A negative ``index``.
         NoFaceError: No face (with :func:`no_face_hint`), or fewer than ``index + 1``.
     """
+    if index < 0:  # Python's indexing would pick a face from the end
+        raise BadInputError(f"expected a face number >= 0, found {index}")
     if not faces:
         raise NoFaceError(f"no face found in the image{no_face_hint(kind)}")
     if index >= len(faces):

@@ -335,6 +335,20 @@ def test_a_known_camera_distance_is_kept(run_cli, astronaut, tmp_path):
     assert r.code == 2 and "distance" in r.err.lower()
 
 
+
+@pytest.mark.parametrize("stage", ["shape", "all"])
+@pytest.mark.parametrize("focal", ["-5", "nan", "0"])
+def test_a_focal_length_that_is_not_positive_is_refused_before_any_work(
+        run_cli, astronaut, tmp_path, stage, focal):
+    """--focal -5 failed deep in the inversion ("expected a visible face region"), --focal
+    nan as an internal error, and 0 meant the default; now each is refused at once."""
+    out = tmp_path / ("x.h360" if stage == "all" else "shape")
+    r = run_cli("fit", "--stage", stage, astronaut, "-o", out, "--focal", focal)
+    assert r.code == 3, r.err
+    assert f"expected a positive focal length in pixels, found {float(focal)}" in r.err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_fit_holds_the_eyes_landmarks():
     """The camera refinement's held landmarks are iBUG 36-47 (the eyes) among the 51
     inner-face points ``fit`` anchors it with."""

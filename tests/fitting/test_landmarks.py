@@ -153,6 +153,19 @@ def test_bad_detector_names_and_no_face_hints():
         LandmarkDetector("hog").detect_one(wall)
 
 
+
+def test_a_negative_face_number_is_refused_not_taken_from_the_end():
+    """pick_face(faces, -1) returned the smallest face (Python's indexing): classify-hair
+    --face -1 classified it without a word."""
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.landmarks import DetectedFace, pick_face
+
+    faces = [DetectedFace((0.0, 0.0, 9.0, 9.0), 1.0, np.zeros((68, 2)), "hog")] * 2
+    assert pick_face(faces, 1, "hog") is faces[1]
+    with pytest.raises(BadInputError, match="expected a face number >= 0, found -1"):
+        pick_face(faces, -1, "hog")
+
+
 @pytest.mark.parametrize("degrees, turn", [(60.0, -60.0), (-90.0, 90.0), (45.0, -30.0)])
 def test_a_tilted_face_is_found_in_a_turned_copy(degrees, turn):
     """The astronaut tilted 45 to 90 degrees: HOG finds no face as it lies;
