@@ -70,15 +70,16 @@ def swap_hair(head_path: str | Path, out: str | Path, style: int | None = None,
 
     Raises:
         BadInputError: Neither a style nor a colour given.
+        FileFormatError: Not a head file, or one without a head's arrays.
     """
     import dataclasses
 
-    from head360cli.io.headfile import read_head, write_head
+    from head360cli.io.headfile import HEAD_ARRAYS, read_head, write_head
     from head360cli.synth.hair import HAIRSTYLES
 
     if style is None and colour is None:
         raise BadInputError("expected --hair and/or --color, found neither")
-    head = read_head(head_path)
+    head = read_head(head_path, required=HEAD_ARRAYS)
     arrays = dict(head.arrays)
     info = dict(head.info)
     before = {"hair_style": int(arrays["hair_style"]),

@@ -778,11 +778,11 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     """
     import torch
 
-    from head360cli.io.headfile import lid_change_of, read_head
+    from head360cli.io.headfile import HEAD_ARRAYS, lid_change_of, read_head
     from head360cli.model.head_render import REUSE_TOL, HeadRenderer
     from head360cli.model.train import load_generator
 
-    head = read_head(path, expected_model_hash=generator_hash())
+    head = read_head(path, expected_model_hash=generator_hash(), required=HEAD_ARRAYS)
     gen, _ = load_generator(device=device)
     a = head.arrays
     return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
+    "HEAD_ARRAYS",
     "KNOWN_ARRAYS",
     "LID_FULL_AT",
     "HeadFile",
@@ -252,8 +253,14 @@ def write_head(head: HeadFile, path: str | os.PathLike[str]) -> Path:
     return path
 
 
+HEAD_ARRAYS = ("shape", "texture", "hair_style", "hair_color", "expression")
+"""The arrays every head that renders has (fitted or sampled): ``read_head``'s
+``required`` for the commands that render or edit one."""
+
+
 def read_head(
-    path: str | os.PathLike[str] | NamedBytes, *, expected_model_hash: str | None = None
+    path: str | os.PathLike[str] | NamedBytes, *, expected_model_hash: str | None = None,
+    required: tuple[str, ...] = (),
 ) -> HeadFile:
     """Read and validate a head file.
 
@@ -261,14 +268,16 @@ def read_head(
         path: The ``.h360`` file, a pipe that holds one (``<(...)``, ``/dev/stdin``), or
             a pipe's content already read.
         expected_model_hash: When given, the file must have been made with this model.
+        required: Arrays the file must hold (for example :data:`HEAD_ARRAYS`); the format
+            itself allows any subset.
 
     Returns:
         The head file's contents.
 
     Raises:
         BadInputError: The file does not exist.
-        FileFormatError: Not a head file, truncated, corrupted, unsafe (pickled objects)
-            or written by a newer format version.
+        FileFormatError: Not a head file, truncated, corrupted, unsafe (pickled objects),
+            written by a newer format version, or without a ``required`` array.
         ModelMismatchError: Made with another model than ``expected_model_hash``.
     """
     from head360cli.io.sources import NamedBytes, existing, readable
@@ -327,6 +336,11 @@ def read_head(
             f"{where} was made with model {model_hash[:12]}, but the loaded model is "
             f"{expected_model_hash[:12]}; refit the photo or load the matching model"
         )
+    missing = [name for name in required if name not in arrays]
+    if missing:
+        raise FileFormatError(f"{where}: expected a head with arrays {', '.join(required)}, "
+                              f"found none named {', '.join(missing)} (it holds "
+                              f"{', '.join(sorted(arrays)) or 'no arrays'})")
     info = meta.get("info", {})
     return HeadFile(
         arrays=arrays,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import zipfile
 
 import numpy as np
@@ -48,6 +49,28 @@ def test_wrong_model_is_a_mismatch(tmp_path):
     path = write_head(sample_head(), tmp_path / "me.h360")
     with pytest.raises(ModelMismatchError, match="made with model abababababab"):
         read_head(path, expected_model_hash="cd" * 32)
+
+
+def test_a_head_without_the_arrays_a_command_needs_is_a_format_error(tmp_path):
+    """The format allows any arrays; swap-hair and the renderers need a head's. A file
+    with a shape only ended swap-hair in an internal error (KeyError 'hair_style')."""
+    full = write_head(sample_head(), tmp_path / "me.h360")
+    assert read_head(full, required=headfile.HEAD_ARRAYS).arrays.keys() >= set(
+        headfile.HEAD_ARRAYS)
+    part = write_head(HeadFile(arrays={"shape": np.zeros(50, np.float32)}),
+                      tmp_path / "part.h360")
+    with pytest.raises(FileFormatError, match=re.escape(
+            "found none named texture, hair_style, hair_color, expression (it holds shape)")):
+        read_head(part, required=headfile.HEAD_ARRAYS)
+    assert read_head(part).arrays.keys() == {"shape"}  # not asked for: still readable
+
+
+def test_swap_hair_on_a_partial_head_is_a_format_error(run_cli, tmp_path):
+    part = write_head(HeadFile(arrays={"shape": np.zeros(50, np.float32)}),
+                      tmp_path / "part.h360")
+    r = run_cli("swap-hair", part, "--hair", "bob", "-o", tmp_path / "new.h360")
+    assert r.code == 5 and "expected a head with arrays" in r.err
+    assert not (tmp_path / "new.h360").exists()
 
 
 def test_failed_write_leaves_no_file_and_keeps_the_old_one(tmp_path, monkeypatch):
