@@ -108,6 +108,12 @@ def _face_outline(lm: np.ndarray, forehead: float) -> np.ndarray:
 MIN_SAMPLES = 20
 """Fewest pixels a colour model (:func:`_colour_distance`) or a seed set is fitted from."""
 
+FLAT_STD = 3.0
+"""A photo without a face whose every Lab channel (0-255 scale) varies by less than this
+standard deviation is featureless (a blank wall, a transparent image over white): it
+has no hair. The no-face parse takes the centre's colours for hair, and in such an
+image every pixel has them: a blank image was parsed as 100 % hair."""
+
 LIKE_DEVIATIONS = 3.0
 """Pixels within this Mahalanobis distance of a colour model (:func:`_colour_distance`)
 have its colour: the cheeks' (skin), the frame's edge, or a no-face photo's centre."""
@@ -515,7 +521,9 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         for edge in (np.s_[:band], np.s_[-band:], np.s_[:, :band], np.s_[:, -band:]):
             if like_core[edge].mean() < 0.3:
                 m[edge] = cv2.GC_BGD
-        hair = _clean(_grabcut(bgr, m, iterations), None, size)
+        flat = lab.reshape(-1, 3).std(0).max() < FLAT_STD
+        hair = (np.zeros((sh, sw), bool) if flat
+                else _clean(_grabcut(bgr, m, iterations), None, size))
         face = face_sure & ~hair
     if scale < 1:
         def up(m: np.ndarray) -> np.ndarray:

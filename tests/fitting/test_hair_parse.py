@@ -212,6 +212,22 @@ def test_unseeded_close_up_leaves_a_plain_wall_out():
     assert mask_iou(r.hair, hair) > 0.8
 
 
+@pytest.mark.parametrize("noise", [0.0, 1.0])
+def test_a_featureless_photo_has_no_hair(noise):
+    """A blank image (here white, as a transparent PNG is composited, or grey with a
+    grey level of noise) has no face and no hair; the no-face parse took the centre's
+    colours, which every pixel has, for hair: 100 % hair."""
+    rng = np.random.default_rng(0)
+    for level in (255.0, 128.0):
+        img = np.clip(np.full((120, 160, 3), level) + rng.normal(0, noise, (120, 160, 3)),
+                      0, 255).astype(np.uint8)
+        r = parse_hair(img, None)
+        assert not r.hair.any() and not r.face.any() and r.background.all()
+    # a close-up of strands is not featureless: still hair
+    hair = parse_hair(_strands(rng, (120, 160)).astype(np.uint8), None).hair
+    assert hair.mean() > 0.5
+
+
 @pytest.mark.shared_data
 def test_real_masks_mean_iou_floor(shared_data):
     """A regression floor on the real masks (measured 0.64 on CelebAMask); the goal of
