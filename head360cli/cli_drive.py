@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 
 from head360cli.cli import (
+    _cpu_only,
     _emit,
     _progress_printer,
     _settings,
@@ -532,13 +533,10 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
     if not 1 <= samples <= 64 or not 32 <= size <= 2048:
         raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
                             f"{samples} and {size}")
-    # torch's exporter failed to trace a CUDA renderer (a data-dependent size in the hair
-    # planes' grid_sample; torch 2.11 on an H200) and traced the same renderer on that
-    # machine's CPU in 51 s
-    device = _settings().device
-    if device and device.lower() != "cpu":
-        _warn(f"export-onnx traces on the CPU (the graph is the same for any device); "
-              f"--device {device} is not used")
+    # the graph is the same for any device, and torch's exporter failed to trace a CUDA
+    # renderer (a data-dependent size in the hair planes' grid_sample; torch 2.11 on an
+    # H200) where it traced the same renderer on that machine's CPU in 51 s
+    _cpu_only("export-onnx", "traces")
     if head is not None:
         own = _renderer(head, samples, size, "fp32", device="cpu")  # read once: maybe a pipe
         # the bald graph needs no hair; a bald head traces the hair graph wearing bob
