@@ -271,11 +271,13 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
     if batch is not None and not 1 <= batch <= 1024:
         raise BadInputError(f"expected --batch between 1 and 1024, found {batch}")
+    # a GPU named outright (--device auto is known only once torch is imported, which
+    # the worker processes' start should not wait for)
+    on_gpu = _settings().device.strip().lower().startswith("cuda")
     if workers is not None and workers > 1:  # processes render one-frame batches on a CPU
         why = ("--batch above 1" if batch is not None and batch > 1 else
                "--backend onnx" if backend == "onnx" else
-               f"--device {_settings().device}"
-               if _settings().device.strip().lower() != "cpu" else
+               f"--device {_settings().device}" if on_gpu else
                "no video (-o)" if out is None else None)
         if why is not None:
             _warn(f"--workers {workers} is not used with {why}: this process renders "
@@ -299,7 +301,7 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
                         batch=batch)
     # given the loader, run() starts the processes that render frames on a CPU before
     # it loads the head (with --device auto on a GPU machine they end unused)
-    on_cpu = backend == "torch" and not _settings().device.strip().lower().startswith("cuda")
+    on_cpu = backend == "torch" and not on_gpu
     res = run(load if on_cpu else load(), stream, out, cfg, mesh_dir=mesh_dir,
               progress=_progress_printer())
     for warning in res.get("warnings", []):

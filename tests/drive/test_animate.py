@@ -202,6 +202,12 @@ def test_cli_animate_batch_renders_the_same_frames(run_cli, head_file, tmp_path)
                 "--workers", "2")
     assert r.code == 0, r.err  # one process batches: the workers are said to be unused
     assert "--workers 2 is not used with --batch above 1" in r.err
+    # --device auto may be the CPU (it is here): no claim that the workers go unused
+    r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
+                tmp_path / "auto", "--size", "64", "--samples", "4", "--workers", "2",
+                "--device", "auto")
+    assert r.code == 0, r.err
+    assert "not used" not in r.err
 
 
 def test_cli_animate_out_of_memory_midway_leaves_no_video(run_cli, head_file, tmp_path,
