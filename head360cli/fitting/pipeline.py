@@ -51,16 +51,6 @@ def _overlay(rgb: np.ndarray, detected: np.ndarray, fitted: np.ndarray, verts2d:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def _check_camera(focal: float | None, distance: float | None) -> None:
-    """Refuse a focal length or camera distance that is not a positive number, before
-    any work (a negative focal had failed deep in the inversion, a NaN one as an
-    internal error)."""
-    for name, value, unit in (("focal length", focal, "pixels"),
-                              ("camera distance", distance, "metres")):
-        if value is not None and not (np.isfinite(value) and value > 0):
-            raise BadInputError(f"expected a positive {name} in {unit}, found {value}")
-
-
 def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str = 0,
                     detector: str = "hog", focal: float | None = None,
                     distance: float | None = None) -> dict[str, Any]:
@@ -85,7 +75,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     from PIL import Image
 
     from head360cli.fitting.landmarks import find_faces, pick_face
-    from head360cli.fitting.shape import ShapeFitter, default_focal
+    from head360cli.fitting.shape import ShapeFitter, check_camera, default_focal
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
     from head360cli.io.mesh import MeshPart, write_obj
@@ -96,7 +86,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     t0 = time.perf_counter()
     if face != "all" and int(face) < 0:
         raise BadInputError(f"expected a face number >= 0, found {face}")
-    _check_camera(focal, distance)
+    check_camera(focal, distance)  # before any work
     img = load_image(photo)
     model = load_bilinear()
     fitter = ShapeFitter(model)
@@ -538,6 +528,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
     from head360cli.errors import BadInputError
     from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.shape import check_camera
     from head360cli.fitting.texture import (
         PRESETS,
         bald_target,
@@ -553,7 +544,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
     if preset not in PRESETS:
         raise BadInputError(f"expected preset {' or '.join(PRESETS)}, found {preset!r}")
-    _check_camera(focal, distance)
+    check_camera(focal, distance)  # before any work
     out = Path(out)
     if out.suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")

@@ -36,7 +36,7 @@ from head360cli.errors import BadInputError
 from head360cli.geometry.rig import RIG_TARGET
 from head360cli.mesh.bilinear import BilinearModel
 
-__all__ = ["FitConfig", "ShapeFit", "ShapeFitter", "default_focal"]
+__all__ = ["FitConfig", "ShapeFit", "ShapeFitter", "check_camera", "default_focal"]
 
 
 def _mv(a: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -53,6 +53,20 @@ def _head_centre_seen(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
 JAW = np.arange(17)
 CHIN_FIXED = (6, 7, 8, 9, 10)  # chin points keep their vertices (the outline's bottom)
 DEFAULT_FOCAL_35MM = 50.0
+
+
+def check_camera(focal: float | None, distance: float | None) -> None:
+    """Refuse a focal length (pixels) or camera distance (metres) that is given but not a
+    positive number (``None``: not given). The pipeline calls it before any work: a
+    negative focal had failed deep in the inversion, a NaN one as an internal error.
+
+    Raises:
+        BadInputError: Either is zero, negative or not finite.
+    """
+    for name, value, unit in (("focal length", focal, "pixels"),
+                              ("camera distance", distance, "metres")):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise BadInputError(f"expected a positive {name} in {unit}, found {value}")
 
 
 def default_focal(width: int, height: int, focal_35mm: float | None = None) -> float:
@@ -379,17 +393,15 @@ class ShapeFitter:
 
         Raises:
             BadInputError: Landmarks of the wrong shape, non-finite, or degenerate (all in
-                one point, on one line, or spanning fewer than 8 pixels), or a distance
-                that is not a positive number.
+                one point, on one line, or spanning fewer than 8 pixels), or a focal
+                length or distance that is not a positive number.
         """
         t0 = time.perf_counter()
         uv_in = np.asarray(landmarks2d, dtype=np.float64)
         self._check(uv_in)
+        check_camera(focal, distance)
         if turn:
             return self._fit_turned(uv_in, image_size, focal, weights, distance, turn)
-        if distance is not None and not (np.isfinite(distance) and distance > 0):
-            raise BadInputError(f"expected a positive camera distance in metres, found "
-                                f"{distance}")
         sw = self._check_weights(weights)[self.order]
         uv = uv_in[self.order]  # solver order: fixed points, then the sliding jawline
         width, height = image_size
