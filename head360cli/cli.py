@@ -958,6 +958,21 @@ def _memory_shortfall(exc: BaseException) -> str:
     return text[:160] or type(exc).__name__
 
 
+def _failed(kind: str, message: str, code: int, debug: bool, as_json: bool,
+            label: str = "error", hint: str = "") -> int:
+    """Report the exception being handled as one line on stderr (``head360: LABEL:
+    MESSAGE HINT``), its traceback first with ``--debug``, and as JSON on stdout with
+    ``--json``; return the exit ``code``."""
+    if debug:
+        import traceback
+
+        traceback.print_exc()
+    click.echo(f"head360: {label}: {message}{hint}", err=True)
+    if as_json:
+        _error_json(kind, message, code)
+    return code
+
+
 def _error_json(kind: str, message: str, code: int) -> None:
     print(json.dumps({"ok": False, "error": {"type": kind, "message": message,
                                              "exit_code": code}}))
@@ -982,39 +997,20 @@ def main(argv: list[str] | None = None) -> int:
         click.echo("head360: interrupted", err=True)
         return EXIT_CODES["interrupted"]
     except Head360Error as exc:
-        if debug:
-            import traceback
-
-            traceback.print_exc()
-        click.echo(f"head360: error: {exc}", err=True)
-        if as_json:
-            _error_json(type(exc).__name__, str(exc), exc.exit_code)
-        return exc.exit_code
+        return _failed(type(exc).__name__, str(exc), exc.exit_code, debug, as_json)
     except BrokenPipeError:
         return 0  # e.g. `head360 inspect x.csv | head`
     except Exception as exc:
         if is_out_of_memory(exc):  # not a bug: a resource the user can free or ask less of
-            if debug:
-                import traceback
-
-                traceback.print_exc()
             message = (f"out of memory ({_memory_shortfall(exc)}): ask for less at once (a "
                        f"smaller --size or --samples; animate: fewer frames a call, --batch), "
                        f"free memory, or use another --device")
-            click.echo(f"head360: error: {message}", err=True)
-            if as_json:
-                _error_json("OutOfMemory", message, EXIT_CODES["out_of_memory"])
-            return EXIT_CODES["out_of_memory"]
-        if debug:
-            import traceback
-
-            traceback.print_exc()
+            return _failed("OutOfMemory", message, EXIT_CODES["out_of_memory"], debug,
+                           as_json)
         message = " ".join(f"{type(exc).__name__}: {exc}".split())
-        click.echo(f"head360: internal error: {message} (run with --debug for the traceback; "
-                   "please report it)", err=True)
-        if as_json:
-            _error_json("InternalError", message, EXIT_CODES["internal"])
-        return EXIT_CODES["internal"]
+        return _failed("InternalError", message, EXIT_CODES["internal"], debug, as_json,
+                       label="internal error",
+                       hint=" (run with --debug for the traceback; please report it)")
 
 
 if __name__ == "__main__":  # pragma: no cover
