@@ -543,12 +543,12 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
 
             raise BadInputError(f"expected a stream of at least {frames} frames (--frames), "
                                 f"found {stream.num_frames} in {capture.name}")
+    from head360cli.bench.report import device_fields
+
     on_cpu = torch.device(device).type == "cpu"
-    result: dict[str, Any] = {"threads": torch.get_num_threads(), "device": device,
+    result: dict[str, Any] = {"threads": torch.get_num_threads(), **device_fields(device),
                               "stream": capture.name if capture else "synthetic",
                               "stream_frames": stream.num_frames}
-    if not on_cpu:
-        result["gpu"] = torch.cuda.get_device_name(torch.device(device))
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

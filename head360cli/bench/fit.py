@@ -518,10 +518,10 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
     torch.manual_seed(0)
     say = progress or (lambda text: None)
     data = shared_data_dir()
+    from head360cli.bench.report import device_fields
+
     result: dict[str, Any] = {"threads": torch.get_num_threads(), "corpus_seed": corpus_seed,
-                              "device": device}
-    if torch.device(device).type != "cpu":
-        result["gpu"] = torch.cuda.get_device_name(torch.device(device))
+                              **device_fields(device)}
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

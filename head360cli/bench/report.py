@@ -7,7 +7,7 @@ import platform
 from pathlib import Path
 from typing import Any
 
-__all__ = ["machine", "markdown_table", "save"]
+__all__ = ["device_fields", "machine", "markdown_table", "save"]
 
 
 def machine() -> dict[str, Any]:
@@ -29,6 +29,16 @@ def machine() -> dict[str, Any]:
             "cpu_cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
             "torch": torch.__version__, "platform": platform.platform(),
             "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def device_fields(device: str) -> dict[str, Any]:
+    """A result's ``device`` and, on a GPU, its ``gpu`` (the device's name)."""
+    import torch
+
+    out: dict[str, Any] = {"device": device}
+    if torch.device(device).type != "cpu":
+        out["gpu"] = torch.cuda.get_device_name(torch.device(device))
+    return out
 
 
 def markdown_table(rows: list[dict[str, Any]], columns: list[str]) -> str:
