@@ -157,22 +157,19 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
         w, h = img.size
         orient = _orientation(img)
         upright = (h, w) if orient in (5, 6, 7, 8) else (w, h)
-        header = {
-            "format": img.format, "mode": img.mode,
-            "frames": int(getattr(img, "n_frames", 1)),
-        }
+        fmt, mode, frames = img.format, img.mode, int(getattr(img, "n_frames", 1))
         problem = _decode_problem(img, max_pixels)  # after the header: draft changes mode
         return {
             "kind": "image",
             "path": name,
-            "format": header["format"],
-            "mode": header["mode"],
+            "format": fmt,
+            "mode": mode,
             "width": w,
             "height": h,
             "orientation": orient,
             "orientation_name": _ORIENTATION_NAMES[orient],
             "display_size": list(upright),
-            "frames": header["frames"],
+            "frames": frames,
             "bytes": size,
             "megapixels": round(w * h / 1e6, 3),
             "problem": problem,
