@@ -12,6 +12,10 @@ Formats read (columns are always matched by name, never by position):
   warning. An optional time column: ``time``/``timestamp``/``seconds``/``t`` (seconds),
   ``time_ms``/``timestamp_ms`` (milliseconds) or ``frame`` (frame number).
 
+Cells are separated by commas; a header without a comma but with semicolons or tabs
+sets that separator instead, and then a decimal comma (``0,5``) reads as a point, as
+spreadsheets in such locales save them.
+
 Bad cells (NaN, inf, empty, non-numeric) and rows with the wrong number of cells follow
 a policy: ``error`` (default: a :class:`~head360cli.errors.BadInputError` naming the line),
 ``skip`` (drop the row) or ``hold`` (repeat the previous frame's value; zero for the first
@@ -23,6 +27,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import itertools
 import math
 import re
 import sys
@@ -203,6 +208,19 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
     return io.StringIO(text), str(path)
 
 
+def _delimiter(first_line: str) -> str:
+    """The header line's field separator: a comma, else a semicolon, else a tab.
+
+    Spreadsheets in locales that write decimal commas (0,5) save CSV with semicolons.
+    """
+    if "," in first_line:
+        return ","
+    for candidate in (";", "\t"):
+        if candidate in first_line:
+            return candidate
+    return ","
+
+
 def _parse_timecode(cell: str) -> tuple[int, float] | None:
     """``HH:MM:SS:FF.fff`` -> (whole seconds, frames incl. sub-frame), or None."""
     m = _TIMECODE.match(cell)
@@ -254,7 +272,10 @@ def read_arkit_csv(
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise BadInputError(f"expected a positive frame rate, found {fps!r}")
     handle, label = _open_text(source)
-    reader = csv.reader(handle)
+    first = handle.readline()
+    delimiter = _delimiter(first)
+    reader = csv.reader(itertools.chain([first] if first else [], handle), delimiter=delimiter)
+    decimal_comma = delimiter != ","  # a spreadsheet's export in a locale that writes 0,5
     try:
         header = next(reader)
     except StopIteration:
@@ -272,11 +293,14 @@ def read_arkit_csv(
     lines: list[int] = []
     first_bad: tuple[int, str, str] | None = None  # line, column name, raw text
     skipped = 0
+    held_rows = 0
     previous: list[float] | None = None
     try:
         for row in reader:
             if not row or all(not c.strip() for c in row):
                 continue  # blank line
+            if decimal_comma:
+                row = [c.replace(",", ".") for c in row]
             if len(row) == len(header) + 1 and not row[-1].strip():
                 row = row[:-1]  # trailing comma
             if len(row) != len(header):
@@ -290,6 +314,7 @@ def read_arkit_csv(
                     skipped += 1
                     continue
                 buf.extend(previous)  # hold: repeat the previous row whole
+                held_rows += 1
                 time_cells.append(row[tcol] if tcol is not None and tcol < len(row) else "")
                 lines.append(reader.line_num)
                 continue
@@ -345,6 +370,11 @@ def read_arkit_csv(
         warnings.append(f"skipped {skipped} bad row(s) under the skip policy")
     if repaired:
         warnings.append(f"held the previous frame's value for {repaired} bad cell(s)")
+    if held_rows:
+        warnings.append(
+            f"held the previous frame for {held_rows} row(s) whose cells did not match "
+            f"the header's {len(header)}"
+        )
 
     n = values.shape[0]
     if n == 0:

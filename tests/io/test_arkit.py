@@ -207,6 +207,26 @@ def test_wrong_column_count_is_an_error_or_a_policy(tmp_path):
     assert held.num_frames == 3
     np.testing.assert_allclose(held.weight("jawOpen"), [0.1, 0.1, 0.5], atol=1e-7)
     np.testing.assert_allclose(held.timestamps, [0.0, 0.1, 0.2])
+    assert any("held the previous frame for 1 row(s)" in w for w in held.warnings)
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_semicolon_and_tab_separated_files_with_decimal_commas(tmp_path, sep):
+    path = tmp_path / "locale.csv"
+    lines = [["time", "jawOpen", "eyeBlinkLeft"], ["0", "0,25", "1"], ["0,5", "0.75", "0,5"]]
+    path.write_text("\n".join(sep.join(cells) for cells in lines) + "\n")
+    back = read_arkit_csv(path)
+    np.testing.assert_allclose(back.weight("jawOpen"), [0.25, 0.75], atol=1e-7)
+    np.testing.assert_allclose(back.weight("eyeBlinkLeft"), [1.0, 0.5], atol=1e-7)
+    np.testing.assert_allclose(back.timestamps, [0.0, 0.5])
+
+
+def test_a_comma_in_the_header_keeps_commas_as_the_separator(tmp_path):
+    path = tmp_path / "comma.csv"
+    path.write_text("time,jawOpen,note;x\n0,0.5,a;b\n")  # semicolons inside cells
+    back = read_arkit_csv(path)
+    np.testing.assert_allclose(back.weight("jawOpen"), [0.5], atol=1e-7)
+    assert back.columns_ignored == ["note;x"]
 
 
 def test_trailing_comma_and_blank_lines_are_tolerated(tmp_path):
