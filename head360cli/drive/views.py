@@ -42,14 +42,19 @@ def parse_expression(text: str | None) -> np.ndarray:
     """ARKit weights ``(52,)`` from ``"JawOpen=0.8,EyeBlinkLeft=1"`` (any spelling the
     stream readers accept; unnamed shapes are 0).
 
+    The halves some rigs split a shape into (``browInnerUp_L`` and ``_R``) are averaged,
+    as the stream readers do.
+
     Raises:
-        BadInputError: An unknown name, a missing ``=`` or a weight outside [0, 1].
+        BadInputError: An unknown name, a missing ``=``, a weight outside [0, 1], or a
+            shape given twice.
     """
-    from head360cli.mesh.arkit52 import INDEX, canonical_name
+    from head360cli.mesh.arkit52 import INDEX, canonical_name, split_part
 
     w = np.zeros(52)
     if not text:
         return w
+    given: dict[str, list[tuple[str | None, float]]] = {}  # name -> (half or None, weight)
     for item in text.split(","):
         if not item.strip():
             continue
@@ -68,7 +73,14 @@ def parse_expression(text: str | None) -> np.ndarray:
         if not 0.0 <= weight <= 1.0:
             raise BadInputError(f"expected a weight in [0, 1] for {canonical}, found "
                                 f"{weight}")
-        w[INDEX[canonical]] = weight
+        half = split_part(name.strip())
+        earlier = given.setdefault(canonical, [])
+        if any(h is None or h == half for h, _ in earlier) or (half is None and earlier):
+            raise BadInputError(f"expected each blendshape once in --expr, found {canonical}"
+                                f"{'' if half is None else ' (' + half + ')'} twice")
+        earlier.append((half, weight))
+    for canonical, values in given.items():
+        w[INDEX[canonical]] = sum(v for _, v in values) / len(values)
     return w
 
 

@@ -36,7 +36,12 @@ def test_parse_expression_accepts_any_spelling_and_rejects_bad_items():
     assert w[INDEX["mouthSmileLeft"]] == 0.25
     assert w.sum() == pytest.approx(2.05)
     assert not parse_expression(None).any()
-    for bad in ("JawOpen", "Nose=1", "JawOpen=1.5", "JawOpen=x"):
+    halves = parse_expression("browInnerUp_L=0.2,browInnerUp_R=0.4")
+    assert halves[INDEX["browInnerUp"]] == pytest.approx(0.3)
+    assert halves.sum() == pytest.approx(0.3)
+    for bad in ("JawOpen", "Nose=1", "JawOpen=1.5", "JawOpen=x", "JawOpen=0.5,jawOpen=0.2",
+                "browInnerUp_L=0.2,browInnerUp_L=0.4", "browInnerUp=0.2,browInnerUp_R=0.4",
+                "browInnerUp_R=0.4,browInnerUp=0.2"):
         with pytest.raises(BadInputError):
             parse_expression(bad)
 
