@@ -69,16 +69,21 @@ def swap_hair(head_path: str | Path, out: str | Path, style: int | None = None,
     """Write a copy of a head file wearing hairstyle ``style`` and/or ``colour``.
 
     Raises:
-        BadInputError: Neither a style nor a colour given.
+        BadInputError: Neither a style nor a colour given, or ``out`` not a ``.h360``
+            name in an existing folder.
         FileFormatError: Not a head file, or one without a head's arrays.
     """
     import dataclasses
 
+    from head360cli.io.atomic import check_file_target
     from head360cli.io.headfile import HEAD_ARRAYS, read_head, write_head
     from head360cli.synth.hair import HAIRSTYLES
 
     if style is None and colour is None:
         raise BadInputError("expected --hair and/or --color, found neither")
+    if Path(out).suffix.lower() != ".h360":
+        raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
+    check_file_target(out)
     head = read_head(head_path, required=HEAD_ARRAYS)
     arrays = dict(head.arrays)
     info = dict(head.info)
