@@ -66,6 +66,9 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
     """
     from head360cli.mesh import corpora
 
+    if identities < 2 or held_out < 0:
+        raise BadInputError(f"expected --identities >= 2 and --held-out >= 0, found "
+                            f"{identities} and {held_out}")
     t0 = time.perf_counter()
     if corpus == "synthead-p":
         train_it, topo = corpora.synthead_p(identities, seed, "train")

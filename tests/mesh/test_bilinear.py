@@ -204,3 +204,13 @@ def test_deltas_are_each_shapes_move_exactly(corpus):
         np.testing.assert_array_equal(deltas[k],
                                       model.vertices(s, np.eye(52)[k]) - neutral)
     assert np.abs(deltas).max() > 1e-3  # the shapes do move the mesh
+
+
+@pytest.mark.parametrize(("identities", "held_out"), [(-1, 20), (1, 20), (10, -3)])
+def test_build_refuses_counts_that_cannot_make_a_model(tmp_path, identities, held_out):
+    from head360cli.errors import BadInputError
+    from head360cli.mesh.build import build_model
+
+    with pytest.raises(BadInputError, match=f"found {identities} and {held_out}"):
+        build_model(identities=identities, held_out=held_out, out=tmp_path / "b.npz")
+    assert not (tmp_path / "b.npz").exists()
