@@ -275,7 +275,8 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
 @click.option("--views", "-v", default=24, show_default=True,
               help="Cameras per expression from the 72-camera rig (72 = all).")
 @click.option("--size", default=256, show_default=True, help="Image width and height.")
-@click.option("--seed", default=0, show_default=True, help="Corpus seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Corpus seed.")
 @click.option("--split", type=click.Choice(["train", "test"]), default="train",
               show_default=True, help="test: held-out identities from other seeds.")
 @click.option("--start", default=0, show_default=True,
@@ -589,7 +590,8 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
 @click.option("--identities", "-n", default=100, show_default=True,
               help="Training identities.")
 @click.option("--rank", default=50, show_default=True, help="Identity codes kept (HOSVD).")
-@click.option("--seed", default=0, show_default=True, help="SynHead-P seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="SynHead-P seed.")
 @click.option("--held-out", default=20, show_default=True,
               help="Identities kept out of the model to measure it.")
 @click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
@@ -652,7 +654,8 @@ PRESETS = {
 @click.option("--batch", default=4, show_default=True, help="Views per step and process.")
 @click.option("--identities", "-n", default=100, show_default=True,
               help="SynHead-P training heads.")
-@click.option("--seed", default=0, show_default=True, help="Corpus and training seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Corpus and training seed.")
 @click.option("--planes", type=click.Choice(["hex", "tri"]), default="hex", show_default=True,
               help="Feature planes: six (hex) or three (tri, the ablation).")
 @click.option("--no-refine", is_flag=True, help="Without the RefineNet (the ablation).")
@@ -697,6 +700,9 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
                             f"{steps}, {batch} and {identities}")
     if not 0.0 <= featured_share <= 1.0:
         raise BadInputError(f"expected --featured-share in [0, 1], found {featured_share}")
+    if group < 1 or workers < 1:
+        raise BadInputError(f"expected --group and --workers >= 1, found {group} and {workers}")
+    _check_rate_and_minutes(lr, minutes)
     device = str(resolve_device(_settings().device))
     if init is not None:  # the initial weights' configuration replaces these
         _unused(("preset", "planes", "no_refine", "no_hair"),
@@ -714,12 +720,22 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
           + (f"; wrote {export}" if export else ""))
 
 
+def _check_rate_and_minutes(lr: float, minutes: float) -> None:
+    """A training command's ``--lr`` (finite, above 0) and ``--minutes`` (0: no limit)."""
+    import math
+
+    if not (math.isfinite(lr) and lr > 0):
+        raise BadInputError(f"expected a finite --lr > 0, found {lr}")
+    if not (math.isfinite(minutes) and minutes >= 0):
+        raise BadInputError(f"expected --minutes >= 0 (0: no limit), found {minutes}")
+
+
 @cli.command("train-hair-prior")
 @click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
               help="Output weights (default: models/hair_prior.pt).")
 @click.option("--heads", default=600, show_default=True, help="Corpus heads rendered.")
 @click.option("--views", default=5, show_default=True, help="Random views per head.")
-@click.option("--seed", default=3, show_default=True,
+@click.option("--seed", type=click.IntRange(min=0), default=3, show_default=True,
               help="Corpus and training seed (the bench uses 0, parse development 1 and 2).")
 @click.option("--steps", default=2400, show_default=True, help="Optimiser steps.")
 @click.option("--minutes", default=0.0, show_default=True,
@@ -761,8 +777,7 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     for name, share in (("--frame-share", frame_share), ("--hat-share", hat_share)):
         if not 0.0 <= share <= 1.0:
             raise BadInputError(f"expected {name} in [0, 1], found {share}")
-    if not lr > 0:
-        raise BadInputError(f"expected --lr > 0, found {lr}")
+    _check_rate_and_minutes(lr, minutes)
     if init is not None and not Path(init).is_file():
         raise BadInputError(f"hair prior {init!r} (--init) does not exist")
     if out is None:
@@ -852,7 +867,7 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--no-sweep", is_flag=True, help="Skip the inversion-steps sweep.")
 @click.option("--stability", default=3, show_default=True,
               help="Noisy copies of the first photo fitted again (0: none).")
-@click.option("--corpus-seed", default=0, show_default=True,
+@click.option("--corpus-seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
                    "for development).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,

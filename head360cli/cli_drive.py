@@ -391,7 +391,8 @@ def _mean_head_renderer(device: str | None = None):
 @cli.command()
 @click.option("-n", "--count", type=int, default=None,
               help="How many heads.  [default: 8; 1 when -o names a .h360 file]")
-@click.option("--seed", default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Random seed.")
 @click.option("--spread", default=1.0, show_default=True,
               help="Spread around the mean head (0 = the mean head, 1 = the prior's).")
 @click.option("--bald", is_flag=True, help="No hair.")

@@ -106,3 +106,29 @@ def test_cli_train_says_the_init_weights_configuration_replaces_preset(run_cli, 
                 "tiny", "--planes", "tri", "--steps", "1", "-n", "2")
     assert r.code == 5 and "expected head360 generator weights" in r.err
     assert "--preset and --planes are not used with --init" in r.err
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (("--group", "0"), "--group and --workers >= 1, found 0 and 1"),
+    (("--workers", "-2"), "--group and --workers >= 1, found 1 and -2"),
+    (("--lr", "-1"), "finite --lr > 0, found -1.0"),
+    (("--lr", "nan"), "finite --lr > 0, found nan"),
+    (("--minutes", "-1"), "--minutes >= 0 (0: no limit), found -1.0"),
+])
+def test_cli_train_refuses_settings_that_cannot_train(run_cli, tmp_path, args, says):
+    """Each of these trained (or ended in an internal error) before being refused."""
+    r = run_cli("train", tmp_path / "run", "--preset", "tiny", "--steps", "1", "-n", "2", *args)
+    assert r.code == 3 and says in r.err, r.err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (("--lr", "inf"), "finite --lr > 0, found inf"),
+    (("--minutes", "-0.5"), "--minutes >= 0 (0: no limit), found -0.5"),
+])
+def test_cli_train_hair_prior_refuses_settings_that_cannot_train(run_cli, tmp_path, args,
+                                                                 says):
+    out = tmp_path / "prior.pt"
+    r = run_cli("train-hair-prior", "-o", out, "--heads", "1", "--steps", "1", *args)
+    assert r.code == 3 and says in r.err, r.err
+    assert not out.exists()
