@@ -6,6 +6,7 @@ rest of the command line they only parse options, call the library and print.
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -271,6 +272,13 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
     if batch is not None and not 1 <= batch <= 1024:
         raise BadInputError(f"expected --batch between 1 and 1024, found {batch}")
+    if not (math.isfinite(yaw) and math.isfinite(pitch) and abs(pitch) <= 90):  # as render
+        raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
+                            f"{yaw}, {pitch}")
+    for name, value in (("--start", start), ("--end", end)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise BadInputError(f"expected {name} in seconds from the stream's start (0 or "
+                                f"more), found {value}")
     # a GPU named outright (--device auto is known only once torch is imported, which
     # the worker processes' start should not wait for)
     on_gpu = _settings().device.strip().lower().startswith("cuda")

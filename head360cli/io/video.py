@@ -46,7 +46,8 @@ def output_kind(path: str | os.PathLike[str]) -> str:
     if suffix == ".gif":
         return "gif"
     raise BadInputError(
-        f"expected an output ending in .mp4, .gif or a folder name, found {p.name!r}"
+        f"expected an output ending in .mp4 (.m4v, .mov), .gif or a folder name, found "
+        f"{p.name!r}"
     )
 
 

@@ -244,6 +244,15 @@ def test_cli_animate_errors(run_cli, head_file, tmp_path):
     assert r.code == 3 and not (tmp_path / "a.mp4").exists()
     r = run_cli("animate", head_file, "--arkit", bad)
     assert r.code == 3 and "--mesh-sequence" in r.err
+    good = tmp_path / "good.csv"
+    good.write_text("time,jawOpen\n0,0.1\n0.1,0.5\n")
+    for args, says in ((("--pitch", "95"), "pitch within +-90 degrees, found 0.0, 95.0"),
+                       (("--yaw", "nan"), "finite yaw"),
+                       (("--start", "-1"), "--start in seconds from the stream's start"),
+                       (("--end", "nan"), "--end in seconds")):
+        r = run_cli("animate", head_file, "--arkit", good, "-o", tmp_path / "a.mp4", *args)
+        assert r.code == 3 and says in r.err, (args, r.err)
+        assert not (tmp_path / "a.mp4").exists()
 
 
 def test_head_motion_is_rigid_about_the_pivot():

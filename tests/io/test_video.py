@@ -38,7 +38,7 @@ def test_output_kind_by_name(tmp_path):
     assert output_kind("frames/") == "png"
     assert output_kind("frames") == "png"
     assert output_kind(tmp_path) == "png"
-    with pytest.raises(BadInputError, match=r"\.mp4, \.gif or a folder"):
+    with pytest.raises(BadInputError, match=r"\.mp4 \(\.m4v, \.mov\), \.gif or a folder"):
         output_kind("a.avi")
 
 
