@@ -75,7 +75,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     from PIL import Image
 
     from head360cli.fitting.landmarks import find_faces, pick_face
-    from head360cli.fitting.shape import ShapeFitter, check_camera, default_focal
+    from head360cli.fitting.shape import ShapeFitter, check_camera, check_focal, default_focal
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
     from head360cli.io.mesh import MeshPart, write_obj
@@ -88,6 +88,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
         raise BadInputError(f"expected a face number >= 0, found {face}")
     check_camera(focal, distance)  # before any work
     img = load_image(photo)
+    check_focal(focal, *img.source_size)
     model = load_bilinear()
     fitter = ShapeFitter(model)
     timings["load"] = time.perf_counter() - t0
@@ -201,13 +202,14 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     """
     from head360cli.errors import BadInputError
     from head360cli.fitting.landmarks import find_faces, pick_face
-    from head360cli.fitting.shape import ShapeFitter, default_focal
+    from head360cli.fitting.shape import ShapeFitter, check_focal, default_focal
     from head360cli.io.images import load_image
     from head360cli.mesh.bilinear import load_bilinear
 
     warnings = [] if warnings is None else warnings
     t0 = time.perf_counter()
     img = load_image(photo)
+    check_focal(focal, *img.source_size)
     model = load_bilinear()
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -69,13 +69,39 @@ def check_camera(focal: float | None, distance: float | None) -> None:
             raise BadInputError(f"expected a positive {name} in {unit}, found {value}")
 
 
+FOCAL_35MM_RANGE = (4.0, 4000.0)
+"""Lenses a given focal length may stand for, in 35 mm-equivalent millimetres: beyond
+them a fit ends with no face on the texture (a 10-pixel focal on a 512-pixel photo) or
+in a singular camera (1e9 pixels)."""
+
+
+def check_focal(focal: float | None, width: int, height: int) -> None:
+    """Refuse a focal length (pixels of a ``width`` x ``height`` image) that no lens has:
+    outside :data:`FOCAL_35MM_RANGE` in 35 mm terms (``None``: not given).
+
+    Raises:
+        BadInputError: The focal is outside the range.
+    """
+    if focal is None:
+        return
+    longer = max(width, height)
+    lo, hi = (f / 36.0 * longer for f in FOCAL_35MM_RANGE)
+    if not lo <= focal <= hi:
+        raise BadInputError(
+            f"expected a focal length between {lo:.0f} and {hi:.0f} pixels for this "
+            f"{width}x{height} photo (a {FOCAL_35MM_RANGE[0]:g}-{FOCAL_35MM_RANGE[1]:g} mm "
+            f"lens in 35 mm terms), found {focal:g}")
+
+
 def default_focal(width: int, height: int, focal_35mm: float | None = None) -> float:
     """Focal length in pixels: from a 35 mm-equivalent focal (EXIF
-    ``FocalLengthIn35mmFilm``) when known, else a 50 mm-equivalent lens.
+    ``FocalLengthIn35mmFilm``) when known and within :data:`FOCAL_35MM_RANGE`, else a
+    50 mm-equivalent lens.
 
     A 35 mm frame is 36 mm wide along the image's longer side.
     """
-    f35 = focal_35mm if focal_35mm and focal_35mm > 0 else DEFAULT_FOCAL_35MM
+    lo, hi = FOCAL_35MM_RANGE
+    f35 = focal_35mm if focal_35mm and lo <= focal_35mm <= hi else DEFAULT_FOCAL_35MM
     return f35 / 36.0 * max(width, height)
 
 

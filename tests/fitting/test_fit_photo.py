@@ -349,6 +349,40 @@ def test_a_focal_length_that_is_not_positive_is_refused_before_any_work(
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("stage", ["shape", "all"])
+@pytest.mark.parametrize("focal", ["10", "1e9"])
+def test_a_focal_length_no_lens_has_is_refused_before_the_fit(
+        run_cli, astronaut, tmp_path, stage, focal):
+    """On the 512-pixel astronaut, --focal 10 ended in "expected a visible face region"
+    and --focal 1e9 in an internal error (a singular matrix)."""
+    out = tmp_path / ("x.h360" if stage == "all" else "shape")
+    r = run_cli("fit", "--stage", stage, astronaut, "-o", out, "--focal", focal)
+    assert r.code == 3, r.err
+    assert (f"expected a focal length between 57 and 56889 pixels for this 512x512 photo "
+            f"(a 4-4000 mm lens in 35 mm terms), found {float(focal):g}") in r.err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_check_focal_bounds_scale_with_the_image():
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.shape import check_focal
+
+    check_focal(None, 640, 480)
+    check_focal(4 / 36 * 640, 640, 480)  # the bounds themselves are lenses
+    check_focal(4000 / 36 * 640, 480, 640)
+    for focal in (4 / 36 * 640 * 0.99, 4000 / 36 * 640 * 1.01):
+        with pytest.raises(BadInputError, match="640x480"):
+            check_focal(focal, 640, 480)
+
+
+def test_an_exif_focal_no_lens_has_falls_back_to_50_mm():
+    from head360cli.fitting.shape import default_focal
+
+    assert default_focal(720, 360, 24.0) == pytest.approx(24 / 36 * 720)
+    for broken in (None, 0.0, 1.0, 65535.0):
+        assert default_focal(720, 360, broken) == pytest.approx(50 / 36 * 720)
+
+
 def test_the_fit_holds_the_eyes_landmarks():
     """The camera refinement's held landmarks are iBUG 36-47 (the eyes) among the 51
     inner-face points ``fit`` anchors it with."""
