@@ -243,8 +243,8 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
     For an ARKit CSV stream: frames, frame rate, duration, columns found, missing or
     ignored, and min/mean/max per blendshape. For an image: size, mode, EXIF orientation,
     and whether its pixels decode.
-    For a head file: its metadata and arrays. FILE may be - to read a stream from stdin,
-    or a pipe (<(...)), whose content says which of the three it is.
+    For a head file: its metadata and arrays. FILE may be - (standard input) or a pipe
+    (<(...)), whose content says which of the three it is.
 
     \b
     Examples:

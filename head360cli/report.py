@@ -128,7 +128,8 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
 def file_kind(path: str | NamedBytes) -> str:
     """``"stream"``, ``"head"`` or ``"image"``, from the name and the first bytes (a
     pipe's content already read, :class:`~head360cli.io.sources.NamedBytes`: from its
-    bytes alone, and what is neither a zip nor an image is taken for a stream)."""
+    bytes alone, and what is neither a zip nor an image is taken for a stream). A file
+    whose name says nothing is a stream when its first bytes are text."""
     from head360cli.io.sources import NamedBytes, existing
 
     if path == "-":
@@ -158,6 +159,15 @@ def file_kind(path: str | NamedBytes) -> str:
             source.seek(0)
     if isinstance(source, NamedBytes):
         return "stream"  # a pipe has no name to go by; the CSV reader says what is wrong
+    with open(p, "rb") as f:
+        start = f.read(4096)
+    try:
+        start.decode("utf-8-sig")
+        text = b"\0" not in start
+    except UnicodeDecodeError as exc:  # a character cut at the end of the read is text
+        text = exc.start >= len(start) - 3 and b"\0" not in start
+    if text and start.strip():
+        return "stream"  # /dev/stdin redirected from a file has no suffix to go by
     raise BadInputError(
         f"expected an ARKit stream (.csv), an image or a head file (.h360), found {p.name!r}"
     )
@@ -177,7 +187,15 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
     from head360cli.io.sources import is_pipe, readable
 
     shown = path  # the name in messages and output, a pipe's too
-    if path != "-" and is_pipe(path):  # <(...), /dev/stdin: read once, looked at twice
+    if path == "-":  # standard input: a stream, a head file or an image, by its bytes
+        import sys
+
+        from head360cli.io.sources import NamedBytes
+
+        raw = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else (
+            sys.stdin.read().encode("utf-8"))  # a text stream put in its place
+        path, shown = NamedBytes(raw, "<stdin>"), "<stdin>"
+    elif is_pipe(path):  # <(...), /dev/stdin: read once, looked at twice
         path, _ = readable(path)
     kind = file_kind(path)
     if plot is not None and kind != "stream":

@@ -101,6 +101,40 @@ def test_inspect_stdin(run_cli, monkeypatch):
     assert "missing" in r.err  # the one warning about the 51 absent shapes
 
 
+@pytest.mark.parametrize("which", ["head", "image"])
+def test_inspect_stdin_tells_a_head_file_or_an_image_by_its_bytes(run_cli, monkeypatch,
+                                                                 tmp_path, which):
+    """`inspect -` took whatever came for a CSV: a head file or a PNG piped in was
+    refused as a stream without blendshape columns."""
+    from head360cli.io.headfile import HeadFile, write_head
+
+    path = tmp_path / "x"
+    if which == "head":
+        write_head(HeadFile(arrays={"shape": np.zeros(3, np.float32)}, info={}),
+                   path.with_suffix(".h360"))
+        path = path.with_suffix(".h360")
+    else:
+        Image.new("RGB", (40, 30), (200, 100, 50)).save(path, format="PNG")
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(path.read_bytes())))
+    r = run_cli("inspect", "-", "--json")
+    assert r.code == 0, r.err
+    j = json.loads(r.out)
+    assert j["kind"] == which
+    if which == "image":
+        assert (j["width"], j["height"], j["problem"]) == (40, 30, None)
+
+
+def test_inspect_a_text_file_without_a_suffix_reads_it_as_a_stream(run_cli, tmp_path):
+    """/dev/stdin redirected from a file is that file, named 'stdin': it was refused."""
+    path = tmp_path / "stdin"
+    path.write_text("time,jawOpen\n0,0.5\n")
+    r = run_cli("inspect", path, "--json")
+    assert r.code == 0 and json.loads(r.out)["frames"] == 1
+    path.write_bytes(bytes(range(256)))
+    r = run_cli("inspect", path)
+    assert r.code == 3 and "expected an ARKit stream (.csv), an image or a head file" in r.err
+
+
 def test_inspect_warnings_and_quiet(run_cli, tmp_path):
     path = tmp_path / "partial.csv"
     path.write_text("time,jawOpen\n0,1.5\n0.1,0.7\n")
