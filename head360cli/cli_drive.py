@@ -449,6 +449,10 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
         raise BadInputError(f"expected a head file to write, found a folder: {out}")
     if not one_file and out.exists() and not out.is_dir():
         raise BadInputError(f"expected a folder for the heads, found a file: {out}")
+    if not one_file:
+        from head360cli.io.atomic import check_folder_name
+
+        check_folder_name(out)
     device = str(resolve_device(_settings().device))
     heads = sample_heads(count, seed, spread, bald, device, lids=not no_lid_fit)
     if one_file:

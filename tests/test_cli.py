@@ -438,3 +438,30 @@ def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
     assert run_cli("train-hair-prior", "--steps", "0", "-o", tmp_path / "x.pt").code == 3
     assert run_cli("train-hair-prior", "-o", tmp_path / "no" / "x.pt").code == 3
     assert not (tmp_path / "x.pt").exists()
+
+
+@pytest.mark.parametrize("command", [
+    ("sample", "-n", "1"), ("parse-hair", "PHOTO"), ("fit", "PHOTO", "--stage", "shape"),
+    ("demo",)])
+def test_commands_that_write_a_folder_refuse_a_new_one_named_like_a_file(run_cli, tmp_path,
+                                                                         command):
+    """`sample -o heads.png` wrote a folder named heads.png (so did parse-hair, fit
+    --stage shape and demo); a folder that exists already is still used."""
+    photo = tmp_path / "photo.png"
+    Image.new("RGB", (64, 64), (90, 90, 90)).save(photo)
+    args = [str(photo) if a == "PHOTO" else a for a in command]
+    r = run_cli(*args, "-o", tmp_path / "out.png")
+    assert r.code == 3, r.err
+    assert "expected a folder name for the outputs" in r.err
+    assert not (tmp_path / "out.png").exists()
+
+
+def test_check_folder_name_keeps_existing_folders_and_plain_names(tmp_path):
+    from head360cli.io.atomic import check_folder_name
+
+    (tmp_path / "old.png").mkdir()
+    check_folder_name(tmp_path / "old.png")
+    check_folder_name(tmp_path / "run.v2")
+    check_folder_name(tmp_path / "heads")
+    with pytest.raises(errors.BadInputError, match="a file's name"):
+        check_folder_name(tmp_path / "HEADS.H360")

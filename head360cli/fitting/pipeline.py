@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from head360cli.errors import BadInputError
+from head360cli.io.atomic import check_folder_name
 from head360cli.io.sources import input_stem
 
 __all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer",
@@ -87,6 +88,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     if face != "all" and int(face) < 0:
         raise BadInputError(f"expected a face number >= 0, found {face}")
     check_camera(focal, distance)  # before any work
+    check_folder_name(out_dir)
     img = load_image(photo)
     check_focal(focal, *img.source_size)
     model = load_bilinear()
@@ -281,6 +283,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     from head360cli.io.atomic import atomic_path
     from head360cli.io.images import load_image
 
+    check_folder_name(out_dir)
     t0 = time.perf_counter()
     img = load_image(photo)
     found = face_to_parse(img.pixels, face, detector)
@@ -793,6 +796,7 @@ def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,
 
     from head360cli.io.atomic import atomic_path
 
+    check_folder_name(out_dir)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     photo = out / "astronaut.png"

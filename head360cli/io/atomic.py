@@ -13,7 +13,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "check_file_target", "commit_dir",
+__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "check_file_target",
+           "check_folder_name", "commit_dir",
            "current_umask", "temp_dir_beside", "temp_name_beside"]
 
 
@@ -83,6 +84,28 @@ def check_file_target(target: str | os.PathLike[str]) -> None:
         raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
     if target.is_dir():
         raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
+
+
+FILE_SUFFIXES = frozenset((
+    ".png", ".jpg", ".jpeg", ".gif", ".webp", ".bmp", ".tif", ".tiff", ".mp4", ".mov",
+    ".m4v", ".h360", ".glb", ".obj", ".csv", ".json", ".npz", ".onnx", ".pt"))
+"""Suffixes of the files head360 reads or writes: a new output folder named so is taken
+for a mistaken file name."""
+
+
+def check_folder_name(target: str | os.PathLike[str]) -> None:
+    """Refuse a new output folder named like a file (``-o heads.png`` for a command that
+    writes a folder); a folder that exists already is its owner's choice.
+
+    Raises:
+        BadInputError: ``target`` does not exist and ends in one of :data:`FILE_SUFFIXES`.
+    """
+    from head360cli.errors import BadInputError
+
+    target = Path(target)
+    if target.suffix.lower() in FILE_SUFFIXES and not target.is_dir():
+        raise BadInputError(f"expected a folder name for the outputs, found "
+                            f"{str(target)!r}, a file's name")
 
 
 def check_dir_target(target: Path, overwrite: bool) -> None:
