@@ -40,18 +40,23 @@ def test_fit_folder_keeps_going_and_counts_failures(tmp_path):
     Image.fromarray(data.astronaut()).save(photos / "astronaut.png")
     (photos / "broken.jpg").write_text("not a photo")
     Image.new("RGB", (64, 64), "white").save(photos / "blank.png")  # no face
+    # two photos with one name: each once wrote over the other's outputs
+    Image.new("RGB", (64, 64), "grey").save(photos / "twin.png")
+    (photos / "twin.jpg").write_text("not a photo either")
     out = tmp_path / "out"
     p = subprocess.run(["bash", str(REPO / "examples/batch/fit_folder.sh"), str(photos),
                         str(out), "2"], capture_output=True, text=True, env=_env())
-    assert p.returncode == 2, p.stderr  # two of three failed
-    assert "3 photo(s), 2 failed" in p.stderr
+    assert p.returncode == 4, p.stderr  # four of five failed
+    assert "ran 5 photo(s), 4 failed" in p.stderr
     assert (out / "astronaut.h360").is_file()
     rows = {r["name"]: r for r in _collect(out)}
     assert rows["astronaut"]["ok"] == "True" and rows["astronaut"]["hair_style"]
     assert rows["broken"]["ok"] == "False" and rows["broken"]["error_type"]
     assert rows["blank"]["error_type"] == "NoFaceError"
+    assert rows["twin_png"]["error_type"] == "NoFaceError"
+    assert rows["twin_jpg"]["error_type"] == "FileFormatError"
     assert sorted((out / "failed.txt").read_text().split()) == sorted(
-        str(photos / n) for n in ("blank.png", "broken.jpg"))
+        str(photos / n) for n in ("blank.png", "broken.jpg", "twin.png", "twin.jpg"))
 
 
 def test_animate_heads_one_stream_many_heads(tmp_path, head_file):
@@ -66,6 +71,7 @@ def test_animate_heads_one_stream_many_heads(tmp_path, head_file):
                         "--", "--end", "0.11", "--size", "32", "--samples", "2"],
                        capture_output=True, text=True, env=_env())
     assert p.returncode == 1, p.stderr
+    assert "ran 3 head(s), 1 failed" in p.stderr
     assert (out / "a.mp4").is_file() and (out / "b.mp4").is_file()
     rows = {r["name"]: r for r in _collect(out)}
     assert rows["a"]["ok"] == "True" and rows["a"]["frames"] == "7"

@@ -29,5 +29,6 @@ find "$heads" -maxdepth 1 -type f -name '*.h360' -print0 | sort -z |
 
 failed=0
 [ -f "$out/failed.txt" ] && failed=$(wc -l < "$out/failed.txt")
-echo "animated $(find "$out" -maxdepth 1 -name '*.result.json' | wc -l) head(s), $failed failed" >&2
+total=$(find "$heads" -maxdepth 1 -type f -name '*.h360' -print0 | tr -cd '\0' | wc -c)
+echo "ran $total head(s), $failed failed" >&2
 exit $(( failed > 125 ? 125 : failed ))

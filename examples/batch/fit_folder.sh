@@ -5,7 +5,8 @@
 #
 # For each photo NAME.jpg|jpeg|png it writes OUT_DIR/NAME.h360 (+ preview and summary),
 # OUT_DIR/NAME.result.json (head360's --json answer, also for failures) and NAME.err
-# (warnings and errors). Failed photos are listed in OUT_DIR/failed.txt. The exit status
+# (warnings and errors). Photos that share a NAME (x.jpg and x.png) are written as
+# NAME_jpg, NAME_png, so that neither overwrites the other. Failed photos are listed in OUT_DIR/failed.txt. The exit status
 # is the number of photos that failed (at most 125), so 0 means all fitted.
 # Collect the results into one CSV with:  python examples/batch/collect.py OUT_DIR
 set -u
@@ -21,17 +22,33 @@ rm -f "$out/failed.txt"
 # one torch thread per job, unless the caller chose otherwise
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 
-find "$photos" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \) \
-    -print0 | sort -z |
+list_photos() {
+    find "$photos" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \) \
+        -print0 | sort -z
+}
+# the names two or more photos share, one a line
+shared=$(mktemp) || exit 2
+trap 'rm -f "$shared"' EXIT
+while IFS= read -r -d '' photo; do
+    base=${photo##*/}
+    printf '%s\n' "${base%.*}"
+done < <(list_photos) | sort | uniq -d > "$shared"
+total=$(list_photos | tr -cd '\0' | wc -c)
+
+list_photos |
     xargs -0 -r -P "$jobs" -I{} bash -c '
-        photo=$1; out=$2; shift 2
-        name=$(basename "${photo%.*}")
+        photo=$1; out=$2; shared=$3; shift 3
+        base=${photo##*/}
+        name=${base%.*}
+        if grep -Fxq -- "$name" "$shared"; then
+            name="${name}_${base##*.}"
+        fi
         if ! head360 fit "$photo" -o "$out/$name.h360" --json --quiet "$@" \
                 > "$out/$name.result.json" 2> "$out/$name.err"; then
             echo "$photo" >> "$out/failed.txt"
-        fi' _ {} "$out" "$@"
+        fi' _ {} "$out" "$shared" "$@"
 
 failed=0
 [ -f "$out/failed.txt" ] && failed=$(wc -l < "$out/failed.txt")
-echo "fitted $(find "$out" -maxdepth 1 -name '*.result.json' | wc -l) photo(s), $failed failed" >&2
+echo "ran $total photo(s), $failed failed" >&2
 exit $(( failed > 125 ? 125 : failed ))
