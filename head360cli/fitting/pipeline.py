@@ -19,8 +19,8 @@ from head360cli.errors import BadInputError
 from head360cli.io.atomic import check_folder_name
 from head360cli.io.sources import input_stem
 
-__all__ = ["classify_photo", "fit_photo", "fit_shape_photo", "load_head_renderer",
-           "parse_photo", "run_demo"]
+__all__ = ["check_head_sizes", "classify_photo", "fit_photo", "fit_shape_photo",
+           "load_head_renderer", "parse_photo", "run_demo"]
 
 
 def _timed(fn, *args, **kwargs) -> tuple[Any, float]:
@@ -762,6 +762,28 @@ def generator_hash() -> str:
     return hashlib.sha256((models_dir() / "generator.pt").read_bytes()).hexdigest()
 
 
+def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
+    """Refuse a head whose arrays do not fit the installed model and generator ``cfg``
+    (a :class:`~head360cli.model.config.GeneratorConfig`): a file edited or written by
+    other code (a short ``expression`` had ended in an internal error).
+
+    Raises:
+        FileFormatError: An array of :data:`~head360cli.io.headfile.HEAD_ARRAYS` has
+            another shape than the model's.
+    """
+    from head360cli.errors import FileFormatError
+    from head360cli.mesh.bilinear import load_bilinear
+
+    want = {"shape": (load_bilinear().rank,), "expression": (52,),
+            "texture": (cfg.texture_channels, cfg.texture_res, cfg.texture_res),
+            "hair_color": (3,), "hair_style": ()}
+    for name, shape in want.items():
+        found = tuple(np.shape(arrays[name]))
+        if found != shape:
+            raise FileFormatError(f"{where}: expected {name} of shape {shape} for the "
+                                  f"installed model, found {found}")
+
+
 def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | None = None,
                        size: int | None = None, precision: str = "auto",
                        reuse: float | str | None = "default"):
@@ -781,6 +803,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     head = read_head(path, expected_model_hash=generator_hash(), required=HEAD_ARRAYS)
     gen, _ = load_generator(device=device)
     a = head.arrays
+    check_head_sizes(a, gen.cfg, f"head file {str(path)!r}")
     return HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]), int(a["hair_style"]),
                         a["hair_color"], a["expression"], samples=samples, size=size,
                         precision=precision,

@@ -124,6 +124,12 @@ def _validate_arrays(arrays: dict[str, np.ndarray], where: str, error: type[Exce
                 raise error(f"{where}: expected integer array {name!r}, found {value.dtype}")
         if value.dtype.kind == "f" and not np.isfinite(value).all():
             raise error(f"{where}: array {name!r} holds NaN or infinite values")
+        if name == "hair_style":
+            from head360cli.synth.hair import HAIRSTYLES
+
+            if not 0 <= int(value) < len(HAIRSTYLES):
+                raise error(f"{where}: expected a hair_style id 0..{len(HAIRSTYLES) - 1}, "
+                            f"found {int(value)}")
 
 
 def lid_change_arrays(change: np.ndarray) -> dict[str, np.ndarray]:

@@ -233,3 +233,37 @@ def test_driven_weights_rest_each_eye_at_the_heads_own():
     shut = np.zeros(52)
     shut[blinks] = 1.0
     np.testing.assert_allclose(driven_weights(np.zeros(52), shut)[0, blinks], 0.95)
+
+
+@pytest.mark.parametrize("style", [-1, 30, 99])
+def test_a_hair_style_that_is_no_style_is_refused_on_write_and_read(tmp_path, monkeypatch,
+                                                                    style):
+    """render, export-mesh and swap-hair ended in an internal error (IndexError) on it."""
+    head = sample_head()
+    head.arrays["hair_style"] = np.array(style, np.int64)
+    with pytest.raises(BadInputError, match=f"hair_style id 0..29, found {style}"):
+        write_head(head, tmp_path / "w.h360")
+    checked = headfile._validate_arrays
+    monkeypatch.setattr(headfile, "_validate_arrays", lambda *a, **k: None)
+    path = write_head(head, tmp_path / "r.h360")  # as another program might write it
+    monkeypatch.setattr(headfile, "_validate_arrays", checked)
+    with pytest.raises(FileFormatError, match=f"hair_style id 0..29, found {style}"):
+        read_head(path)
+
+
+@pytest.mark.parametrize(("name", "cut"), [
+    ("shape", lambda a: a[:40]), ("expression", lambda a: a[:10]),
+    ("texture", lambda a: a[:, :128, :128]), ("hair_color", lambda a: np.ones(4, a.dtype))])
+def test_renderers_refuse_a_head_whose_arrays_do_not_fit_the_model(run_cli, head_file,
+                                                                   tmp_path, name, cut):
+    """A short expression ended in an internal error; a short shape in a matmul message
+    (exit 3); a smaller texture in one about the eyelids' arrays."""
+    head = read_head(head_file)
+    head.arrays[name] = cut(head.arrays[name])
+    path = write_head(head, tmp_path / "edited.h360")
+    for args in (("render", path, "--size", "64", "-o", tmp_path / "v.png"),
+                 ("export-mesh", path, "-o", tmp_path / "m.glb")):
+        r = run_cli(*args)
+        assert r.code == 5, r.err
+        assert f"expected {name} of shape" in r.err and "for the installed model" in r.err
+    assert not (tmp_path / "v.png").exists() and not (tmp_path / "m.glb").exists()
