@@ -264,8 +264,10 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
 
     if out is None and mesh_dir is None:
         raise BadInputError("expected -o OUT and/or --mesh-sequence DIR, found neither")
-    if fps is not None and not 1 <= fps <= 240:
-        raise BadInputError(f"expected --fps between 1 and 240, found {fps}")
+    from head360cli.drive.animate import MAX_FPS, MIN_FPS
+
+    if fps is not None and not MIN_FPS <= fps <= MAX_FPS:
+        raise BadInputError(f"expected --fps between {MIN_FPS:g} and {MAX_FPS:g}, found {fps}")
     if not 0 <= smooth <= 5:
         raise BadInputError(f"expected --smooth between 0 and 5 seconds, found {smooth}")
     if workers is not None and not 1 <= workers <= 64:

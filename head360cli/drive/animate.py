@@ -96,6 +96,13 @@ def head_pose_cameras(rotation: np.ndarray, c2w, pivot=HEAD_PIVOT):
     return torch.tensor(inverse @ base, dtype=torch.float32)
 
 
+MIN_FPS, MAX_FPS = 1.0, 240.0
+"""The frame rates a video is made at: ``--fps`` and a stream's own rate."""
+MAX_FRAMES = 2_000_000
+"""The most frames one take may become (9 hours at 60 fps): resampling a stream whose
+times are far apart (a typo, seconds for milliseconds) would otherwise fill memory."""
+
+
 def prepare_stream(stream, cfg: AnimateConfig):
     """The stream cut to ``start``/``end``, smoothed and put on a uniform time grid."""
     from head360cli.io.arkit import resample, smooth
@@ -108,9 +115,20 @@ def prepare_stream(stream, cfg: AnimateConfig):
     if cfg.smooth > 0:
         stream = smooth(stream, cfg.smooth)
     fps = cfg.fps if cfg.fps is not None else stream.fps
+    if not MIN_FPS <= fps <= MAX_FPS:  # only the stream's own rate can be out here
+        raise BadInputError(
+            f"expected a stream of {MIN_FPS:g} to {MAX_FPS:g} frames per second, found "
+            f"{fps:.4g} (frames {1 / fps:.4g} s apart"
+            + ("; a time column in milliseconds is named time_ms" if fps < MIN_FPS else "")
+            + "): give --fps to resample it")
     if cfg.head_pose and stream.head_rotation is None:
         raise BadInputError("expected head rotation columns (HeadYaw, HeadPitch, HeadRoll) "
                             "for --head-pose, found none in the stream")
+    span = float(stream.timestamps[-1] - stream.timestamps[0])
+    if span * fps + 1 > MAX_FRAMES:
+        raise BadInputError(f"expected a take of at most {MAX_FRAMES} frames, found "
+                            f"{span * fps + 1:.4g} ({span:.4g} s at {fps:g} fps): cut it "
+                            "with --start/--end")
     return stream if stream.num_frames < 2 else resample(stream, fps)
 
 

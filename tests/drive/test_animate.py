@@ -71,6 +71,22 @@ def test_prepare_stream_cuts_resamples_and_checks():
     assert prepare_stream(gap, AnimateConfig()).num_frames == 40
 
 
+def test_prepare_stream_refuses_rates_and_lengths_no_video_has():
+    """Two frames 1e5 s apart made a video at 1e-5 fps (1e300 s: an internal error in
+    the encoder); resampling them at --fps 1 filled memory (an internal error)."""
+    w = np.zeros((2, 52), np.float32)
+    apart = ArkitStream(w, np.array([0.0, 1e5]), 1e-5)
+    with pytest.raises(BadInputError, match=r"1 to 240 frames per second, found 1e-05 "
+                       r"\(frames 1e\+05 s apart; a time column in milliseconds"):
+        prepare_stream(apart, AnimateConfig())
+    with pytest.raises(BadInputError, match=r"found 1000 \(frames 0.001 s apart\)"):
+        prepare_stream(ArkitStream(w, np.array([0.0, 1e-3]), 1000.0), AnimateConfig())
+    with pytest.raises(BadInputError, match=r"at most 2000000 frames, found 3e\+06 "
+                       r"\(1e\+05 s at 30 fps\): cut it"):
+        prepare_stream(apart, AnimateConfig(fps=30.0))
+    assert prepare_stream(apart, AnimateConfig(fps=1.0, end=10.0)).num_frames == 1
+
+
 def test_animate_renders_each_frame_and_follows_the_jaw(head_file, tmp_path):
     import imageio.v3 as iio
 
