@@ -178,6 +178,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         from head360cli.io.atomic import check_file_target
 
         check_file_target(out)
+    pairs = parse_views(views) if views is not None else [(yaw, pitch)]  # before the load
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
@@ -186,14 +187,15 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         return
     from PIL import Image
 
+    from head360cli.drive.views import GRID_COLUMNS, check_grid_size
     from head360cli.io.atomic import atomic_path
 
-    pairs = parse_views(views) if views is not None else [(yaw, pitch)]
+    check_grid_size(len(pairs), r.size)
     cams = view_cameras([p[0] for p in pairs], [p[1] for p in pairs])
     frames_ = np.concatenate(list(r.frames(cams, np.broadcast_to(w, (len(pairs), 52)),
                                            view_intrinsics(r.size), hair=not no_hair)))
     image = frames_[0] if len(pairs) == 1 else grid_image(
-        frames_, [f"{y:g}/{p:g}" for y, p in pairs], cols=min(len(pairs), 6))
+        frames_, [f"{y:g}/{p:g}" for y, p in pairs], cols=min(len(pairs), GRID_COLUMNS))
     with atomic_path(out) as tmp:
         Image.fromarray(image).save(tmp, format=image_format,
                                     **({"quality": 95} if image_format == "JPEG" else {}))

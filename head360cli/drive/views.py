@@ -111,6 +111,32 @@ def parse_views(text: str) -> list[tuple[float, float]]:
     return views
 
 
+GRID_COLUMNS = 6
+"""Views per row of ``render --views``' grid."""
+MAX_GRID_PIXELS = 100_000_000
+"""The largest grid ``render --views`` makes (as the largest photo read): its views are
+held in memory together, and a JPEG is at most 65535 pixels high."""
+
+
+def check_grid_size(views: int, size: int) -> None:
+    """Refuse a grid of ``views`` tiles of ``size`` pixels over :data:`MAX_GRID_PIXELS`
+    or 65535 pixels high.
+
+    Raises:
+        BadInputError: The grid would be larger.
+    """
+    cols = min(views, GRID_COLUMNS)
+    rows = -(-views // cols)
+    tile = size + (0 if views == 1 else max(14, size // 12))  # the label's band under it
+    pixels = rows * tile * cols * size
+    if pixels > MAX_GRID_PIXELS or rows * tile > 65535:
+        most = GRID_COLUMNS * min(MAX_GRID_PIXELS // (tile * GRID_COLUMNS * size),
+                                  65535 // tile)
+        raise BadInputError(f"expected a grid of at most {MAX_GRID_PIXELS / 1e6:g} megapixels "
+                            f"and 65535 pixels high ({most} views at --size {size}), found "
+                            f"{views} views, {cols * size}x{rows * tile} pixels")
+
+
 def grid_image(images: np.ndarray, labels: list[str] | None = None, cols: int | None = None
                ) -> np.ndarray:
     """Tile ``(N, H, W, 3)`` uint8 images into one image, ``cols`` per row (default: a

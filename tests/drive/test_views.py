@@ -74,3 +74,18 @@ def test_turntable_streams_every_frame(head_file, tmp_path):
     assert first.shape == (64, 64, 3) and first.min() < 200  # a head, on white
     with pytest.raises(BadInputError):
         write_turntable(r, tmp_path / "none.gif", frames=0)
+
+
+def test_check_grid_size_bounds_pixels_and_height():
+    """render --views held every view in memory and saved one image: 30 views at 2048
+    pixels made a 136-megapixel grid, and 9000 at 32 one 69000 pixels high, which JPEG
+    cannot store."""
+    from head360cli.drive.views import check_grid_size
+
+    for views, size in ((1, 2048), (18, 2048), (5, 2048), (8000, 32)):
+        check_grid_size(views, size)
+    with pytest.raises(BadInputError, match=r"\(18 views at --size 2048\), found 19 views, "
+                                            r"12288x8872 pixels"):
+        check_grid_size(19, 2048)
+    with pytest.raises(BadInputError, match="65535 pixels high .* 192x69000 pixels"):
+        check_grid_size(9000, 32)
