@@ -87,5 +87,5 @@ def test_check_grid_size_bounds_pixels_and_height():
     with pytest.raises(BadInputError, match=r"\(18 views at --size 2048\), found 19 views, "
                                             r"12288x8872 pixels"):
         check_grid_size(19, 2048)
-    with pytest.raises(BadInputError, match="65535 pixels high .* 192x69000 pixels"):
+    with pytest.raises(BadInputError, match=r"65535 pixels high .* 192x69000 pixels"):
         check_grid_size(9000, 32)
