@@ -279,13 +279,18 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     import cv2
     from PIL import Image
 
-    from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.hair_parse import MIN_SIDE, parse_hair
     from head360cli.io.atomic import atomic_path
-    from head360cli.io.images import load_image
+    from head360cli.io.images import MAX_SIDE, load_image
 
     check_folder_name(out_dir)
     t0 = time.perf_counter()
     img = load_image(photo)
+    if min(img.pixels.shape[:2]) < MIN_SIDE and img.scale != 1.0:  # name the size on disk
+        (w, h), (lw, lh) = img.source_size, img.size
+        raise BadInputError(f"expected a photo at least {MIN_SIDE}x{MIN_SIDE} pixels to parse "
+                            f"hair, found {w}x{h} ({lw}x{lh} once its longer side is brought "
+                            f"to {MAX_SIDE})")
     found = face_to_parse(img.pixels, face, detector)
     landmarks = None if found is None else found.landmarks
     found_by = None if found is None else found.detector

@@ -120,6 +120,11 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     Image.fromarray(np.zeros((3, 3, 3), np.uint8)).save(speck)
     r = run_cli("parse-hair", speck, "-o", tmp_path / "speck")
     assert r.code == 3 and "found 3x3" in r.err and not (tmp_path / "speck").exists()
+    strip = tmp_path / "strip.png"  # loaded at 4096x8: the message named that size alone
+    Image.fromarray(np.zeros((10, 5120, 3), np.uint8)).save(strip)
+    r = run_cli("parse-hair", strip, "-o", tmp_path / "strip")
+    assert r.code == 3 and "found 5120x10 (4096x8 once its longer side is brought to 4096)" \
+        in r.err, r.err
 
 
 def test_parse_hair_of_a_pipe_names_its_masks_pipe(run_cli, astronaut, tmp_path, pipe):
