@@ -867,7 +867,7 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--no-sweep", is_flag=True, help="Skip the inversion-steps sweep.")
 @click.option("--stability", default=3, show_default=True,
               help="Noisy copies of the first photo fitted again (0: none).")
-@click.option("--corpus-seed", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--corpus-seed", default=0, show_default=True,
               help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
                    "for development).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
