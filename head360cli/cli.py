@@ -25,7 +25,7 @@ __all__ = ["cli", "main"]
 EPILOG_EXIT_CODES = (
     "Exit codes: 0 ok, 1 internal error, 2 usage error, 3 bad input, 4 no face found, "
     "5 bad file format, 6 model mismatch, 7 model or package not installed, 8 out of memory, "
-    "130 interrupted."
+    "130 interrupted, 143 terminated."
 )
 
 
@@ -993,11 +993,34 @@ def _error_json(kind: str, message: str, code: int) -> None:
                                              "exit_code": code}}))
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a batch system), raised in the main thread as an
+    interrupt is, so that half-written outputs are removed and spawned processes ended;
+    by default Python dies at once and leaves both behind."""
+
+
+def _on_terminate(signum, frame) -> None:
+    raise _Terminated
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI and return its exit code (see ``head360 --help`` for the codes)."""
+    import signal
+    import threading
+
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     as_json = "--json" in args
+    handles = threading.current_thread() is threading.main_thread()  # only it may
+    previous = signal.signal(signal.SIGTERM, _on_terminate) if handles else None
+    try:
+        return _run(args, debug, as_json)
+    finally:
+        if handles:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: list[str], debug: bool, as_json: bool) -> int:
     try:
         cli.main(args=args, prog_name="head360", standalone_mode=False)
         return 0
@@ -1008,7 +1031,10 @@ def main(argv: list[str] | None = None) -> int:
         if as_json:
             _error_json("UsageError", exc.format_message(), exc.exit_code)
         return int(exc.exit_code)
-    except (click.Abort, KeyboardInterrupt):
+    except (click.Abort, KeyboardInterrupt) as exc:  # click turns the interrupt into Abort
+        if isinstance(exc, _Terminated) or isinstance(exc.__cause__, _Terminated):
+            click.echo("head360: terminated", err=True)
+            return EXIT_CODES["terminated"]
         click.echo("head360: interrupted", err=True)
         return EXIT_CODES["interrupted"]
     except Head360Error as exc:

@@ -24,6 +24,7 @@ code  exception              meaning
 8     (out of memory)        the CPU's or the GPU's memory ran out (MemoryError,
                              torch's OutOfMemoryError or failed CPU allocation)
 130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
+143   (SIGTERM)              terminated (``kill``, ``timeout``); as for 130
 ====  =====================  ==================================================
 """
 
@@ -96,6 +97,7 @@ EXIT_CODES: dict[str, int] = {
     ModelNotFoundError.__name__: ModelNotFoundError.exit_code,
     "out_of_memory": 8,
     "interrupted": 130,
+    "terminated": 143,
 }
 """Exit code by error name, as documented in the README."""
 

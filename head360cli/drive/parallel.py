@@ -104,17 +104,35 @@ def _reuse_counts(renderer) -> tuple[int, int]:
     return (0, 0) if reuse is None else (reuse.points, reuse.decoded)
 
 
-def _take(counter) -> int:
-    with counter.get_lock():
+def _take(counter, parent: int | None = None) -> int:
+    """The next block's index, taken from the shared ``counter``; in a spawned process
+    (``parent``: its parent's pid) the wait for the lock ends it once the parent is gone,
+    which may have been killed holding it."""
+    lock = counter.get_lock()
+    while not lock.acquire(timeout=0.5):
+        if parent is not None and os.getppid() != parent:
+            _orphaned()
+    try:
         i = counter.value
         counter.value += 1
+    finally:
+        lock.release()
     return i
 
 
-def _worker(jobs, counter, written, results) -> None:
+def _orphaned() -> None:
+    """End a spawned process whose parent is gone, at once: its results queue's thread
+    could never hand its last block to anyone, and a normal exit waits for it."""
+    os._exit(0)
+
+
+def _worker(jobs, counter, written, results, parent: int) -> None:
     """A spawned process: import torch and the renderer's modules (the seconds a start
     costs), wait for the job (:meth:`Workers.send`), then render the blocks it takes until
-    none is left, none more than the job's ``limit`` blocks beyond the ``written`` ones."""
+    none is left, none more than the job's ``limit`` blocks beyond the ``written`` ones.
+    It ends when ``parent``, the process that spawned it, is gone (killed before it
+    could end it)."""
+    import queue
     import time
 
     import torch
@@ -122,15 +140,23 @@ def _worker(jobs, counter, written, results) -> None:
     import head360cli.model.head_render  # noqa: F401  (what unpickling the job needs)
 
     try:
-        job = jobs.get()
+        while True:
+            try:
+                job = jobs.get(timeout=0.5)
+                break
+            except queue.Empty:
+                if os.getppid() != parent:
+                    _orphaned()
         if job is None:  # closed unused
             return
         renderer, c2w, weights, intrinsics, hair, block, workers, limit = pickle.loads(job)
         del job  # the bytes: not needed once unpickled
         torch.set_num_threads(_threads(workers))
         blocks = _blocks(len(c2w), block, workers)
-        while (i := _take(counter)) < len(blocks):
+        while (i := _take(counter, parent)) < len(blocks):
             while i >= written.value + limit:
+                if os.getppid() != parent:
+                    _orphaned()
                 time.sleep(0.005)
             made = _render_block(renderer, c2w, weights, intrinsics, hair, blocks[i])
             results.put((i, *made, (os.getpid(), peak_rss_mib())))
@@ -163,7 +189,7 @@ class Workers:
         self.results = ctx.Queue()
         self.jobs = ctx.Queue()
         self.procs = [ctx.Process(target=_worker, daemon=True, args=(
-            self.jobs, self.counter, self.written, self.results))
+            self.jobs, self.counter, self.written, self.results, os.getpid()))
             for _ in range(workers - 1)]
         self.closed = False
         self.error: str | None = None

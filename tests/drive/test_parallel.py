@@ -217,3 +217,74 @@ def test_cli_animate_with_two_processes(run_cli, head_file, tmp_path):
     r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
                 tmp_path / "x.mp4", "--workers", "0")
     assert r.code == 3 and "--workers" in r.err and not (tmp_path / "x.mp4").exists()
+
+
+def _gone(pid: int, seconds: float) -> bool:
+    """Whether process ``pid`` ends (or is a zombie) within ``seconds``."""
+    import time
+
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    return True
+        except FileNotFoundError:
+            return True
+        time.sleep(0.2)
+    return False
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc"), reason="reads /proc")
+def test_a_spawned_process_ends_when_its_parent_is_killed(tmp_path):
+    """A parent killed without a chance to end its processes (SIGKILL, or SIGTERM before
+    head360 handled it) left them waiting for a job, or for blocks to be written, for
+    ever."""
+    import subprocess
+    import sys
+
+    script = ("import os, sys\n"
+              "from head360cli.drive.parallel import Workers\n"
+              "pool = Workers(2)\n"
+              "print(pool.procs[0].pid, flush=True)\n"
+              "os._exit(0)  # as a kill: no clean-up at all\n")
+    out = tmp_path / "pid.txt"  # not a pipe: the orphan would hold it open
+    with open(out, "w") as f:
+        p = subprocess.run([sys.executable, "-c", script], stdout=f, timeout=120)
+    assert p.returncode == 0
+    assert _gone(int(out.read_text().split()[0]), 60), "the orphaned process still runs"
+
+
+def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp_path):
+    """SIGTERM (kill, timeout, a batch system) killed head360 at once: the video's
+    temporary file stayed beside the output and the spawned process kept running."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from head360cli.io.arkit import ArkitStream, write_arkit_csv
+
+    n = 3000  # far more than it renders before the signal
+    write_arkit_csv(ArkitStream(_weights(n), np.arange(n) / 30.0, 30.0), tmp_path / "s.csv")
+    out = tmp_path / "o" / "take.mp4"
+    out.parent.mkdir()
+    p = subprocess.Popen([sys.executable, "-m", "head360cli", "animate", str(head_file),
+                          "--arkit", str(tmp_path / "s.csv"), "-o", str(out), "--size", "32",
+                          "--samples", "2", "--workers", "2"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + 120
+        while not any(out.parent.iterdir()) and time.monotonic() < end:  # rendering now
+            time.sleep(0.1)
+        assert any(out.parent.iterdir()), "the video was never started"
+        with open(f"/proc/{p.pid}/task/{p.pid}/children") as f:
+            children = [int(c) for c in f.read().split()]
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    assert p.returncode == 143, err
+    assert "head360: terminated" in err
+    assert list(out.parent.iterdir()) == []
+    assert all(_gone(c, 30) for c in children)
