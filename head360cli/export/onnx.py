@@ -369,7 +369,16 @@ class OnnxFrameRunner:
         have = set(ort.get_available_providers())
         chosen = [p for p in (providers or []) if p in have] or ["CPUExecutionProvider"]
         self.sessions = {}
-        for hair, p in ((True, path), (False, path.with_name(f"{path.stem}_bald.onnx"))):
+        bald = path.with_name(f"{path.stem}_bald.onnx")
+        if path.stem.endswith("_bald") and not bald.exists():
+            raise FileFormatError(
+                f"{path}: expected the graph with hair, NAME.onnx (its NAME_bald.onnx is "
+                f"found beside it), found the bald one: give "
+                f"{path.with_name(path.stem[:-5] + '.onnx')}")
+        if not bald.exists():
+            raise FileFormatError(f"{path}: expected its bald graph {bald.name} beside it "
+                                  "(export-onnx writes both), found none")
+        for hair, p in ((True, path), (False, bald)):
             try:
                 self.sessions[hair] = ort.InferenceSession(
                     str(p), opts, providers=chosen)

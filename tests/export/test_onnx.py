@@ -204,6 +204,23 @@ def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_fil
     assert r.code == 3 and "export-onnx" in r.err
 
 
+def test_runner_names_the_graph_to_give_for_the_bald_one_or_a_lone_one(exported, tmp_path):
+    """--onnx gen_bald.onnx was refused as 'gen_bald_bald.onnx: expected an exported
+    head360 generator ([ONNXRuntimeError] ... NO_SUCHFILE ...)'."""
+    import shutil
+
+    from head360cli.errors import FileFormatError
+    from head360cli.export.onnx import OnnxFrameRunner
+
+    _, out, _, _ = exported
+    with pytest.raises(FileFormatError, match=r"found the bald one: give .*gen\.onnx$"):
+        OnnxFrameRunner(out.with_name("gen_bald.onnx"))
+    lone = tmp_path / "lone.onnx"
+    shutil.copy(out, lone)
+    with pytest.raises(FileFormatError, match=r"expected its bald graph lone_bald\.onnx"):
+        OnnxFrameRunner(lone)
+
+
 @pytest.mark.slow
 def test_bench_onnx_on_the_exported_graph(exported):
     """The benchmark's parity rows are real comparisons (tiny: two heads)."""
