@@ -158,21 +158,34 @@ def summarize(folder: str | Path, out_dir: str | Path | None = None
 
     Raises:
         BadInputError: The folder holds no stage results.
+        FileFormatError: A stage's file is not JSON, or not what its benchmark writes.
     """
     from head360cli.bench.report import markdown_table, save
-    from head360cli.errors import BadInputError
+    from head360cli.errors import BadInputError, FileFormatError
 
     folder = Path(folder)
     results = {}
     for name in STAGE_FILES:
         path = folder / f"{name}.json"
         if path.is_file():
-            results[name] = json.loads(path.read_text())
+            try:
+                results[name] = json.loads(path.read_text())
+            except (ValueError, UnicodeDecodeError) as exc:
+                raise FileFormatError(f"{path}: expected the JSON that head360 bench "
+                                      f"writes, found unreadable text ({exc})") from None
     if not results:
         names = ", ".join(f + ".json" for f in STAGE_FILES)
         raise BadInputError(f"expected stage results ({names}) in {str(folder)!r}, found "
                             "none")
-    rows = collect(results)
+    rows = []
+    for name, r in results.items():  # one stage at a time, to name the file at fault
+        try:
+            rows += collect({name: r})
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise FileFormatError(
+                f"{folder / (name + '.json')}: expected the results of head360 bench "
+                f"{name.replace('_', '-')}, found another layout ({type(exc).__name__}: "
+                f"{exc})") from None
     md = ("Speed against error, every stage (this machine; from "
           + ", ".join(f"{n}.json" for n in results) + ")\n\n"
           + markdown_table([{**r, "value": "" if r["value"] is None else f"{r['value']:.4g}"}

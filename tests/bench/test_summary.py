@@ -72,6 +72,20 @@ def test_summarize_writes_table_and_plot(tmp_path):
     assert (img < 128).any() and (img == 255).mean() > 0.5  # drawn, mostly background
 
 
+@pytest.mark.parametrize(("text", "says"), [
+    ("{bad", "expected the JSON that head360 bench writes, found unreadable text"),
+    ('{"sweep": [{"a": 1}]}', "expected the results of head360 bench fit, found another "
+                             "layout (KeyError: 'texture_steps')"),
+    ("[1, 2]", "found another layout (AttributeError")])
+def test_summary_names_a_stage_file_it_cannot_read(run_cli, tmp_path, text, says):
+    """A truncated or foreign fit.json ended bench summary in an internal error."""
+    (tmp_path / "onnx.json").write_text(json.dumps(STAGES["onnx"]))
+    (tmp_path / "fit.json").write_text(text)
+    r = run_cli("bench", "summary", tmp_path)
+    assert r.code == 5 and says in r.err and "fit.json" in r.err, r.err
+    assert not (tmp_path / "bench.md").exists()
+
+
 def test_summary_and_all_on_the_command_line(run_cli, tmp_path):
     assert run_cli("bench", "summary", tmp_path).code == 3  # no results there
     (tmp_path / "onnx.json").write_text(json.dumps(STAGES["onnx"]))
