@@ -19,7 +19,8 @@ __all__ = ["list_styles", "parse_colour", "style_sheet", "swap_hair"]
 
 def parse_colour(text: str) -> tuple[str, np.ndarray]:
     """A hair colour from a SynHead-P colour name (``"dark brown"``), an sRGB hex code
-    (``"#6b4423"``) or three linear RGB numbers in [0, 1] (``"0.2,0.1,0.05"``).
+    (``"#6b4423"`` or ``"#642"``) or three linear RGB numbers in [0, 1]
+    (``"0.2,0.1,0.05"``).
 
     Returns:
         ``(name, linear RGB (3,))``; the name is the nearest SynHead-P colour's.
@@ -30,9 +31,12 @@ def parse_colour(text: str) -> tuple[str, np.ndarray]:
     from head360cli.fitting.hair_class import nearest_colour_name
     from head360cli.synth.hair import HAIR_COLOURS
 
-    t = text.strip().lower().replace("_", " ").replace("-", " ")
-    if t in HAIR_COLOURS:
-        return t, np.asarray(HAIR_COLOURS[t], np.float64)
+    name = " ".join(text.strip().lower().replace("_", " ").replace("-", " ").split())
+    if name in HAIR_COLOURS:
+        return name, np.asarray(HAIR_COLOURS[name], np.float64)
+    t = text.strip().lower()  # numbers keep their signs
+    if t.startswith("#") and len(t) == 4:  # #rgb: each digit twice, as in CSS
+        t = "#" + "".join(c * 2 for c in t[1:])
     rgb = None
     if t.startswith("#") and len(t) == 7:
         try:

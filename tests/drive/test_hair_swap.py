@@ -20,9 +20,15 @@ def test_parse_colour_forms():
     assert rgb == pytest.approx([0.2158605] * 3, abs=1e-6)  # sRGB 0.502 -> linear
     _, rgb = parse_colour("0.5, 0.2,0.1")
     assert rgb == pytest.approx([0.5, 0.2, 0.1])
-    for bad in ("purple", "#12345", "#gg0000", "1,2,3", "0.1,0.2"):
+    _, rgb = parse_colour("#888")  # CSS's short form: #888888
+    assert rgb == pytest.approx(parse_colour("#888888")[1])
+    assert parse_colour("  dark   brown ")[0] == "dark brown"
+    for bad in ("purple", "#12345", "#gg0000", "1,2,3", "0.1,0.2", "#ggg"):
         with pytest.raises(BadInputError):
             parse_colour(bad)
+    # a minus sign was read as a separator of names: -0.1 became 0.1
+    with pytest.raises(BadInputError, match=r"in \[0, 1\], found '-0\.1,0,0'"):
+        parse_colour("-0.1,0,0")
 
 
 def test_list_styles():
