@@ -704,7 +704,12 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
         raise BadInputError(f"expected --group and --workers >= 1, found {group} and {workers}")
     _check_rate_and_minutes(lr, minutes)
     device = str(resolve_device(_settings().device))
-    if init is not None:  # the initial weights' configuration replaces these
+    resuming = (Path(run_dir) / CHECKPOINT).is_file()
+    if resuming:  # the checkpoint's configuration replaces all but these
+        _unused(("preset", "planes", "no_refine", "no_hair", "batch", "identities", "seed",
+                 "lr", "group", "workers", "featured_share", "no_detach", "init"),
+                f"when resuming {run_dir} (its checkpoint's configuration is used)")
+    elif init is not None:  # the initial weights' configuration replaces these
         _unused(("preset", "planes", "no_refine", "no_hair"),
                 "with --init (the weights' own configuration is used)")
     gen_cfg = GeneratorConfig(**PRESETS[preset], planes=planes, refine=not no_refine,
@@ -714,9 +719,15 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
                       workers=workers, featured_share=featured_share, init=init or "")
     last = run_training(run_dir, cfg, gen_cfg, device=device, progress=not _settings().quiet)
     result: dict[str, Any] = {"run": run_dir, "last": last}
+    trained = "l1" in last  # a resumed run at --steps already trains nothing
+    result["trained"] = trained
+    if not trained:
+        _warn(f"{run_dir} is at step {last['step']} already (--steps {steps}): nothing was "
+              "trained; give a larger --steps to go on")
     if export and int(os.environ.get("RANK", "0")) == 0:
         result["export"] = save_generator(Path(run_dir) / CHECKPOINT, export)
-    _emit(result, f"trained to step {last.get('step')}: L1 {last.get('l1')}"
+    _emit(result, (f"trained to step {last['step']}: L1 {last['l1']}" if trained else
+                   f"at step {last['step']}, as before")
           + (f"; wrote {export}" if export else ""))
 
 

@@ -215,7 +215,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         out.mkdir(parents=True, exist_ok=True)
     views.prefetch(cfg.workers)
     t0 = time.perf_counter()
-    last: dict[str, Any] = {}
+    last: dict[str, Any] = {"step": start}  # what a resumed run that is done returns
     sums: dict[str, float] = {}
     count = skipped = 0
     bar = progress_bar(range(start, cfg.steps), total=cfg.steps - start, desc="train",

@@ -132,3 +132,22 @@ def test_cli_train_hair_prior_refuses_settings_that_cannot_train(run_cli, tmp_pa
     r = run_cli("train-hair-prior", "-o", out, "--heads", "1", "--steps", "1", *args)
     assert r.code == 3 and says in r.err, r.err
     assert not out.exists()
+
+
+def test_cli_train_resume_names_the_options_its_checkpoint_replaces(run_cli, tmp_path):
+    """Resuming used the checkpoint's configuration and dropped --preset, -n, --lr...
+    without a word; a run already at --steps said 'trained to step None: L1 None'."""
+    run = tmp_path / "run"
+    r = run_cli("train", run, "--preset", "tiny", "--steps", "1", "-n", "2", "--json")
+    assert r.code == 0, r.err
+    assert json.loads(r.out)["trained"] is True
+    r = run_cli("train", run, "--preset", "cpu", "--steps", "1", "-n", "3", "--lr", "0.001")
+    assert r.code == 0, r.err
+    assert ("--preset and --identities and --lr are not used when resuming" in r.err
+            and "its checkpoint's configuration is used" in r.err)
+    assert "is at step 1 already (--steps 1): nothing was trained" in r.err
+    assert "at step 1, as before" in r.out
+    r = run_cli("train", run, "--steps", "2", "--json")
+    assert r.code == 0 and "not used" not in r.err
+    out = json.loads(r.out)
+    assert out["trained"] is True and out["last"]["step"] == 2
