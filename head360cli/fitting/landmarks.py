@@ -37,7 +37,7 @@ from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
 __all__ = ["DETECTORS", "FALLBACK_SIDE", "MIRROR_68", "SMALL_RETRY_SIDE", "TURNED_SIDE",
            "TURNS", "DetectedFace", "LandmarkDetector", "ProfileFace", "find_faces",
-           "find_profile", "hog_detector", "pick_face", "turned_image"]
+           "find_profile", "hog_detector", "pick_face", "turned_image", "upside_down"]
 
 DETECTORS = ("auto", "hog", "cnn")
 """The detector kinds :class:`LandmarkDetector` takes."""
@@ -254,16 +254,32 @@ def no_face_hint(kind: str) -> str:
                     "try --detector cnn for small or hard faces)"}.get(kind, "")
 
 
-def pick_face(faces: list[DetectedFace], index: int, kind: str) -> DetectedFace:
-    """Face ``index`` of ``faces`` (largest first) found by detector ``kind``.
+def upside_down(rgb: np.ndarray) -> bool:
+    """Whether HOG finds a face in ``rgb`` turned half a turn (on a copy at most
+    :data:`TURNED_SIDE` pixels long): a photo without a face upright or in any of
+    :data:`TURNS`, stored upside down (its EXIF orientation lost or wrong). Asked only
+    to explain a missing face; the fit does not turn photos so far itself."""
+    copy, _ = turned_image(rgb, 180.0)
+    return bool(LandmarkDetector("hog", max_side=TURNED_SIDE, average=False).detect(copy))
+
+
+def pick_face(faces: list[DetectedFace], index: int, kind: str,
+              rgb: np.ndarray | None = None) -> DetectedFace:
+    """Face ``index`` of ``faces`` (largest first) found by detector ``kind`` in ``rgb``.
 
     Raises:
         BadInputError: A negative ``index``.
-        NoFaceError: No face (with :func:`no_face_hint`), or fewer than ``index + 1``.
+        NoFaceError: No face (with :func:`no_face_hint`, or, when ``rgb`` is given and
+            :func:`upside_down`, with what to do about that), or fewer than
+            ``index + 1``.
     """
     if index < 0:  # Python's indexing would pick a face from the end
         raise BadInputError(f"expected a face number >= 0, found {index}")
     if not faces:
+        if rgb is not None and kind != "cnn" and upside_down(rgb):
+            raise NoFaceError("no face found in the image as it lies, but one upside down: "
+                              "turn the photo upright (or mend its EXIF orientation) and "
+                              "run again")
         raise NoFaceError(f"no face found in the image{no_face_hint(kind)}")
     if index >= len(faces):
         raise NoFaceError(f"expected a face number {index}, found only {len(faces)} "

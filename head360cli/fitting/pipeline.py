@@ -97,10 +97,10 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     t0 = time.perf_counter()
     faces = find_faces(img.pixels, detector, only=None if face == "all" else int(face))
     if face == "all":
-        pick_face(faces, 0, detector)  # raises the no-face error
+        pick_face(faces, 0, detector, img.pixels)  # raises the no-face error
         chosen = list(enumerate(faces))
     else:
-        chosen = [(int(face), pick_face(faces, int(face), detector))]
+        chosen = [(int(face), pick_face(faces, int(face), detector, img.pixels))]
     timings["detect"] = time.perf_counter() - t0
 
     full_w, full_h = img.source_size
@@ -217,7 +217,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     t0 = time.perf_counter()
     faces = find_faces(img.pixels, detector, only=face)
     timings["detect"] = time.perf_counter() - t0
-    found = pick_face(faces, face, detector)
+    found = pick_face(faces, face, detector, img.pixels)
     confident = [f for f in faces if f.score >= CONFIDENT_FACE]
     if len(confident) > 1:
         warnings.append(f"{len(confident)} faces found; fitting face {face} "

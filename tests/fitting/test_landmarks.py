@@ -292,3 +292,22 @@ def test_profile_cascade_finds_either_side_and_not_a_back_view():
     assert right.box == (w - left.box[2], left.box[1], w - left.box[0], left.box[3])
     assert find_profile(cv2.cvtColor(_corpus_view(180.0)[0], cv2.COLOR_RGB2GRAY)) is None
     assert find_profile(np.zeros((8, 8), np.uint8)) is None
+
+
+def test_an_upside_down_photo_is_named_as_such_when_no_face_is_found(run_cli, tmp_path):
+    """HOG finds no face upside down, nor in the turned copies (up to 90 degrees): the fit
+    said only "no face found" of a photo whose EXIF orientation was lost."""
+    import skimage.data
+    from PIL import Image
+
+    from head360cli.fitting.landmarks import upside_down
+
+    img = skimage.data.astronaut()
+    assert upside_down(np.ascontiguousarray(img[::-1, ::-1]))
+    assert not upside_down(img[::-1, ::-1] * 0 + 128)  # nothing at all
+    assert not upside_down(skimage.data.coffee())
+    path = tmp_path / "turned.png"
+    Image.fromarray(np.ascontiguousarray(img[::-1, ::-1])).save(path)
+    r = run_cli("fit", path, "-o", tmp_path / "x.h360")
+    assert r.code == 4 and "but one upside down: turn the photo upright" in r.err, r.err
+    assert not (tmp_path / "x.h360").exists()
