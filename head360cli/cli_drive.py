@@ -296,6 +296,10 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
                   "every frame")
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         raise BadInputError(f"ARKit stream {arkit!r} does not exist")
+    if arkit == "-":
+        from head360cli.io.sources import check_stdin
+
+        check_stdin("an ARKit stream")
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
     for warning in stream.warnings:
         _warn(warning)

@@ -190,8 +190,9 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
     if path == "-":  # standard input: a stream, a head file or an image, by its bytes
         import sys
 
-        from head360cli.io.sources import NamedBytes
+        from head360cli.io.sources import NamedBytes, check_stdin
 
+        check_stdin("a stream, a head file or an image")
         raw = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else (
             sys.stdin.read().encode("utf-8"))  # a text stream put in its place
         path, shown = NamedBytes(raw, "<stdin>"), "<stdin>"

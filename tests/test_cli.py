@@ -465,3 +465,25 @@ def test_check_folder_name_keeps_existing_folders_and_plain_names(tmp_path):
     check_folder_name(tmp_path / "heads")
     with pytest.raises(errors.BadInputError, match="a file's name"):
         check_folder_name(tmp_path / "HEADS.H360")
+
+
+@pytest.mark.parametrize("args", [("inspect", "-"), ("animate", "HEAD", "--arkit", "-",
+                                                     "-o", "OUT")])
+def test_reading_a_terminal_as_standard_input_is_refused(run_cli, monkeypatch, tmp_path,
+                                                         args):
+    """'-' with nothing piped in waited for typing, with no word of why."""
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stdin", Terminal(""))
+    args = [str(tmp_path / "o.mp4") if a == "OUT" else a for a in args]
+    if "HEAD" in args:
+        from head360cli.io.headfile import HeadFile, write_head
+
+        head = write_head(HeadFile(arrays={"shape": np.zeros(3, np.float32)}),
+                          tmp_path / "h.h360")
+        args = [str(head) if a == "HEAD" else a for a in args]
+    r = run_cli(*args)
+    assert r.code == 3 and "on standard input ('-'), found a terminal" in r.err, r.err
+    assert not (tmp_path / "o.mp4").exists()

@@ -191,6 +191,9 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
     elif not isinstance(source, (str, Path)):
         return source, getattr(source, "name", "<stream>")
     elif str(source) == "-":
+        from head360cli.io.sources import check_stdin
+
+        check_stdin("an ARKit stream")
         return sys.stdin, "<stdin>"
     else:
         path = existing(source, "an ARKit CSV file")

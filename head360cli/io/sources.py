@@ -15,7 +15,7 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["NamedBytes", "existing", "input_stem", "is_pipe", "readable"]
+__all__ = ["NamedBytes", "check_stdin", "existing", "input_stem", "is_pipe", "readable"]
 
 
 class NamedBytes(io.BytesIO):
@@ -24,6 +24,23 @@ class NamedBytes(io.BytesIO):
     def __init__(self, data: bytes, name: str) -> None:
         super().__init__(data)
         self.name = name
+
+
+def check_stdin(what: str) -> None:
+    """Refuse to read ``what`` (``"an ARKit stream"``) from standard input when it is a
+    terminal: nothing was piped in, and the read would wait for typing.
+
+    Raises:
+        BadInputError: Standard input is a terminal or closed.
+    """
+    import sys
+
+    from head360cli.errors import BadInputError
+
+    stdin = sys.stdin
+    if stdin is None or (hasattr(stdin, "isatty") and stdin.isatty()):
+        raise BadInputError(f"expected {what} on standard input ('-'), found a terminal: "
+                            "pipe one in (... | head360 ... -) or give a file")
 
 
 def is_pipe(path: str | os.PathLike[str]) -> bool:
