@@ -383,6 +383,9 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
     style = None if hair_style is None else style_index(hair_style)
     res = run(head, out, style, colour)
     was = int(res["from"]["hair_style"])
+    if colour is not None and res["hair_style"]["id"] == 0:
+        _warn("the head is bald (style 0): --color shows once it wears a hairstyle "
+              "(swap-hair --hair NAME)")
     _emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was "
           f"{HAIRSTYLES[was].name}, style {was})")
 

@@ -89,6 +89,9 @@ def test_cli_swap_hair(run_cli, head_file, tmp_path):
     assert r.code == 3 and "long wavy" in r.err and not (tmp_path / "x.h360").exists()
     r = run_cli("swap-hair", head_file, "--hair", "bob")
     assert r.code == 3
+    r = run_cli("swap-hair", head_file, "--hair", "bald", "--color", "red", "-o",
+                tmp_path / "bald.h360")
+    assert r.code == 0 and "the head is bald (style 0): --color shows once" in r.err
     for wrong in ("bob.png", "bob"):  # a head file under an image's name, or none
         r = run_cli("swap-hair", head_file, "--hair", "bob", "-o", tmp_path / wrong)
         assert r.code == 3 and "ending in .h360" in r.err and not (tmp_path / wrong).exists()
