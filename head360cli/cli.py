@@ -495,6 +495,8 @@ def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
 
     _cpu_only("parse-hair", "parses")
     r = parse_photo(photo, out_dir, face=face, detector=detector, learned_prior=not no_prior)
+    for warning in r["warnings"]:
+        _warn(warning)
     _emit(r, f"hair {100 * r['hair_fraction']:.1f}% and face {100 * r['face_fraction']:.1f}% "
           f"of the image{'' if r['seeded'] else _unseeded(r)}; wrote "
           f"{r['hair_mask']}, {r['face_mask']}, {r['overlay']}")

@@ -247,6 +247,23 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     return img, found, fit, model
 
 
+def prior_missing(learned_prior: bool) -> list[str]:
+    """The warning for a parse asked to use the learned hair prior when none is
+    installed (it then parses by colour and landmarks alone), else none."""
+    from head360cli.paths import models_dir
+
+    name = PRIOR_FILE  # hair_prior.FILE_NAME, named here to leave torch unimported
+    if not learned_prior or (models_dir() / name).is_file():
+        return []
+    return [f"the hair prior is not installed ({name} in the models folder): the hair "
+            "is parsed by colour and landmarks alone; 'head360 train-hair-prior' makes it"]
+
+
+PRIOR_FILE = "hair_prior.pt"
+"""The learned hair prior's file in the models folder (:data:`head360cli.fitting.
+hair_prior.FILE_NAME`; a test keeps the two equal)."""
+
+
 def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "hog"):
     """The face ``parse-hair`` seeds its parse with: face ``face`` of
     :func:`~head360cli.fitting.landmarks.find_faces` (as ``fit``, but without the second
@@ -313,6 +330,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     with atomic_path(paths["overlay"]) as tmp:
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
+            "warnings": prior_missing(learned_prior),
             "face_turn_degrees": None if found is None else found.turn,
             "profile_face": parse.profile, "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),
@@ -607,6 +625,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
                                                        found.landmarks, silhouettes)
     style = guess.ranking[0] if hair_style is None else int(hair_style)
+    warnings += prior_missing(learned_prior)
     if hair_style is None and not guess.matched:
         warnings.append(f"the parsed hair matches no hairstyle (best overlap "
                         f"{guess.iou.max():.3f}): fitted bald; choose a style with --hair")
@@ -760,11 +779,21 @@ def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 
 
 def generator_hash() -> str:
+    """SHA-256 of the installed generator's weights, which head files record.
+
+    Raises:
+        ModelNotFoundError: No weights installed (as :func:`load_generator` says).
+    """
     import hashlib
 
+    from head360cli.errors import ModelNotFoundError
     from head360cli.paths import models_dir
 
-    return hashlib.sha256((models_dir() / "generator.pt").read_bytes()).hexdigest()
+    path = models_dir() / "generator.pt"
+    if not path.is_file():
+        raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
+                                 "with 'head360 train'")
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:

@@ -140,3 +140,16 @@ def test_turntable_honours_no_hair_and_starts_at_yaw(run_cli, head_file, tmp_pat
                 "--samples", "2", "-o", tmp_path / "w.png")
     assert r.code == 0
     assert "--frames and --fps are not used without --turntable" in r.err
+
+
+def test_commands_without_the_generator_installed_say_what_is_missing(run_cli, head_file,
+                                                                      tmp_path, monkeypatch):
+    """render and animate read the generator's hash first, straight from the file: a
+    models folder without generator.pt ended them in an internal error
+    (FileNotFoundError) instead of exit 7."""
+    empty = tmp_path / "models"
+    empty.mkdir()
+    monkeypatch.setenv("HEAD360_MODELS", str(empty))
+    r = run_cli("render", head_file, "--size", "64", "-o", tmp_path / "v.png")
+    assert r.code == 7 and "generator weights not found" in r.err, r.err
+    assert not (tmp_path / "v.png").exists()

@@ -415,3 +415,29 @@ def test_the_shape_stage_says_which_whole_fit_options_it_does_not_use(run_cli, a
             in r.err)
     r = run_cli("fit", "--stage", "shape", astronaut, "-o", tmp_path, "--detector", "hog")
     assert r.code == 0 and "not used" not in r.err  # the detector is the shape stage's
+
+
+def test_a_parse_without_the_installed_hair_prior_says_so(run_cli, astronaut, tmp_path,
+                                                          monkeypatch):
+    """Without models/hair_prior.pt the parse ran by colour and landmarks alone, saying
+    so only in the JSON's learned_prior: false."""
+    import shutil
+
+    from head360cli.fitting import hair_prior, pipeline
+    from head360cli.paths import models_dir
+
+    assert pipeline.PRIOR_FILE == hair_prior.FILE_NAME
+    models = tmp_path / "models"
+    models.mkdir()
+    for f in models_dir().iterdir():
+        if f.is_file() and f.name != hair_prior.FILE_NAME:
+            shutil.copy(f, models / f.name)
+    monkeypatch.setenv("HEAD360_MODELS", str(models))
+    hair_prior.default_hair_prior.cache_clear()  # loaded by earlier tests in this process
+    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "p", "--json")
+    hair_prior.default_hair_prior.cache_clear()  # not this models folder's None for later
+    assert r.code == 0, r.err
+    assert "the hair prior is not installed" in r.err
+    assert json.loads(r.out)["learned_prior"] is False
+    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "q", "--no-prior")
+    assert r.code == 0 and "not installed" not in r.err
