@@ -1054,17 +1054,30 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
         return _failed(type(exc).__name__, str(exc), exc.exit_code, debug, as_json)
     except BrokenPipeError:
         return 0  # e.g. `head360 inspect x.csv | head`
+    except OSError as exc:
+        import errno
+
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
+            return _internal(exc, debug, as_json)
+        where = f" ({exc.filename})" if exc.filename else ""
+        return _failed("BadInputError", f"{exc.strerror or exc}{where}: free space or write "
+                       "elsewhere (nothing half-written was kept)",
+                       EXIT_CODES["BadInputError"], debug, as_json)
     except Exception as exc:
-        if is_out_of_memory(exc):  # not a bug: a resource the user can free or ask less of
-            message = (f"out of memory ({_memory_shortfall(exc)}): ask for less at once (a "
-                       f"smaller --size or --samples; animate: fewer frames a call, --batch), "
-                       f"free memory, or use another --device")
-            return _failed("OutOfMemory", message, EXIT_CODES["out_of_memory"], debug,
-                           as_json)
-        message = " ".join(f"{type(exc).__name__}: {exc}".split())
-        return _failed("InternalError", message, EXIT_CODES["internal"], debug, as_json,
-                       label="internal error",
-                       hint=" (run with --debug for the traceback; please report it)")
+        return _internal(exc, debug, as_json)
+
+
+def _internal(exc: Exception, debug: bool, as_json: bool) -> int:
+    """Report an exception no head360 error class names: out of memory, else a bug."""
+    if is_out_of_memory(exc):  # not a bug: a resource the user can free or ask less of
+        message = (f"out of memory ({_memory_shortfall(exc)}): ask for less at once (a "
+                   f"smaller --size or --samples; animate: fewer frames a call, --batch), "
+                   f"free memory, or use another --device")
+        return _failed("OutOfMemory", message, EXIT_CODES["out_of_memory"], debug, as_json)
+    message = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return _failed("InternalError", message, EXIT_CODES["internal"], debug, as_json,
+                   label="internal error",
+                   hint=" (run with --debug for the traceback; please report it)")
 
 
 if __name__ == "__main__":  # pragma: no cover

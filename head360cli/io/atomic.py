@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "check_dir_target", "check_file_target",
-           "check_folder_name", "commit_dir",
+           "check_folder_name", "check_writable", "commit_dir",
            "current_umask", "temp_dir_beside", "temp_name_beside"]
 
 
@@ -73,10 +73,29 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
             tmp.unlink()
 
 
+def check_writable(folder: Path) -> None:
+    """Refuse an existing ``folder`` that no file can be made in (read-only, no
+    permission, ``/proc``): outputs are written there as temporary files first, which
+    had failed only after the work, as an internal error.
+
+    Raises:
+        BadInputError: A file cannot be created there.
+    """
+    from head360cli.errors import BadInputError
+
+    try:
+        fd, name = tempfile.mkstemp(prefix=".head360-probe.", dir=folder)
+    except OSError as exc:
+        raise BadInputError(f"cannot write into output folder {str(folder)!r}: "
+                            f"{exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(name)
+
+
 def check_file_target(target: str | os.PathLike[str]) -> None:
-    """Refuse a file target whose folder does not exist or which is a folder (as
-    :func:`atomic_path` does when it is asked to write; callers with long work before the
-    write check first)."""
+    """Refuse a file target whose folder does not exist or cannot be written, or which is
+    a folder (as :func:`atomic_path` does when it is asked to write; callers with long
+    work before the write check first)."""
     from head360cli.errors import BadInputError
 
     target = Path(target)
@@ -84,6 +103,7 @@ def check_file_target(target: str | os.PathLike[str]) -> None:
         raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
     if target.is_dir():
         raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
+    check_writable(target.parent)
 
 
 FILE_SUFFIXES = frozenset((
@@ -95,10 +115,12 @@ for a mistaken file name."""
 
 def check_folder_name(target: str | os.PathLike[str]) -> None:
     """Refuse a new output folder named like a file (``-o heads.png`` for a command that
-    writes a folder); a folder that exists already is its owner's choice.
+    writes a folder; a folder that exists already is its owner's choice), or one that
+    cannot be written in (:func:`check_writable`, on its nearest existing folder).
 
     Raises:
-        BadInputError: ``target`` does not exist and ends in one of :data:`FILE_SUFFIXES`.
+        BadInputError: ``target`` does not exist and ends in one of :data:`FILE_SUFFIXES`,
+            or no file can be made where it is or would be.
     """
     from head360cli.errors import BadInputError
 
@@ -106,6 +128,11 @@ def check_folder_name(target: str | os.PathLike[str]) -> None:
     if target.suffix.lower() in FILE_SUFFIXES and not target.is_dir():
         raise BadInputError(f"expected a folder name for the outputs, found "
                             f"{str(target)!r}, a file's name")
+    existing = target
+    while not existing.exists() and existing != existing.parent:  # made with its parents
+        existing = existing.parent
+    if existing.is_dir():
+        check_writable(existing)
 
 
 def check_dir_target(target: Path, overwrite: bool) -> None:
@@ -117,6 +144,7 @@ def check_dir_target(target: Path, overwrite: bool) -> None:
         raise BadInputError(f"output folder {str(parent)!r} does not exist")
     if target.exists() and not target.is_dir():
         raise BadInputError(f"expected a folder for {str(target)!r}, found a file")
+    check_writable(parent)
     if target.is_dir() and any(target.iterdir()) and not overwrite:
         raise BadInputError(
             f"output folder {str(target)!r} is not empty; choose another name or allow overwrite"

@@ -23,7 +23,13 @@ from types import TracebackType
 import numpy as np
 
 from head360cli.errors import BadInputError
-from head360cli.io.atomic import check_dir_target, commit_dir, temp_dir_beside, temp_name_beside
+from head360cli.io.atomic import (
+    check_dir_target,
+    check_writable,
+    commit_dir,
+    temp_dir_beside,
+    temp_name_beside,
+)
 
 __all__ = ["VIDEO_SUFFIXES", "VideoWriter", "check_video_target", "output_kind", "write_video"]
 
@@ -73,6 +79,8 @@ def check_video_target(path: str | os.PathLike[str], overwrite: bool = False) ->
     writer = VideoWriter(path, overwrite=overwrite)  # checks the parent, file vs folder
     if writer.kind == "png":
         check_dir_target(writer.path, overwrite)
+    else:
+        check_writable(writer.path.parent)
 
 
 class VideoWriter:

@@ -153,3 +153,32 @@ def test_commands_without_the_generator_installed_say_what_is_missing(run_cli, h
     r = run_cli("render", head_file, "--size", "64", "-o", tmp_path / "v.png")
     assert r.code == 7 and "generator weights not found" in r.err, r.err
     assert not (tmp_path / "v.png").exists()
+
+
+def test_unwritable_folders_and_a_full_disk_are_clear_errors(run_cli, head_file, tmp_path,
+                                                             monkeypatch):
+    """An output folder no file can be made in failed after the work as an internal
+    error (PermissionError); so did a full disk (OSError ENOSPC)."""
+    import errno
+    import os
+
+    from PIL import Image
+
+    from head360cli.io import atomic
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied")
+
+    with monkeypatch.context() as m:
+        m.setattr(atomic.tempfile, "mkstemp", refuse)
+        r = run_cli("render", head_file, "--size", "64", "-o", tmp_path / "v.png")
+    assert r.code == 3 and "cannot write into output folder" in r.err, r.err
+    assert "Permission denied" in r.err
+
+    def full(self, fp, *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(fp))
+
+    monkeypatch.setattr(Image.Image, "save", full)
+    r = run_cli("render", head_file, "--size", "64", "-o", tmp_path / "v.png")
+    assert r.code == 3 and "No space left on device" in r.err and "free space" in r.err
+    assert list(tmp_path.iterdir()) == []  # the temporary file is gone too
