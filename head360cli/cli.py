@@ -1060,9 +1060,9 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
             return _internal(exc, debug, as_json)
         where = f" ({exc.filename})" if exc.filename else ""
-        return _failed("BadInputError", f"{exc.strerror or exc}{where}: free space or write "
-                       "elsewhere (nothing half-written was kept)",
-                       EXIT_CODES["BadInputError"], debug, as_json)
+        todo = "write elsewhere" if exc.errno == errno.EROFS else "free space or write elsewhere"
+        return _failed("BadInputError", f"{exc.strerror or exc}{where}: {todo} (nothing "
+                       "half-written was kept)", EXIT_CODES["BadInputError"], debug, as_json)
     except Exception as exc:
         return _internal(exc, debug, as_json)
 
