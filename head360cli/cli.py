@@ -539,6 +539,8 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
         raise BadInputError(f"expected --top between 1 and 30, found {top}")
     r = classify_photo(photo, face=face, detector=detector, top=top,
                        learned_prior=not no_prior)
+    for warning in r["warnings"]:
+        _warn(warning)
     lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "
              f"overlap {c['iou']:.3f}"
              + (" (the same silhouette as 1. from this view)"

@@ -212,6 +212,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     t0 = time.perf_counter()
     img = load_image(photo)
     check_focal(focal, *img.source_size)
+    warnings += first_frame(img)
     model = load_bilinear()
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -245,6 +246,14 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
                         " the far side of the face comes from the model, and the pose and "
                         "hairstyle may be off")
     return img, found, fit, model
+
+
+def first_frame(img) -> list[str]:
+    """The warning for a photo file of several frames or pages (an animated GIF, a TIFF
+    stack), of which only the first is read, else none."""
+    if img.frames <= 1:
+        return []
+    return [f"{Path(img.path).name} holds {img.frames} frames; the first is used"]
 
 
 def prior_missing(learned_prior: bool) -> list[str]:
@@ -330,7 +339,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     with atomic_path(paths["overlay"]) as tmp:
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
-            "warnings": prior_missing(learned_prior),
+            "warnings": first_frame(img) + prior_missing(learned_prior),
             "face_turn_degrees": None if found is None else found.turn,
             "profile_face": parse.profile, "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),
@@ -490,13 +499,15 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
             jobs.append(pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
                                     prior="learned" if learned_prior else None))
 
+        warnings: list[str] = []
         img, found, fit, model = _photo_stage(photo, face, detector, focal, timings,
-                                              on_face=start_parse)
+                                              warnings, on_face=start_parse)
         parse, timings["parse"] = jobs[0].result()
     t0 = time.perf_counter()
     guess, estimate, name, colour = _hair_guess(img, parse, fit, model, found.landmarks)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
+            "warnings": warnings + prior_missing(learned_prior),
             # False: no style overlaps the parsed hair enough (ranked as no hair)
             "hair_matches_a_style": guess.matched,
             "hair_color": [round(float(c), 4) for c in colour],

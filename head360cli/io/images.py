@@ -55,6 +55,7 @@ class LoadedImage:
         format: File format (``JPEG``, ``PNG``, ...).
         path: Where it was read from.
         focal_35mm: EXIF ``FocalLengthIn35mmFilm`` in millimetres, ``None`` when absent.
+        frames: Frames (or pages) in the file; the first is the one loaded.
     """
 
     pixels: np.ndarray
@@ -65,6 +66,7 @@ class LoadedImage:
     format: str
     path: str
     focal_35mm: float | None = None
+    frames: int = 1
 
     @property
     def size(self) -> tuple[int, int]:
@@ -256,6 +258,7 @@ def load_image(
         orient = _orientation(img)
         focal_35mm = _focal_35mm(img)
         mode, fmt = img.mode, img.format or "unknown"
+        frames = int(getattr(img, "n_frames", 1) or 1)
         longer = max(w, h)
         if max_side is not None and longer > max_side and fmt == "JPEG":
             # Decode a JPEG at 1/2, 1/4 or 1/8 scale directly: fast and memory-light.
@@ -286,4 +289,5 @@ def load_image(
         format=fmt,
         path=str(path),
         focal_35mm=focal_35mm,
+        frames=frames,
     )

@@ -441,3 +441,22 @@ def test_a_parse_without_the_installed_hair_prior_says_so(run_cli, astronaut, tm
     assert json.loads(r.out)["learned_prior"] is False
     r = run_cli("parse-hair", astronaut, "-o", tmp_path / "q", "--no-prior")
     assert r.code == 0 and "not installed" not in r.err
+
+
+def test_classify_hair_and_parse_hair_pass_on_the_photo_s_warnings(run_cli, astronaut,
+                                                                   tmp_path):
+    """classify-hair dropped the photo stage's warnings (greyscale, several faces, a
+    small face...), which fit prints; and a GIF or TIFF of several frames was read at its
+    first frame without a word."""
+    grey = tmp_path / "grey.png"
+    Image.open(astronaut).convert("L").save(grey)
+    r = run_cli("classify-hair", grey, "--json")
+    assert r.code == 0 and "greyscale photo" in r.err
+    assert any("greyscale" in w for w in json.loads(r.out)["warnings"])
+    frames = tmp_path / "two.gif"
+    first = Image.open(astronaut).convert("RGB")
+    first.save(frames, save_all=True, append_images=[Image.new("RGB", first.size)])
+    r = run_cli("parse-hair", frames, "-o", tmp_path / "p")
+    assert r.code == 0 and "two.gif holds 2 frames; the first is used" in r.err
+    r = run_cli("classify-hair", frames)
+    assert r.code == 0 and "two.gif holds 2 frames; the first is used" in r.err
