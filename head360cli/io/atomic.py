@@ -147,7 +147,8 @@ def check_dir_target(target: Path, overwrite: bool) -> None:
     check_writable(parent)
     if target.is_dir() and any(target.iterdir()) and not overwrite:
         raise BadInputError(
-            f"output folder {str(target)!r} is not empty; choose another name or allow overwrite"
+            f"expected a new or empty output folder, found {str(target)!r} holding files "
+            "(it would be replaced whole): choose another name, or empty it"
         )
 
 

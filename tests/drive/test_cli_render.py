@@ -95,14 +95,14 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_head_loads(
     cases = [
         (["render", head_file, "-o", tmp_path / "no" / "v.png"], "does not exist"),
         (["render", head_file, "-o", tmp_path / "taken.png"], None),
-        (["render", head_file, "--turntable", "-o", taken], "not empty"),
+        (["render", head_file, "--turntable", "-o", taken], "holding files"),
         (["render", head_file, "--turntable", "-o", tmp_path / "no" / "t.mp4"],
          "does not exist"),
         (["export-mesh", head_file, "-o", tmp_path / "no" / "h.glb"], "does not exist"),
-        (["animate", head_file, "--arkit", stream, "-o", taken], "not empty"),
+        (["animate", head_file, "--arkit", stream, "-o", taken], "holding files"),
         (["animate", head_file, "--arkit", stream, "-o", tmp_path / "no" / "a.mp4"],
          "does not exist"),
-        (["animate", head_file, "--arkit", stream, "--mesh-sequence", taken], "not empty"),
+        (["animate", head_file, "--arkit", stream, "--mesh-sequence", taken], "holding files"),
     ]
     (tmp_path / "taken.png").mkdir()  # a folder where the view's file should go
     for args, words in cases:

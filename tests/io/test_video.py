@@ -79,7 +79,7 @@ def test_png_folder(tmp_path):
     write_video(frames(5), out, fps=10)
     names = sorted(p.name for p in out.iterdir())
     assert names == [f"frame_{i:06d}.png" for i in range(5)]
-    with pytest.raises(BadInputError, match="not empty"):
+    with pytest.raises(BadInputError, match="holding files"):
         write_video(frames(2), out, fps=10)
     write_video(frames(2), out, fps=10, overwrite=True)
     assert len(list(out.iterdir())) == 2
