@@ -204,12 +204,13 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 
 
 @cli.command()
-@click.argument("head", type=_HEAD)
+@click.argument("head", type=_HEAD, required=False)
 @click.option("--arkit", required=True,
               help="ARKit-52 CSV stream (Live Link Face, MediaPipe names, generic), or - "
               "for standard input.")
 @click.option("-o", "--out", default=None, type=click.Path(),
-              help="Video: .mp4, .gif, or a folder for PNG frames.")
+              help="Video: .mp4, .gif, or a folder for PNG frames (default, without "
+              "--mesh-sequence: <stream stem>.mp4, never over an existing file).")
 @click.option("--mesh-sequence", "mesh_dir", default=None, type=click.Path(),
               help="Also write one OBJ per frame into this new folder.")
 @click.option("--head-pose", is_flag=True, help="Apply the stream's head rotation.")
@@ -240,7 +241,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @_quality_options
 @_backend_options
 @common_options
-def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_pose: bool,
+def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
+            head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
             yaw: float, pitch: float, on_bad: str, workers: int | None, batch: int | None,
             samples: int | None, size: int | None, exact: bool, precision: str,
@@ -249,11 +251,13 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
 
     Only the mesh is recomputed per frame, and with a still camera only the parts of the
     head it moved are decoded again; frames stream to the encoder, so memory does not grow
-    with the length of the take.
+    with the length of the take. Without HEAD, the model's mean head is driven (to try a
+    stream before any photo is fitted).
 
     \b
     Examples:
       head360 animate me.h360 --arkit take.csv -o talk.mp4
+      head360 animate --arkit take.csv -o mean.mp4         the mean head
       head360 animate me.h360 --arkit take.csv --head-pose --start 2 --end 8 -o clip.gif
       head360 animate me.h360 --arkit take.csv --fps 30 --smooth 0.03 -o talk.mp4
       cat take.csv | head360 animate me.h360 --arkit - -o talk.mp4
@@ -264,8 +268,12 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     from head360cli.drive.animate import animate as run
     from head360cli.io.arkit import read_arkit_csv
 
-    if out is None and mesh_dir is None:
-        raise BadInputError("expected -o OUT and/or --mesh-sequence DIR, found neither")
+    if out is None and mesh_dir is None:  # as fit names its head after the photo
+        from head360cli.io.sources import input_stem
+
+        out = f"{'stream' if arkit == '-' else input_stem(arkit)}.mp4"
+        if Path(out).exists():  # a name the user did not choose never replaces a file
+            raise BadInputError(f"expected -o OUT (the default {out} exists already)")
     from head360cli.drive.animate import MAX_FPS, MIN_FPS
 
     if fps is not None and not MIN_FPS <= fps <= MAX_FPS:
@@ -303,6 +311,14 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
     for warning in stream.warnings:
         _warn(warning)
+    scratch = None  # the mean head's file when no HEAD is given, removed at the end
+    if head is None:
+        import tempfile
+
+        _warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
+              "PHOTO and give the .h360)")
+        scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
+        head = str(_mean_head_file(Path(scratch.name)))
 
     def load():
         r = _backend_renderer(head, backend, onnx_path,
@@ -318,8 +334,12 @@ def animate(head: str, arkit: str, out: str | None, mesh_dir: str | None, head_p
     # given the loader, run() starts the processes that render frames on a CPU before
     # it loads the head (with --device auto on a GPU machine they end unused)
     on_cpu = backend == "torch" and not on_gpu
-    res = run(load if on_cpu else load(), stream, out, cfg, mesh_dir=mesh_dir,
-              progress=_progress_printer())
+    try:
+        res = run(load if on_cpu else load(), stream, out, cfg, mesh_dir=mesh_dir,
+                  progress=_progress_printer())
+    finally:
+        if scratch is not None:
+            scratch.cleanup()
     for warning in res.get("warnings", []):
         _warn(warning)
     text = (f"animated {res['frames']} frames ({res['duration_s']:.2f} s at "
@@ -388,6 +408,15 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
               "(swap-hair --hair NAME)")
     _emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was "
           f"{HAIRSTYLES[was].name}, style {was})")
+
+
+def _mean_head_file(folder: Path) -> Path:
+    """The model's mean head (seed 0's hairstyle and colour, lids fitted) as a head file
+    in ``folder``."""
+    from head360cli.drive.sample import sample_heads
+    from head360cli.io.headfile import write_head
+
+    return write_head(sample_heads(1, seed=0, scale=0.0)[0], folder / "mean.h360")
 
 
 def _mean_head_renderer(device: str | None = None):

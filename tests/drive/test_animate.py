@@ -258,8 +258,6 @@ def test_cli_animate_errors(run_cli, head_file, tmp_path):
     bad.write_text("foo,bar\n1,2\n")
     r = run_cli("animate", head_file, "--arkit", bad, "-o", tmp_path / "a.mp4")
     assert r.code == 3 and not (tmp_path / "a.mp4").exists()
-    r = run_cli("animate", head_file, "--arkit", bad)
-    assert r.code == 3 and "--mesh-sequence" in r.err
     good = tmp_path / "good.csv"
     good.write_text("time,jawOpen\n0,0.1\n0.1,0.5\n")
     for args, says in ((("--pitch", "95"), "pitch within +-90 degrees, found 0.0, 95.0"),
@@ -269,6 +267,25 @@ def test_cli_animate_errors(run_cli, head_file, tmp_path):
         r = run_cli("animate", head_file, "--arkit", good, "-o", tmp_path / "a.mp4", *args)
         assert r.code == 3 and says in r.err, (args, r.err)
         assert not (tmp_path / "a.mp4").exists()
+
+
+def test_cli_animate_names_its_video_after_the_stream_and_can_drive_the_mean_head(
+        run_cli, tmp_path, monkeypatch):
+    """'head360 animate --arkit stream.csv', as the design card writes it, asked for a
+    HEAD and for -o; it now drives the model's mean head into stream.mp4 (never over an
+    existing file)."""
+    import imageio_ffmpeg
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "stream.csv").write_text("time,jawOpen\n0,0.1\n0.05,0.9\n0.1,0.2\n")
+    r = run_cli("animate", "--arkit", "stream.csv", "--size", "32", "--samples", "2")
+    assert r.code == 0, r.err
+    assert "no HEAD given: driving the model's mean head" in r.err
+    reader = imageio_ffmpeg.read_frames(str(tmp_path / "stream.mp4"))
+    assert next(reader)["size"] == (32, 32) and sum(1 for _ in reader) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stream.csv", "stream.mp4"]
+    r = run_cli("animate", "--arkit", "stream.csv", "--size", "32")
+    assert r.code == 3 and "the default stream.mp4 exists already" in r.err
 
 
 def test_head_motion_is_rigid_about_the_pivot():
