@@ -61,8 +61,11 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         The temporary path to write to. It does not exist yet.
     """
     target = Path(target)
-    check_file_target(target)
-    tmp = temp_name_beside(target)
+    _check_file_name(target)  # no probe: making the temporary name below is one
+    try:
+        tmp = temp_name_beside(target)
+    except OSError as exc:
+        raise _unwritable(target.parent, exc) from None
     try:
         yield tmp
         if not tmp.exists():
@@ -81,28 +84,37 @@ def check_writable(folder: Path) -> None:
     Raises:
         BadInputError: A file cannot be created there.
     """
-    from head360cli.errors import BadInputError
-
     try:
         fd, name = tempfile.mkstemp(prefix=".head360-probe.", dir=folder)
     except OSError as exc:
-        raise BadInputError(f"cannot write into output folder {str(folder)!r}: "
-                            f"{exc.strerror or exc}") from None
+        raise _unwritable(folder, exc) from None
     os.close(fd)
     os.unlink(name)
+
+
+def _unwritable(folder: Path, exc: OSError) -> Exception:
+    from head360cli.errors import BadInputError
+
+    return BadInputError(f"cannot write into output folder {str(folder)!r}: "
+                         f"{exc.strerror or exc}")
+
+
+def _check_file_name(target: Path) -> None:
+    """Refuse a file target whose folder does not exist, or which is a folder."""
+    from head360cli.errors import BadInputError
+
+    if not target.parent.is_dir():
+        raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
+    if target.is_dir():
+        raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
 
 
 def check_file_target(target: str | os.PathLike[str]) -> None:
     """Refuse a file target whose folder does not exist or cannot be written, or which is
     a folder (as :func:`atomic_path` does when it is asked to write; callers with long
     work before the write check first)."""
-    from head360cli.errors import BadInputError
-
     target = Path(target)
-    if not target.parent.is_dir():
-        raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
-    if target.is_dir():
-        raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
+    _check_file_name(target)
     check_writable(target.parent)
 
 
