@@ -147,6 +147,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     import numpy as np
 
     from head360cli.drive.views import (
+        check_angles,
         grid_image,
         parse_expression,
         parse_views,
@@ -156,9 +157,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     )
 
     w = parse_expression(expr)
-    if not (np.isfinite(yaw) and np.isfinite(pitch) and abs(pitch) <= 90):
-        raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
-                            f"{yaw}, {pitch}")
+    check_angles(yaw, pitch)
     if turntable and views is not None:
         raise BadInputError("expected --turntable or --views, found both")
     if turntable and not 1 <= frames <= 3600:
@@ -284,9 +283,9 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
     if batch is not None and not 1 <= batch <= 1024:
         raise BadInputError(f"expected --batch between 1 and 1024, found {batch}")
-    if not (math.isfinite(yaw) and math.isfinite(pitch) and abs(pitch) <= 90):  # as render
-        raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
-                            f"{yaw}, {pitch}")
+    from head360cli.drive.views import check_angles
+
+    check_angles(yaw, pitch)  # as render
     for name, value in (("--start", start), ("--end", end)):
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise BadInputError(f"expected {name} in seconds from the stream's start (0 or "

@@ -7,6 +7,7 @@ looks from above.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +85,19 @@ def parse_expression(text: str | None) -> np.ndarray:
     return w
 
 
+def check_angles(yaw: float, pitch: float, found: str | None = None) -> None:
+    """Refuse a view (degrees) with a yaw that is not finite or a pitch past a pole, as
+    ``render``, ``animate`` and ``--views`` take them; ``found`` names it in the message
+    (default: the two numbers).
+
+    Raises:
+        BadInputError: Either is out of range.
+    """
+    if not (math.isfinite(yaw) and math.isfinite(pitch) and abs(pitch) <= 90):
+        raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
+                            f"{found or f'{yaw}, {pitch}'}")
+
+
 def parse_views(text: str) -> list[tuple[float, float]]:
     """Views from ``"0,45,90"`` (yaws at pitch 0) or ``"0:0,45:20,180:-10"`` (yaw:pitch),
     in degrees.
@@ -102,9 +116,7 @@ def parse_views(text: str) -> list[tuple[float, float]]:
         except ValueError:
             raise BadInputError(f"expected YAW or YAW:PITCH in degrees, found {item!r}"
                                 ) from None
-        if not all(np.isfinite(v)) or abs(v[1]) > 90:
-            raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, "
-                                f"found {item!r}")
+        check_angles(*v, found=repr(item))
         views.append(v)
     if not views:
         raise BadInputError(f"expected at least one view, found {text!r}")
