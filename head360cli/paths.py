@@ -5,7 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["cache_dir", "dlib_model_files", "models_dir", "shared_data_dir"]
+__all__ = ["cache_dir", "dlib_model_files", "installed_generator", "models_dir",
+           "shared_data_dir"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -23,6 +24,22 @@ def models_dir() -> Path:
     if checkout.is_dir() and (_PACKAGE.parent / "pyproject.toml").is_file():
         return checkout
     return _PACKAGE / "_models"
+
+
+def installed_generator(path: str | os.PathLike[str] | None = None) -> Path:
+    """The generator weights at ``path`` (default ``generator.pt`` in :func:`models_dir`),
+    once known to be there.
+
+    Raises:
+        ModelNotFoundError: No file there.
+    """
+    from head360cli.errors import ModelNotFoundError
+
+    path = models_dir() / "generator.pt" if path is None else Path(path)
+    if not path.is_file():
+        raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
+                                 "with 'head360 train'")
+    return path
 
 
 def shared_data_dir() -> Path | None:

@@ -797,14 +797,9 @@ def generator_hash() -> str:
     """
     import hashlib
 
-    from head360cli.errors import ModelNotFoundError
-    from head360cli.paths import models_dir
+    from head360cli.paths import installed_generator
 
-    path = models_dir() / "generator.pt"
-    if not path.is_file():
-        raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
-                                 "with 'head360 train'")
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(installed_generator().read_bytes()).hexdigest()
 
 
 def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:

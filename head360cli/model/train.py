@@ -316,16 +316,10 @@ def load_generator(path: str | Path | None = None, device: str = "cpu"
         ModelNotFoundError: No weights at ``path`` (default ``models/generator.pt``).
         FileFormatError: Not head360 generator weights.
     """
-    from head360cli.errors import FileFormatError, ModelNotFoundError
+    from head360cli.errors import FileFormatError
+    from head360cli.paths import installed_generator
 
-    if path is None:
-        from head360cli.paths import models_dir
-
-        path = models_dir() / "generator.pt"
-    path = Path(path)
-    if not path.is_file():
-        raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
-                                 "with 'head360 train'")
+    path = installed_generator(path)
     w, cfg = _read_weights(path)
     try:
         gen = Generator(cfg, *_topology())
