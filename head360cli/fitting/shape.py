@@ -36,7 +36,8 @@ from head360cli.errors import BadInputError
 from head360cli.geometry.rig import RIG_TARGET
 from head360cli.mesh.bilinear import BilinearModel
 
-__all__ = ["FitConfig", "ShapeFit", "ShapeFitter", "check_camera", "default_focal"]
+__all__ = ["FOCAL_35MM_RANGE", "FitConfig", "ShapeFit", "ShapeFitter", "check_camera",
+           "check_focal", "default_focal"]
 
 
 def _mv(a: np.ndarray, v: np.ndarray) -> np.ndarray:
