@@ -320,8 +320,8 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
         cfg, outdir,
         progress=lambda it, total: progress_bar(it, total, "identities",
                                                 enabled=not settings.quiet))
-    per_view = summary["seconds"] / max(1, 2 * summary["views"]) if summary[
-        "identities_written"] else 0.0
+    # Two images (with and without hair) per view written this run; skipped ones cost nothing.
+    per_view = summary["seconds"] / max(1, 2 * summary["views_written"])
     summary["ms_per_image_all_in"] = round(1000 * per_view, 1)  # incl. building heads
     _emit(summary, f"wrote {summary['identities_written']} identities "
                    f"({summary['identities_skipped']} already there), {summary['views']} "

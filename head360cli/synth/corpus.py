@@ -181,7 +181,8 @@ def write_corpus(cfg: CorpusConfig, outdir: str | os.PathLike[str],
         progress: Wraps the identity loop (e.g. a progress bar): ``progress(it, total)``.
 
     Returns:
-        A summary: images written, identities written and skipped, seconds, paths.
+        A summary: identities written and skipped, ``views`` (records in the whole index),
+        ``views_written`` (records written by this call), seconds, paths.
 
     Raises:
         FileFormatError: ``outdir`` holds a corpus written with another configuration.
@@ -211,7 +212,7 @@ def write_corpus(cfg: CorpusConfig, outdir: str | os.PathLike[str],
         tmp.write_text(json.dumps({"format": CORPUS_FORMAT, "config": new_cfg}, indent=1))
 
     t0 = time.perf_counter()
-    written = skipped = 0
+    written = skipped = images_written = 0
     indices = range(cfg.start, cfg.start + cfg.identities)
     loop = progress(indices, len(indices)) if progress else indices
     for index in loop:
@@ -225,7 +226,7 @@ def write_corpus(cfg: CorpusConfig, outdir: str | os.PathLike[str],
             shutil.rmtree(folder)
         tmp = temp_dir_beside(folder)
         try:
-            _write_identity(cfg, index, tmp, rel)
+            images_written += len(_write_identity(cfg, index, tmp, rel))
             commit_dir(tmp, folder)
         finally:
             if tmp.exists():
@@ -234,7 +235,7 @@ def write_corpus(cfg: CorpusConfig, outdir: str | os.PathLike[str],
     seconds = time.perf_counter() - t0
     images = _rebuild_index(out)
     return {"outdir": str(out), "identities_written": written, "identities_skipped": skipped,
-            "views": images, "seconds": round(seconds, 2),
+            "views": images, "views_written": images_written, "seconds": round(seconds, 2),
             "index": str(out / "index.jsonl")}
 
 

@@ -57,6 +57,7 @@ def test_resume_skips_finished_identities(tmp_path):
     second = write_corpus(TINY, tmp_path)
     assert (second["identities_written"], second["identities_skipped"]) == (1, 1)
     assert second["views"] == 12
+    assert (first["views_written"], second["views_written"]) == (6, 6)
 
 
 def test_other_settings_in_the_same_folder_are_refused(tmp_path):
@@ -97,7 +98,16 @@ def test_cli_synth(run_cli, tmp_path):
     assert r.code == 0, r.err
     summary = json.loads(r.out)
     assert summary["views"] == 2 and summary["identities_written"] == 1
+    assert summary["ms_per_image_all_in"] == pytest.approx(1000 * summary["seconds"] / 4,
+                                                           abs=0.06)
     assert run_cli("synth", tmp_path / "c", "--views", "99").code == 3
+    # A resumed run prices only the images it wrote, not those it skipped.
+    r = run_cli("synth", tmp_path / "c", "-n", "3", "-e", "1", "-v", "2", "--size", "32",
+                "--json")
+    resumed = json.loads(r.out)
+    assert (resumed["views"], resumed["views_written"]) == (6, 4)
+    assert resumed["ms_per_image_all_in"] == pytest.approx(1000 * resumed["seconds"] / 8,
+                                                           abs=0.06)
 
 
 def test_contact_sheets(tmp_path):
