@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import numpy as np
 import torch
 
-__all__ = ["REUSE_TOL", "HeadRenderer", "to_uint8"]
+__all__ = ["REUSE_TOL", "HeadRenderer", "check_frame_inputs", "to_uint8"]
 
 REUSE_TOL = 1e-3
 """Default tolerance of reusing decoded points between frames seen by a still camera (see
@@ -28,6 +28,37 @@ within 4.6e-4 of those decoded afresh (tol 1e-4: 36 % decoded, equal to 1e-6).""
 def to_uint8(rgb: torch.Tensor) -> np.ndarray:
     """``(B, 3, H, W)`` in [0, 1] -> ``(B, H, W, 3)`` uint8."""
     return (rgb.clamp(0, 1) * 255).round().byte().permute(0, 2, 3, 1).cpu().numpy()
+
+
+def check_frame_inputs(c2w, weights, intrinsics) -> tuple[torch.Tensor, np.ndarray,
+                                                             torch.Tensor]:
+    """Check what :meth:`HeadRenderer.frames` renders: cameras ``(N, 4, 4)``, ARKit
+    weights ``(N, 52)`` and intrinsics ``(3, 3)``, all finite (tensors or arrays).
+
+    Returns:
+        ``c2w`` and ``intrinsics`` as float32 tensors (on their own device), ``weights`` as
+        a float32 array.
+
+    Raises:
+        ValueError: Another shape, another number of weights than of cameras, or a value
+            that is not finite; the message says which, expected against found.
+    """
+    c2w = torch.as_tensor(c2w, dtype=torch.float32)
+    intrinsics = torch.as_tensor(intrinsics, dtype=torch.float32)
+    weights = np.asarray(weights, np.float32)
+    if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
+        raise ValueError(f"expected cameras of shape (N, 4, 4), found {tuple(c2w.shape)}")
+    if weights.shape != (len(c2w), 52):
+        raise ValueError(f"expected ARKit weights of shape ({len(c2w)}, 52), one row per "
+                         f"camera, found {weights.shape}")
+    if intrinsics.shape != (3, 3):
+        raise ValueError(f"expected intrinsics of shape (3, 3), found "
+                         f"{tuple(intrinsics.shape)}")
+    for name, values in (("cameras", c2w), ("intrinsics", intrinsics),
+                         ("ARKit weights", torch.from_numpy(weights))):
+        if not bool(torch.isfinite(values).all()):
+            raise ValueError(f"expected finite {name}, found NaN or infinity")
+    return c2w, weights, intrinsics
 
 
 class HeadRenderer:
@@ -272,7 +303,12 @@ class HeadRenderer:
             Per batch, ``(b, H, W, 3)`` uint8 frames (or ``(b, 3, H, W)`` float tensors in
             [0, 1] with ``uint8=False``). Nothing is kept between batches, so memory does
             not grow with the number of frames.
+
+        Raises:
+            ValueError: The cameras, weights or intrinsics are not of those shapes, not
+                as many weights as cameras, or not finite (on the first frame asked for).
         """
+        c2w, weights, intrinsics = check_frame_inputs(c2w, weights, intrinsics)
         k = intrinsics.to(self.device)
         batch = batch or (1 if self.device.type == "cpu" else 32)
         if drive:

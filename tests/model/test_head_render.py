@@ -166,3 +166,29 @@ def test_driven_deltas_are_the_exported_morph_targets(renderer):
     closed[[INDEX["eyeBlinkLeft"], INDEX["eyeBlinkRight"]]] = 1.0
     np.testing.assert_allclose(got[0] - np.tensordot(w[0] - closed, targets, 1),
                                r.model.vertices(r.shape, closed), atol=2e-5)
+
+
+def test_frames_check_their_inputs_before_rendering(renderer):
+    """Shapes, counts and finiteness are checked at the library's rendering entry; before,
+    a third row of weights was ignored, NaN weights rendered, and (N, 51) weights or numpy
+    cameras failed deep inside with torch's or numpy's own messages."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    cams, k = view_cameras([0.0, 30.0], 0.0), view_intrinsics(64)
+    w = np.zeros((2, 52))
+    bad = [
+        ((cams, np.zeros((3, 52)), k), r"weights of shape \(2, 52\).*found \(3, 52\)"),
+        ((cams, np.zeros((2, 51)), k), r"found \(2, 51\)"),
+        ((cams, np.zeros(52), k), r"found \(52,\)"),
+        ((cams, np.full((2, 52), np.nan), k), "finite ARKit weights"),
+        ((cams[:, :3], w, k), r"cameras of shape \(N, 4, 4\), found \(2, 3, 4\)"),
+        ((cams * float("inf"), w, k), "finite cameras"),
+        ((cams, w, k[:2, :2]), r"intrinsics of shape \(3, 3\), found \(2, 2\)"),
+    ]
+    for args, message in bad:
+        with pytest.raises(ValueError, match=message):
+            next(renderer.frames(*args))
+    # numpy cameras and intrinsics render as tensors do
+    a = next(renderer.frames(cams[:1], w[:1], k))
+    b = next(renderer.frames(cams[:1].numpy().astype(np.float64), w[:1], k.numpy()))
+    assert a.shape == (1, 64, 64, 3) and np.array_equal(a, b)
