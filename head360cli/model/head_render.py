@@ -107,8 +107,10 @@ class HeadRenderer:
         if precision not in ("auto", "fp32", "bf16"):
             raise ValueError(f"expected precision auto, fp32 or bf16, found {precision!r}")
         self.gen = gen
-        self.samples = samples or gen.cfg.samples
-        self.size = size or gen.cfg.image_res
+        if samples is not None and not (isinstance(samples, int | np.integer) and samples >= 1):
+            raise ValueError(f"expected samples per ray >= 1 or None, found {samples!r}")
+        self.samples = gen.cfg.samples if samples is None else int(samples)
+        self.size = gen.cfg.image_res if size is None else size
         gen.image_size(self.size)  # raises ValueError now for a size it cannot make
         self.device = next(gen.parameters()).device
         if precision == "auto":

@@ -192,3 +192,17 @@ def test_frames_check_their_inputs_before_rendering(renderer):
     a = next(renderer.frames(cams[:1], w[:1], k))
     b = next(renderer.frames(cams[:1].numpy().astype(np.float64), w[:1], k.numpy()))
     assert a.shape == (1, 64, 64, 3) and np.array_equal(a, b)
+
+
+def test_zero_size_or_samples_is_refused_not_taken_for_the_default(head_file):
+    """``size=0`` and ``samples=0`` meant "the generator's own" (``size or default``);
+    they are refused as other impossible values are."""
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    with pytest.raises(ValueError, match="multiple of 2 and at least 16, found 0"):
+        load_head_renderer(head_file, size=0)
+    for samples in (0, -2, 2.5):
+        with pytest.raises(ValueError, match=f"samples per ray >= 1 or None, found {samples}"):
+            load_head_renderer(head_file, samples=samples)
+    r = load_head_renderer(head_file, samples=np.int64(3), size=None)
+    assert (r.samples, r.size) == (3, r.gen.cfg.image_res)
