@@ -21,21 +21,37 @@ __all__ = ["grid_image", "parse_expression", "parse_views", "view_cameras",
 
 def view_cameras(yaw_deg, pitch_deg):
     """``(B, 4, 4)`` cameras at the rig's distance for yaws and pitches ``(B,)`` in
-    degrees."""
+    degrees (scalars broadcast).
+
+    Raises:
+        BadInputError: A yaw that is not finite or a pitch past a pole (as
+            :func:`check_angles`).
+    """
     import torch
 
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
-    yaw = torch.as_tensor(np.atleast_1d(np.asarray(yaw_deg, np.float32)))
-    pitch = torch.as_tensor(np.atleast_1d(np.asarray(pitch_deg, np.float32)))
-    yaw, pitch = torch.broadcast_tensors(yaw, pitch)
-    return camera_on_sphere(yaw, pitch, RIG_DISTANCE)
+    yaw = np.atleast_1d(np.asarray(yaw_deg, np.float32))
+    pitch = np.atleast_1d(np.asarray(pitch_deg, np.float32))
+    yaw, pitch = np.broadcast_arrays(yaw, pitch)
+    bad = ~(np.isfinite(yaw) & np.isfinite(pitch) & (np.abs(pitch) <= 90))
+    if bad.any():
+        i = int(np.argmax(bad))
+        check_angles(float(yaw[i]), float(pitch[i]))
+    return camera_on_sphere(torch.from_numpy(yaw.copy()), torch.from_numpy(pitch.copy()),
+                            RIG_DISTANCE)
 
 
 def view_intrinsics(size: int):
-    """``(3, 3)`` intrinsics of the rig's lens for a ``size`` x ``size`` image."""
+    """``(3, 3)`` intrinsics of the rig's lens for a ``size`` x ``size`` image.
+
+    Raises:
+        ValueError: ``size`` is below 1.
+    """
     from head360cli.geometry.cameras import RIG_FOV_DEG, intrinsics_from_fov
 
+    if not size >= 1:
+        raise ValueError(f"expected an image size >= 1, found {size}")
     return intrinsics_from_fov(RIG_FOV_DEG, size, size)
 
 
@@ -152,9 +168,20 @@ def check_grid_size(views: int, size: int) -> None:
 def grid_image(images: np.ndarray, labels: list[str] | None = None, cols: int | None = None
                ) -> np.ndarray:
     """Tile ``(N, H, W, 3)`` uint8 images into one image, ``cols`` per row (default: a
-    near-square grid), with an optional label under each."""
+    near-square grid), with an optional label under each.
+
+    Raises:
+        ValueError: No images, images of another shape or type than ``(N, H, W, 3)``
+            uint8, or not one label per image.
+    """
     import cv2
 
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[3] != 3 or images.dtype != np.uint8 or not len(images):
+        raise ValueError(f"expected (N >= 1, H, W, 3) uint8 images, found {images.shape} "
+                         f"{images.dtype}")
+    if labels is not None and len(labels) != len(images):
+        raise ValueError(f"expected one label per image ({len(images)}), found {len(labels)}")
     n, h, w = images.shape[:3]
     cols = cols or int(np.ceil(np.sqrt(n)))
     rows = int(np.ceil(n / cols))

@@ -29,6 +29,20 @@ def test_yaw_zero_is_the_rig_front_camera_and_positive_yaw_sees_the_left_side():
     assert above[1] > 0.5
 
 
+def test_cameras_and_intrinsics_refuse_impossible_views():
+    """Library callers get the CLI's angle check; before, a pitch of 100 rendered past the
+    pole and NaN gave NaN cameras."""
+    from head360cli.drive.views import view_intrinsics
+
+    assert view_cameras([0.0, 90.0, 720.0], [-90.0, 90.0, 0.0]).shape == (3, 4, 4)
+    for yaw, pitch, found in ((0.0, 100.0, "0.0, 100.0"), ([0.0, np.nan], 0.0, "nan, 0.0"),
+                              (np.inf, 0.0, "inf, 0.0"), (0.0, [10.0, -91.0], "0.0, -91.0")):
+        with pytest.raises(BadInputError, match=f"pitch within [+]-90 degrees, found {found}"):
+            view_cameras(yaw, pitch)
+    with pytest.raises(ValueError, match="image size >= 1, found 0"):
+        view_intrinsics(0)
+
+
 def test_parse_expression_accepts_any_spelling_and_rejects_bad_items():
     w = parse_expression("JawOpen=0.8, eyeBlinkLeft=1,mouthSmile_L=0.25")
     assert w[INDEX["jawOpen"]] == pytest.approx(0.8)
@@ -59,6 +73,13 @@ def test_grid_image_tiles_in_rows():
     assert g.shape == (16, 30, 3)
     assert (g[8:, 10:20] == 80).all() and (g[8:, 20:] == 255).all()
     assert grid_image(tiles, ["a"] * 5, cols=5).shape[0] > 8
+    # no images (a ZeroDivisionError before), float frames (cast to black), short labels
+    for images, labels, message in ((tiles[:0], None, r"found \(0, 8, 10, 3\) uint8"),
+                                    (tiles / 255.0, None, "float64"),
+                                    (tiles[..., 0], None, r"\(5, 8, 10\)"),
+                                    (tiles, ["a"], r"one label per image \(5\), found 1")):
+        with pytest.raises(ValueError, match=message):
+            grid_image(images, labels)
 
 
 def test_turntable_streams_every_frame(head_file, tmp_path):
