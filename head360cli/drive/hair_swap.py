@@ -17,10 +17,10 @@ from head360cli.errors import BadInputError
 __all__ = ["list_styles", "parse_colour", "style_sheet", "swap_hair"]
 
 
-def parse_colour(text: str) -> tuple[str, np.ndarray]:
+def parse_colour(text) -> tuple[str, np.ndarray]:
     """A hair colour from a SynHead-P colour name (``"dark brown"``), an sRGB hex code
     (``"#6b4423"`` or ``"#642"``) or three linear RGB numbers in [0, 1]
-    (``"0.2,0.1,0.05"``).
+    (``"0.2,0.1,0.05"``, or from Python a sequence or array of three).
 
     Returns:
         ``(name, linear RGB (3,))``; the name is the nearest SynHead-P colour's.
@@ -31,6 +31,9 @@ def parse_colour(text: str) -> tuple[str, np.ndarray]:
     from head360cli.fitting.hair_class import nearest_colour_name
     from head360cli.synth.hair import HAIR_COLOURS
 
+    if not isinstance(text, str):  # numbers from Python: read as the R,G,B text form
+        values = np.asarray(text, dtype=object).reshape(-1)
+        text = ",".join(str(v) for v in values) if len(values) == 3 else repr(text)
     name = " ".join(text.strip().lower().replace("_", " ").replace("-", " ").split())
     if name in HAIR_COLOURS:
         return name, np.asarray(HAIR_COLOURS[name], np.float64)
@@ -68,23 +71,29 @@ def list_styles() -> list[dict[str, Any]]:
             for i, s in enumerate(HAIRSTYLES)]
 
 
-def swap_hair(head_path: str | Path, out: str | Path, style: int | None = None,
-              colour: str | None = None) -> dict[str, Any]:
-    """Write a copy of a head file wearing hairstyle ``style`` and/or ``colour``.
+def swap_hair(head_path: str | Path, out: str | Path, style: int | str | None = None,
+              colour: str | Any = None) -> dict[str, Any]:
+    """Write a copy of a head file wearing hairstyle ``style`` (an id or a name, see
+    :func:`~head360cli.synth.hair.style_index`) and/or ``colour`` (see
+    :func:`parse_colour`).
 
     Raises:
-        BadInputError: Neither a style nor a colour given, or ``out`` not a ``.h360``
-            name in an existing folder.
+        BadInputError: Neither a style nor a colour given, an unknown style or colour, or
+            ``out`` not a ``.h360`` name in an existing folder.
         FileFormatError: Not a head file, or one without a head's arrays.
     """
     import dataclasses
 
     from head360cli.io.atomic import check_file_target
     from head360cli.io.headfile import HEAD_ARRAYS, read_head, write_head
-    from head360cli.synth.hair import HAIRSTYLES
+    from head360cli.synth.hair import HAIRSTYLES, style_index
 
     if style is None and colour is None:
         raise BadInputError("expected --hair and/or --color, found neither")
+    if style is not None:
+        style = style_index(int(style) if isinstance(style, np.integer) else style)
+    if colour is not None:
+        parse_colour(colour)  # before any file is read
     if Path(out).suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
     check_file_target(out)

@@ -55,6 +55,24 @@ def test_swap_rewrites_only_the_hair(head_file, tmp_path):
         swap_hair(head_file, tmp_path / "x.h360")
 
 
+def test_library_swap_takes_names_numbers_and_refuses_unknown_styles(head_file, tmp_path):
+    """From Python, style 99 was an IndexError, -1 wore the last style until the file
+    check refused it, and a colour tuple an AttributeError."""
+    res = swap_hair(head_file, tmp_path / "a.h360", style="bob", colour=(0.5, 0.2, 0.1))
+    assert res["hair_style"]["name"] == "bob"
+    assert res["hair_color"] == pytest.approx([0.5, 0.2, 0.1])
+    res = swap_hair(head_file, tmp_path / "b.h360", style=np.int64(3),
+                    colour=np.array([0.1, 0.1, 0.1]))
+    assert res["hair_style"]["id"] == 3
+    for style, colour, message in ((99, None, "hairstyle id 0..29, found 99"),
+                                   (-1, None, "hairstyle id 0..29, found -1"),
+                                   (None, (2.0, 0, 0), r"in \[0, 1\], found '2.0,0,0'"),
+                                   (None, (0.1, 0.2), "found '[(]0.1, 0.2[)]'")):
+        with pytest.raises(BadInputError, match=message):
+            swap_hair(head_file, tmp_path / "c.h360", style=style, colour=colour)
+    assert not (tmp_path / "c.h360").exists()
+
+
 def test_swap_leaves_the_face_unchanged(head_file):
     """Pixels no hair covers in either render are the head branch's alone: identical."""
     from head360cli.drive.views import view_cameras, view_intrinsics
