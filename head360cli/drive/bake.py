@@ -148,6 +148,8 @@ def bake_head(renderer, size: int = 512, views=BAKE_VIEWS, progress: Any = None
 
     if size < 16:
         raise BadInputError(f"expected a texture size of at least 16, found {size}")
+    if not len(views):
+        raise ValueError("expected at least one (yaw, pitch) view to bake from, found none")
     points, normals, covered, verts = _texels(renderer, size)
     cams = view_cameras([v[0] for v in views], [v[1] for v in views])
     k = view_intrinsics(renderer.size)

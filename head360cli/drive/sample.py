@@ -81,9 +81,15 @@ def sample_heads(n: int, seed: int = 0, scale: float = 1.0, bald: bool = False,
 
 def write_samples(heads: list[Any], out_dir: str | Path, prefix: str = "sample"
                   ) -> list[Path]:
-    """Write heads as ``<prefix>_000.h360`` ... into ``out_dir`` (made if missing)."""
+    """Write heads as ``<prefix>_000.h360`` ... into ``out_dir`` (made if missing).
+
+    Raises:
+        ValueError: No heads (nothing would be written, not even the folder).
+    """
     from head360cli.io.headfile import write_head
 
+    if not len(heads):
+        raise ValueError("expected at least one head to write, found none")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []

@@ -213,6 +213,8 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
     yaws = yaw + np.arange(frames) * (360.0 / frames)
     cams = view_cameras(yaws, np.full(frames, pitch))
     w = np.zeros(52) if expression is None else np.asarray(expression)
+    if w.shape != (52,):
+        raise ValueError(f"expected ARKit weights of shape (52,), found {w.shape}")
     done = 0
     with VideoWriter(out, fps=fps) as video:
         for batch in renderer.frames(cams, np.broadcast_to(w, (frames, 52)),

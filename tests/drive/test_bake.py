@@ -62,3 +62,11 @@ def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
     still = trimesh.load(tmp_path / "p" / "frame_00001.obj", force="mesh", process=False)
     assert turned.vertices[:, 0].mean() > still.vertices[:, 0].mean() + 0.005
     assert "o hair" not in (tmp_path / "p" / "frame_00000.obj").read_text()
+
+
+def test_baking_from_no_views_is_refused_before_any_work():
+    """Before, an empty view list reached torch.cat's own message after the texel pass."""
+    from head360cli.drive.bake import bake_head
+
+    with pytest.raises(ValueError, match=r"at least one \(yaw, pitch\) view"):
+        bake_head(None, size=32, views=[])

@@ -55,3 +55,12 @@ def test_cli_sample_to_one_head_file_and_its_checks(run_cli, tmp_path):
         assert r.code == 3 and found in r.err, (args, r.err)
     assert not (tmp_path / "two.h360").exists()
     assert (tmp_path / "f").read_text() == "keep me"
+
+
+def test_writing_no_samples_is_refused(tmp_path):
+    """Before, write_samples([]) made an empty folder and returned no paths."""
+    from head360cli.drive.sample import write_samples
+
+    with pytest.raises(ValueError, match="at least one head"):
+        write_samples([], tmp_path / "none")
+    assert not (tmp_path / "none").exists()

@@ -97,6 +97,14 @@ def test_turntable_streams_every_frame(head_file, tmp_path):
         write_turntable(r, tmp_path / "none.gif", frames=0)
 
 
+def test_turntable_refuses_a_malformed_expression_before_opening_the_video(tmp_path):
+    """A (51,) expression was a numpy broadcast error; nothing is written now."""
+    out = tmp_path / "turn.gif"
+    with pytest.raises(ValueError, match=r"shape \(52,\), found \(51,\)"):
+        write_turntable(None, out, frames=2, expression=np.zeros(51))
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
 def test_check_grid_size_bounds_pixels_and_height():
     """render --views held every view in memory and saved one image: 30 views at 2048
     pixels made a 136-megapixel grid, and 9000 at 32 one 69000 pixels high, which JPEG
