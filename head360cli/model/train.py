@@ -31,7 +31,7 @@ from torch import nn
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.generator import Generator
 
-__all__ = ["TrainConfig", "load_generator", "save_generator", "train"]
+__all__ = ["TrainConfig", "load_generator", "read_checkpoint", "save_generator", "train"]
 
 CHECKPOINT = "checkpoint.pt"
 WEIGHTS_FORMAT = 1
@@ -177,7 +177,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     start = 0
     state = None
     if ckpt_path.is_file():  # resume: the checkpoint's configs win
-        state = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        state = read_checkpoint(ckpt_path)
         cfg = dataclasses.replace(TrainConfig(**state["train_config"]), steps=cfg.steps,
                                   minutes=cfg.minutes)
         gen_cfg = GeneratorConfig.from_dict(state["generator_config"])
@@ -289,12 +289,36 @@ def _checkpoint(out, model, opt, cfg, gen_cfg, step, rng, world, rank) -> None:
         torch.save(state, tmp)
 
 
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """A training checkpoint (:data:`CHECKPOINT`), loaded without running any code it may
+    carry: only tensors, numbers, strings and containers are read (``weights_only``).
+
+    Raises:
+        FileFormatError: The file does not load that way (not a checkpoint, truncated, or
+            a pickle that would run code), or is not a head360 training checkpoint.
+    """
+    from head360cli.errors import FileFormatError
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # zip, pickle and unsafe-global errors alike
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise FileFormatError(f"{path}: expected a head360 training checkpoint that loads "
+                              f"without running code, found one that does not ({first})"
+                              ) from exc
+    if not isinstance(state, dict) or state.get("format") != "head360-train":
+        found = state.get("format") if isinstance(state, dict) else type(state).__name__
+        raise FileFormatError(f"{path}: expected a head360 training checkpoint, found "
+                              f"{found!r}")
+    return state
+
+
 def save_generator(checkpoint: str | Path, path: str | Path) -> dict[str, Any]:
     """Write the shippable weights (generator, training codes, configs) from a training
     checkpoint; returns a summary."""
     from head360cli.io.atomic import atomic_path
 
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    state = read_checkpoint(checkpoint)
     model = {k: v.to(torch.float32) if v.is_floating_point() else v
              for k, v in state["model"].items()}
     weights = {"format": "head360-generator", "format_version": WEIGHTS_FORMAT,

@@ -151,3 +151,33 @@ def test_cli_train_resume_names_the_options_its_checkpoint_replaces(run_cli, tmp
     assert r.code == 0 and "not used" not in r.err
     out = json.loads(r.out)
     assert out["trained"] is True and out["last"]["step"] == 2
+
+
+class _Payload:
+    """Pickles as a call that makes a marker file: code a checkpoint could run on load."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_a_checkpoint_that_would_run_code_is_refused_not_loaded(tmp_path, run_cli):
+    """Resuming and exporting loaded the run folder's checkpoint with weights_only=False,
+    so a checkpoint.pt someone else made could run code; it is now read as data only."""
+    run, marker = tmp_path / "run", tmp_path / "ran"
+    train(run, CFG, TINY, progress=False, stop_at=2)
+    state = torch.load(run / CHECKPOINT, weights_only=True)  # a real one loads as data
+    assert state["format"] == "head360-train" and state["step"] == 2
+    torch.save({**state, "extra": _Payload(marker)}, run / CHECKPOINT)
+    with pytest.raises(FileFormatError, match="loads without running code"):
+        train(run, CFG, TINY, progress=False)
+    with pytest.raises(FileFormatError, match="loads without running code"):
+        save_generator(run / CHECKPOINT, tmp_path / "g.pt")
+    r = run_cli("train", run, "--steps", "4")
+    assert r.code == 5 and "without running code" in r.err, r.err
+    assert not marker.exists() and not (tmp_path / "g.pt").exists()
+    torch.save({"format": "other"}, run / CHECKPOINT)
+    with pytest.raises(FileFormatError, match="training checkpoint, found 'other'"):
+        train(run, CFG, TINY, progress=False)
