@@ -19,8 +19,9 @@ from head360cli.errors import BadInputError
 from head360cli.io.atomic import check_folder_name
 from head360cli.io.sources import input_stem
 
-__all__ = ["check_head_sizes", "classify_photo", "fit_photo", "fit_shape_photo",
-           "load_head_renderer", "parse_photo", "run_demo"]
+__all__ = ["FIT_SUMMARY_KEYS", "check_fit_outputs", "check_head_sizes", "classify_photo",
+           "fit_outputs", "fit_photo", "fit_shape_photo", "load_head_renderer",
+           "parse_photo", "run_demo"]
 
 
 def _timed(fn, *args, **kwargs) -> tuple[Any, float]:
@@ -518,6 +519,50 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
             "timings": {k: round(v, 4) for k, v in timings.items()}}
 
 
+FIT_SUMMARY_KEYS = ("photo", "preset", "timings", "files")
+"""Keys every ``head360 fit`` JSON summary has: a ``<stem>.json`` with them is a summary
+an earlier fit wrote, which a new fit may replace."""
+
+
+def fit_outputs(out: str | Path) -> dict[str, Path]:
+    """The files a fit to head file ``out`` writes: ``head`` (``out``), ``preview``
+    (``<stem>_preview.png``) and ``summary`` (``<stem>.json``)."""
+    out = Path(out)
+    stem = out.with_suffix("")
+    return {"head": out, "preview": Path(f"{stem}_preview.png"),
+            "summary": Path(f"{stem}.json")}
+
+
+def check_fit_outputs(photo: Any, out: str | Path) -> None:
+    """Refuse a fit whose outputs would replace its own photo, or a ``<stem>.json`` that an
+    earlier fit did not write (a LabelMe annotation beside ``photo.jpg``, say): both
+    would be lost without a word.
+
+    Raises:
+        BadInputError: Either, naming the file and how to avoid it.
+    """
+    import os
+
+    paths = fit_outputs(out)
+    if isinstance(photo, str | os.PathLike) and Path(photo).is_file():
+        for what, path in paths.items():
+            if path.exists() and os.path.samefile(path, photo):
+                raise BadInputError(f"expected outputs other than the photo, found the "
+                                    f"{what} {str(path)!r} would replace it: give -o "
+                                    f"another name")
+    summary = paths["summary"]
+    if summary.exists():
+        try:
+            found = json.loads(summary.read_text(encoding="utf-8"))
+            ours = isinstance(found, dict) and all(k in found for k in FIT_SUMMARY_KEYS)
+        except (OSError, ValueError):  # unreadable, not UTF-8 or not JSON
+            ours = False
+        if not ours:
+            raise BadInputError(f"expected {str(summary)!r} to be an earlier fit's summary "
+                                f"before replacing it, found another file: move it or give "
+                                f"-o another name")
+
+
 def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,
               detector: str = "hog", focal: float | None = None, device: str = "cpu",
               hair_style: int | None = None, distance: float | None = None,
@@ -588,6 +633,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     if out.suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
     check_file_target(out)
+    check_fit_outputs(photo, out)
     if hair_style is not None and not 0 <= hair_style < len(HAIRSTYLES):
         raise BadInputError(f"expected a hairstyle id 0..{len(HAIRSTYLES) - 1}, found "
                             f"{hair_style}")
@@ -709,9 +755,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     timings["preview"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    stem = out.with_suffix("")
-    paths = {"head": out, "preview": Path(f"{stem}_preview.png"),
-             "summary": Path(f"{stem}.json")}
+    paths = fit_outputs(out)
     model_hash = generator_hash()
     head_file = HeadFile(
         arrays={"shape": fit.shape.astype(np.float32),

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from head360cli.errors import BadInputError
+
 
 @pytest.fixture(scope="module")
 def astronaut(tmp_path_factory):
@@ -82,6 +84,32 @@ def test_fit_errors_leave_nothing_behind(run_cli, tmp_path):
     assert run_cli("fit", wall, "-o", tmp_path / "nowhere" / "x.h360").code == 3
     assert run_cli("fit", wall, "--hair", "beehive", "-o", tmp_path / "x.h360").code == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["coffee.png", "wall.png"]
+
+
+def test_a_fit_does_not_replace_its_photo_or_a_json_it_did_not_write(run_cli, astronaut,
+                                                                     tmp_path):
+    """``fit me_preview.png -o me.h360`` wrote its preview over the photo, and ``fit
+    photo.jpg`` replaced a ``photo.json`` beside it (a LabelMe annotation, say). Both are
+    refused before any work; an earlier fit's summary is replaced as before."""
+    from head360cli.fitting.pipeline import FIT_SUMMARY_KEYS, check_fit_outputs
+
+    photo = tmp_path / "me_preview.png"
+    photo.write_bytes(astronaut.read_bytes())
+    r = run_cli("fit", photo, "-o", tmp_path / "me.h360")
+    assert r.code == 3 and "the preview" in r.err and "would replace it" in r.err, r.err
+    assert photo.read_bytes() == astronaut.read_bytes()
+    labelme = tmp_path / "astronaut.json"
+    labelme.write_text('{"version": "5.0.1", "shapes": []}')
+    r = run_cli("fit", astronaut, "-o", tmp_path / "astronaut.h360")
+    assert r.code == 3 and "to be an earlier fit's summary" in r.err, r.err
+    assert labelme.read_text() == '{"version": "5.0.1", "shapes": []}'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["astronaut.json", "me_preview.png"]
+    for text in ("not json", "[1, 2]", '{"photo": "a.jpg"}'):
+        labelme.write_text(text)
+        with pytest.raises(BadInputError, match="earlier fit's summary"):
+            check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
+    labelme.write_text(json.dumps(dict.fromkeys(FIT_SUMMARY_KEYS, 0)))
+    check_fit_outputs(astronaut, tmp_path / "astronaut.h360")  # an earlier fit's: replaced
 
 
 def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
