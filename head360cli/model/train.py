@@ -294,18 +294,14 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     carry: only tensors, numbers, strings and containers are read (``weights_only``).
 
     Raises:
-        FileFormatError: The file does not load that way (not a checkpoint, truncated, or
-            a pickle that would run code), or is not a head360 training checkpoint.
+        FileFormatError: The file does not load that way (not a torch file, truncated, or
+            a pickle that would run code: :func:`~head360cli.io.torchfile.load_data`), or
+            is not a head360 training checkpoint.
     """
     from head360cli.errors import FileFormatError
+    from head360cli.io.torchfile import load_data
 
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # zip, pickle and unsafe-global errors alike
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise FileFormatError(f"{path}: expected a head360 training checkpoint that loads "
-                              f"without running code, found one that does not ({first})"
-                              ) from exc
+    state = load_data(path, "a head360 training checkpoint")
     if not isinstance(state, dict) or state.get("format") != "head360-train":
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise FileFormatError(f"{path}: expected a head360 training checkpoint, found "
@@ -360,11 +356,9 @@ def _read_weights(path: str | Path) -> tuple[dict, GeneratorConfig]:
         FileFormatError: The file does not load, or is not head360 generator weights.
     """
     from head360cli.errors import FileFormatError
+    from head360cli.io.torchfile import load_data
 
-    try:
-        w = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # pickle and zip errors alike
-        raise FileFormatError(f"{path}: expected head360 generator weights ({exc})") from exc
+    w = load_data(path, "head360 generator weights")
     if not isinstance(w, dict) or w.get("format") != "head360-generator":
         found = w.get("format") if isinstance(w, dict) else type(w).__name__
         raise FileFormatError(f"{path}: expected head360 generator weights, found "

@@ -171,12 +171,12 @@ def test_a_checkpoint_that_would_run_code_is_refused_not_loaded(tmp_path, run_cl
     state = torch.load(run / CHECKPOINT, weights_only=True)  # a real one loads as data
     assert state["format"] == "head360-train" and state["step"] == 2
     torch.save({**state, "extra": _Payload(marker)}, run / CHECKPOINT)
-    with pytest.raises(FileFormatError, match="loads without running code"):
+    with pytest.raises(FileFormatError, match="could run code, so it is not loaded"):
         train(run, CFG, TINY, progress=False)
-    with pytest.raises(FileFormatError, match="loads without running code"):
+    with pytest.raises(FileFormatError, match="could run code, so it is not loaded"):
         save_generator(run / CHECKPOINT, tmp_path / "g.pt")
     r = run_cli("train", run, "--steps", "4")
-    assert r.code == 5 and "without running code" in r.err, r.err
+    assert r.code == 5 and "could run code, so it is not loaded" in r.err, r.err
     assert not marker.exists() and not (tmp_path / "g.pt").exists()
     torch.save({"format": "other"}, run / CHECKPOINT)
     with pytest.raises(FileFormatError, match="training checkpoint, found 'other'"):
