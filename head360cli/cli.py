@@ -228,6 +228,54 @@ def _format_head(r: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _format_model(r: dict[str, Any]) -> str:
+    fmt = r["format"]
+    lines = [f"{r['path']}: {fmt} ({r['bytes']} bytes, sha256 {r['sha256'][:16]})"]
+    if fmt == "head360-generator":
+        lines += [f"  model hash   {r['model_hash']} ("
+                  f"{'the installed generator' if r['installed'] else 'not the installed one'}"
+                  f"; head files record it)",
+                  f"  trained      {r['step']} steps, {r['identities']} identities, "
+                  f"{r['parameters']:,} parameters"]
+    elif fmt == "head360-train":
+        lines.append(f"  checkpoint   step {r['step']}, {r['parameters']:,} parameters")
+    elif fmt == "head360-bilinear":
+        lines.append(f"  model hash   {r['model_hash']} (head files record it)")
+        lines += [f"  {k:<14} {'x'.join(map(str, v)) or 'scalar'}"
+                  for k, v in r["arrays"].items()]
+    elif fmt in ("head360-onnx", "onnx"):
+        lines += [f"  input        {k} {v}" for k, v in r["inputs"].items()]
+        lines += [f"  output       {k} {v}" for k, v in r["outputs"].items()]
+        for key, value in (r["export"] or {}).items():
+            lines.append(f"  {key:<12} {value}")
+    else:  # the hair prior
+        lines.append(f"  network      {r['parameters']:,} parameters")
+    for key in ("generator_config", "train_config", "config"):
+        for k, v in (r.get(key) or {}).items():
+            lines.append(f"  {k:<12} {v}")
+    return "\n".join(lines)
+
+
+def _format_mesh(r: dict[str, Any]) -> str:
+    if r["format"] == "obj":
+        return (f"{r['path']}: Wavefront OBJ ({r['bytes']} bytes)\n"
+                f"  geometry     {r['vertices']} vertices, {r['triangles']} triangles, "
+                f"{r['uvs']} texture coordinates, {r['normals']} normals\n"
+                f"  materials    {', '.join(r['material_libraries']) or 'none'}")
+    lines = [f"{r['path']}: glTF binary ({r['bytes']} bytes"
+             + (f", written by {r['generator']})" if r["generator"] else ")")]
+    for m in r["meshes"]:
+        targets = m["morph_targets"]
+        named = m["morph_target_names"]
+        lines.append(f"  mesh {m['name'] or '(unnamed)':<8} {m['vertices']} vertices, "
+                     f"{m['triangles']} triangles, {targets} morph targets"
+                     + (f" ({named[0]} ... {named[-1]})" if named else ""))
+    for t in r["textures"]:
+        size = "x".join(map(str, t["size"])) if t["size"] else "size unknown"
+        lines.append(f"  texture      {size} {t['mime'] or ''}".rstrip())
+    return "\n".join(lines)
+
+
 @cli.command()
 @click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="error",
@@ -238,30 +286,39 @@ def _format_head(r: dict[str, Any]) -> str:
               "rotation over time into this PNG.")
 @common_options
 def inspect(file: str, on_bad: str, plot: str | None) -> None:
-    """Tell what FILE is and holds: an ARKit stream, an image or a head file.
+    """Tell what FILE is and holds: an ARKit stream, an image, a head file, a model file
+    or an exported mesh.
 
     For an ARKit CSV stream: frames, frame rate, duration, columns found, missing or
     ignored, and min/mean/max per blendshape. For an image: size, mode, EXIF orientation,
     and whether its pixels decode.
-    For a head file: its metadata and arrays. FILE may be - (standard input) or a pipe
-    (<(...)), whose content says which of the three it is.
+    For a head file: its metadata and arrays. For head360's model files (generator
+    weights, training checkpoints, the hair prior, the bilinear model, ONNX graphs): their
+    format, configuration and the model hash head files record; nothing in them is run.
+    For a .glb: its meshes, morph targets and textures. FILE may be - (standard input) or
+    a pipe (<(...)), whose content says which it is.
 
     \b
     Examples:
       head360 inspect examples/smile_blink_livelinkface.csv
       head360 inspect photo.jpg --json
       head360 inspect take.csv --plot take.png
+      head360 inspect models/generator.pt     which generator, trained how long
+      head360 inspect me.glb                  morph targets and texture of an export
       cat take.csv | head360 inspect - --on-bad skip
     """
     from head360cli.report import inspect_file
 
     result = inspect_file(file, on_bad=on_bad, plot=plot)
     if result["kind"] != "arkit_stream":
-        _unused(("on_bad",), f"for {'an image' if result['kind'] == 'image' else 'a head'}")
+        what = {"image": "an image", "head": "a head", "model": "a model file",
+                "mesh": "a mesh"}[result["kind"]]
+        _unused(("on_bad",), f"for {what}")
     for w in result.get("warnings", []):
         _warn(w)
     formatter = {"arkit_stream": _format_stream, "image": _format_image,
-                 "head": _format_head}[result["kind"]]
+                 "head": _format_head, "model": _format_model,
+                 "mesh": _format_mesh}[result["kind"]]
     _emit(result, formatter(result))
 
 

@@ -15,13 +15,18 @@ from head360cli.errors import BadInputError
 if TYPE_CHECKING:
     from head360cli.io.sources import NamedBytes
 
-__all__ = ["environment_report", "file_kind", "inspect_file", "sha256_file"]
+__all__ = ["describe_mesh", "describe_model", "environment_report", "file_kind",
+           "inspect_file", "sha256_file"]
 
 MODEL_SUFFIXES = (".pt", ".npz", ".onnx", ".json")
 _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".tif", ".tiff",
                    ".webp", ".bmp")  # fmt: skip
 _STREAM_SUFFIXES = (".csv", ".tsv", ".txt")
 _HEAD_SUFFIXES = (".h360", ".npz")
+_OTHER_SUFFIXES = (".json", ".jsonl", ".mtl", ".md", ".mp4", ".mov", ".m4v", ".npy",
+                   ".pkl", ".pickle")  # fmt: skip
+_KINDS = ("an ARKit stream (.csv), an image or a head file (.h360), or a model file (.pt, "
+          ".npz, .onnx) or mesh (.glb, .obj) head360 wrote")
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -126,7 +131,8 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
 
 
 def file_kind(path: str | NamedBytes) -> str:
-    """``"stream"``, ``"head"`` or ``"image"``, from the name and the first bytes (a
+    """``"stream"``, ``"head"``, ``"image"``, ``"model"`` (head360's weights, checkpoints,
+    bilinear model or ONNX graphs) or ``"mesh"`` (glTF binary), from the name and the first bytes (a
     pipe's content already read, :class:`~head360cli.io.sources.NamedBytes`: from its
     bytes alone, and what is neither a zip nor an image is taken for a stream). A file
     whose name says nothing is a stream when its first bytes are text."""
@@ -141,8 +147,14 @@ def file_kind(path: str | NamedBytes) -> str:
         with open(p, "rb") as f:
             magic = f.read(8)
     suffix = p.suffix.lower()
+    if magic.startswith(b"glTF") or suffix in (".glb", ".obj"):
+        return "mesh"
+    if suffix in _OTHER_SUFFIXES:
+        raise BadInputError(f"expected {_KINDS}, found {p.name!r}")
+    if suffix == ".onnx":
+        return "model"
     if suffix in _HEAD_SUFFIXES or magic.startswith(b"PK\x03\x04"):
-        return "head"
+        return _zip_kind(source)
     if suffix in _STREAM_SUFFIXES:
         return "stream"
     if suffix in _IMAGE_SUFFIXES:
@@ -168,9 +180,230 @@ def file_kind(path: str | NamedBytes) -> str:
         text = exc.start >= len(start) - 3 and b"\0" not in start
     if text and start.strip():
         return "stream"  # /dev/stdin redirected from a file has no suffix to go by
-    raise BadInputError(
-        f"expected an ARKit stream (.csv), an image or a head file (.h360), found {p.name!r}"
-    )
+    raise BadInputError(f"expected {_KINDS}, found {p.name!r}")
+
+
+def _zip_kind(source) -> str:
+    """``"model"`` for a torch file (its zip holds ``data.pkl``) or the bilinear model's
+    ``.npz``, ``"head"`` for anything else zipped (a head file, or one to be refused as
+    not a head file by the head reader)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(source) as z:
+            names = z.namelist()
+            if any(n.endswith("data.pkl") for n in names):
+                return "model"
+            if _npz_format(z) == "head360-bilinear":
+                return "model"
+    except Exception:  # not a zip after all, or an odd one: the head reader says what
+        pass
+    finally:
+        if hasattr(source, "seek"):
+            source.seek(0)
+    return "head"
+
+
+def _npz_format(z) -> str | None:
+    """The ``format`` in the ``__meta__`` entry of an open ``.npz`` zip (head files and
+    the bilinear model have one), or ``None``."""
+    import json
+
+    import numpy as np
+
+    if "__meta__.npy" not in z.namelist():
+        return None
+    with z.open("__meta__.npy") as f:
+        meta = np.lib.format.read_array(f, allow_pickle=False)
+    found = json.loads(str(meta))
+    return found.get("format") if isinstance(found, dict) else None
+
+
+def _count_parameters(state: dict[str, Any]) -> int:
+    import torch
+
+    return int(sum(v.numel() for v in state.values() if isinstance(v, torch.Tensor)))
+
+
+def describe_model(path: str | NamedBytes, shown: str) -> dict[str, Any]:
+    """What a model file holds: head360's generator weights, a training checkpoint, the
+    hair prior, the bilinear head model or an exported ONNX graph (read as data only:
+    no pickled code runs).
+
+    Raises:
+        FileFormatError: None of those, or unreadable.
+    """
+    from head360cli.errors import FileFormatError
+    from head360cli.io.sources import NamedBytes
+
+    data = path.getvalue() if isinstance(path, NamedBytes) else Path(path).read_bytes()
+    out: dict[str, Any] = {"kind": "model", "path": shown, "bytes": len(data),
+                           "sha256": hashlib.sha256(data).hexdigest()}
+    name = Path(path.name if isinstance(path, NamedBytes) else path).name
+    if name.lower().endswith(".onnx"):
+        return {**out, **_describe_onnx(data, shown)}
+    import io
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as z:
+            fmt = _npz_format(z)
+    except (zipfile.BadZipFile, ValueError):
+        fmt = None
+    if fmt == "head360-bilinear":
+        from head360cli.mesh.bilinear import read_model_file
+
+        arrays, meta = read_model_file(io.BytesIO(data))
+        return {**out, "format": "head360-bilinear", "model_hash": meta.get("sha256"),
+                "arrays": {k: list(v.shape) for k, v in sorted(arrays.items())},
+                "meta": {k: v for k, v in meta.items() if k != "sha256"}}
+    from head360cli.io.torchfile import load_data
+
+    blob = load_data(io.BytesIO(data), "a head360 model file", name=shown)
+    fmt = blob.get("format") if isinstance(blob, dict) else None
+    if fmt == "head360-generator":
+        from head360cli.paths import installed_generator
+
+        try:
+            installed = hashlib.sha256(installed_generator().read_bytes()).hexdigest()
+        except Exception:  # none installed: the file is not it
+            installed = None
+        return {**out, "format": fmt, "format_version": blob.get("format_version"),
+                "model_hash": out["sha256"], "installed": out["sha256"] == installed,
+                "step": blob.get("step"), "identities": int(blob["codes"].shape[0]),
+                "parameters": _count_parameters(blob["generator"]),
+                "generator_config": blob.get("generator_config")}
+    if fmt == "head360-train":
+        return {**out, "format": fmt, "step": blob.get("step"),
+                "parameters": _count_parameters(blob.get("model", {})),
+                "generator_config": blob.get("generator_config"),
+                "train_config": blob.get("train_config")}
+    from head360cli.fitting.hair_prior import FORMAT as PRIOR_FORMAT
+
+    if fmt == PRIOR_FORMAT:
+        return {**out, "format": fmt, "parameters": _count_parameters(blob["state_dict"]),
+                "config": blob.get("config"), "meta": blob.get("meta", {})}
+    found = repr(fmt) if fmt else type(blob).__name__
+    raise FileFormatError(f"{shown}: expected head360 generator weights, a training "
+                          f"checkpoint or a hair prior, found {found}")
+
+
+def _describe_onnx(data: bytes, shown: str) -> dict[str, Any]:
+    """Inputs, outputs and head360's export metadata of an ONNX graph (onnxruntime reads
+    it; no frame is run)."""
+    import json
+
+    from head360cli.errors import FileFormatError, ModelNotFoundError
+
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        raise ModelNotFoundError("inspecting an ONNX graph needs onnxruntime: pip install "
+                                 "'head360[export]'") from None
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    opts.log_severity_level = 3
+    try:
+        sess = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise FileFormatError(f"{shown}: expected an ONNX graph, found one onnxruntime "
+                              f"cannot load ({first[:200]})") from None
+    from head360cli.export.onnx import META_KEY
+
+    meta = sess.get_modelmeta().custom_metadata_map.get(META_KEY)
+    return {"format": "onnx" if meta is None else "head360-onnx",
+            "inputs": {i.name: list(i.shape) for i in sess.get_inputs()},
+            "outputs": {o.name: list(o.shape) for o in sess.get_outputs()},
+            "export": None if meta is None else json.loads(meta)}
+
+
+def describe_mesh(path: str | NamedBytes, shown: str) -> dict[str, Any]:
+    """What a glTF binary (``.glb``) holds: its meshes with their vertices, triangles
+    and named morph targets, and its textures' sizes, read from the file's JSON chunk; for
+    a Wavefront ``.obj``, counts of its records.
+
+    Raises:
+        FileFormatError: Not a glTF 2 binary or an OBJ, or truncated.
+    """
+    import io
+    import json
+    import struct
+
+    from head360cli.errors import FileFormatError
+    from head360cli.io.sources import NamedBytes
+
+    data = path.getvalue() if isinstance(path, NamedBytes) else Path(path).read_bytes()
+    if not data.startswith(b"glTF"):
+        return _describe_obj(data, shown)
+    try:
+        magic, version, length = struct.unpack_from("<4sII", data, 0)
+        chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
+        if magic != b"glTF" or version != 2 or chunk_type != 0x4E4F534A or length > len(data):
+            raise ValueError("not a whole glTF 2 binary")
+        gltf = json.loads(data[20:20 + chunk_len])
+        binary = b""
+        if 20 + chunk_len + 8 <= len(data):
+            bin_len, _ = struct.unpack_from("<II", data, 20 + chunk_len)
+            binary = data[28 + chunk_len:28 + chunk_len + bin_len]
+        accessors = gltf.get("accessors", [])
+        meshes = []
+        for mesh in gltf.get("meshes", []):
+            prims = mesh.get("primitives", [])
+            verts = sum(accessors[p["attributes"]["POSITION"]]["count"] for p in prims)
+            tris = sum(accessors[p["indices"]]["count"] // 3 if "indices" in p
+                       else accessors[p["attributes"]["POSITION"]]["count"] // 3
+                       for p in prims)
+            names = (mesh.get("extras") or {}).get("targetNames") or []
+            targets = max((len(p.get("targets", [])) for p in prims), default=0)
+            meshes.append({"name": mesh.get("name"), "vertices": verts, "triangles": tris,
+                           "morph_targets": targets, "morph_target_names": names})
+        textures = []
+        for image in gltf.get("images", []):
+            size = None
+            if "bufferView" in image:
+                view = gltf["bufferViews"][image["bufferView"]]
+                start = view.get("byteOffset", 0)
+                from PIL import Image
+
+                with Image.open(io.BytesIO(binary[start:start + view["byteLength"]])) as im:
+                    size = list(im.size)
+            textures.append({"mime": image.get("mimeType"), "size": size})
+    except (ValueError, KeyError, IndexError, TypeError, struct.error, OSError) as exc:
+        raise FileFormatError(f"{shown}: expected a glTF binary (.glb), found one that does "
+                              f"not read ({exc})") from None
+    return {"kind": "mesh", "path": shown, "bytes": len(data), "format": "glb",
+            "generator": gltf.get("asset", {}).get("generator"), "meshes": meshes,
+            "textures": textures}
+
+
+def _describe_obj(data: bytes, shown: str) -> dict[str, Any]:
+    """Counts of a Wavefront OBJ's records: vertices, texture coordinates, normals,
+    triangles (a polygon of n corners counts n - 2), groups and material library."""
+    from head360cli.errors import FileFormatError
+
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise FileFormatError(f"{shown}: expected a Wavefront OBJ (text), found binary "
+                              f"data") from None
+    counts = {"v": 0, "vt": 0, "vn": 0, "o": 0, "g": 0}
+    triangles, libraries = 0, []
+    for line in text.splitlines():
+        head, _, rest = line.strip().partition(" ")
+        if head in counts:
+            counts[head] += 1
+        elif head == "f":
+            triangles += max(0, len(rest.split()) - 2)
+        elif head == "mtllib":
+            libraries.append(rest.strip())
+    if not counts["v"]:
+        raise FileFormatError(f"{shown}: expected a Wavefront OBJ with vertices ('v' "
+                              f"lines), found none")
+    return {"kind": "mesh", "path": shown, "bytes": len(data), "format": "obj",
+            "generator": None, "vertices": counts["v"], "uvs": counts["vt"],
+            "normals": counts["vn"], "triangles": triangles,
+            "objects": counts["o"] + counts["g"], "material_libraries": libraries}
 
 
 def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> dict[str, Any]:
@@ -200,8 +433,13 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
         path, _ = readable(path)
     kind = file_kind(path)
     if plot is not None and kind != "stream":
-        what = {"image": "an image", "head": "a head file"}[kind]
+        what = {"image": "an image", "head": "a head file", "model": "a model file",
+                "mesh": "a mesh"}[kind]
         raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {shown!r}")
+    if kind == "model":
+        return describe_model(path, shown)
+    if kind == "mesh":
+        return describe_mesh(path, shown)
     if kind == "image":
         from head360cli.io.images import describe_image
 

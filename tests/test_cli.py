@@ -181,6 +181,74 @@ def test_inspect_image_and_head(run_cli, tmp_path):
     assert "head file" in run_cli("inspect", head).out
 
 
+def test_inspect_model_files_without_running_their_code(run_cli, tmp_path):
+    """`inspect models/generator.pt` said "head file ...: expected a '__meta__' entry";
+    the model files are now described, read as data only."""
+    import torch
+
+    from head360cli.fitting.pipeline import generator_hash
+    from head360cli.mesh.bilinear import load_bilinear
+    from head360cli.paths import models_dir
+
+    j = json.loads(run_cli("inspect", models_dir() / "generator.pt", "--json").out)
+    weights = torch.load(models_dir() / "generator.pt", weights_only=True)
+    assert (j["kind"], j["format"], j["installed"]) == ("model", "head360-generator", True)
+    assert j["model_hash"] == generator_hash() and j["step"] == weights["step"]
+    assert j["identities"] == len(weights["codes"])
+    assert j["parameters"] == sum(v.numel() for v in weights["generator"].values())
+    assert j["generator_config"] == json.loads(json.dumps(weights["generator_config"]))
+    j = json.loads(run_cli("inspect", models_dir() / "bilinear.npz", "--json").out)
+    assert j["format"] == "head360-bilinear"
+    assert j["model_hash"] == load_bilinear().meta["sha256"]
+    assert j["arrays"]["faces"][1] == 3
+    j = json.loads(run_cli("inspect", models_dir() / "hair_prior.pt", "--json").out)
+    assert j["format"] == "head360-hair-prior/1" and j["parameters"] > 0
+    ckpt = tmp_path / "checkpoint.pt"
+    torch.save({"format": "head360-train", "step": 7, "model": {"w": torch.zeros(2, 3)},
+                "generator_config": {"hidden": 4}, "train_config": {"lr": 0.01}}, ckpt)
+    r = run_cli("inspect", ckpt)
+    assert r.code == 0 and "checkpoint   step 7, 6 parameters" in r.out, r.err
+    assert "lr           0.01" in r.out
+    torch.save({"a": Image.new("RGB", (1, 1))}, tmp_path / "other.pt")  # an object: code
+    r = run_cli("inspect", tmp_path / "other.pt")
+    assert r.code == 5 and "could run code, so it is not loaded" in r.err, r.err
+    torch.save({"format": "someone else's"}, tmp_path / "plain.pt")
+    r = run_cli("inspect", tmp_path / "plain.pt")
+    assert r.code == 5 and "found \"someone else's\"" in r.err, r.err
+    (tmp_path / "x.json").write_text("{}")
+    r = run_cli("inspect", tmp_path / "x.json")
+    assert r.code == 3 and "a model file (.pt, .npz, .onnx) or mesh (.glb, .obj)" in r.err
+
+
+def test_inspect_meshes_glb_and_obj(run_cli, head_file, tmp_path):
+    """An exported GLB's meshes, morph targets and texture, read back as trimesh reads
+    them; an OBJ's record counts."""
+    import trimesh
+
+    glb = tmp_path / "me.glb"
+    assert run_cli("export-mesh", head_file, "-o", glb, "--texture-size", "64").code == 0
+    j = json.loads(run_cli("inspect", glb, "--json").out)
+    scene = trimesh.load(glb)
+    meshes = {m["name"]: m for m in j["meshes"]}
+    assert set(meshes) == {"head", "hair"} and j["generator"].startswith("head360")
+    for name, geometry in scene.geometry.items():
+        assert meshes[name]["vertices"] == len(geometry.vertices)
+        assert meshes[name]["triangles"] == len(geometry.faces)
+    assert meshes["head"]["morph_targets"] == 52 and meshes["hair"]["morph_targets"] == 0
+    assert meshes["head"]["morph_target_names"][0] == "eyeBlinkLeft"
+    assert j["textures"] == [{"mime": "image/png", "size": [64, 64]}]
+    assert "52 morph targets (eyeBlinkLeft ... tongueOut)" in run_cli("inspect", glb).out
+    obj = tmp_path / "quad.obj"
+    obj.write_text("mtllib quad.mtl\no quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+                   "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n")
+    j = json.loads(run_cli("inspect", obj, "--json").out)
+    assert (j["vertices"], j["uvs"], j["triangles"], j["material_libraries"]) == (
+        4, 4, 2, ["quad.mtl"])
+    (tmp_path / "cut.glb").write_bytes(glb.read_bytes()[:100])
+    r = run_cli("inspect", tmp_path / "cut.glb")
+    assert r.code == 5 and "expected a glTF binary" in r.err, r.err
+
+
 def test_inspect_reads_pipes(run_cli, tmp_path, pipe):
     """``head360 inspect <(...)``: a pipe has no name to tell its kind by, so its content
     does (it was refused for want of a known extension)."""

@@ -28,7 +28,8 @@ import numpy as np
 from head360cli.errors import FileFormatError, ModelNotFoundError
 from head360cli.mesh.arkit52 import MIRROR_INDEX, NUM_BLENDSHAPES
 
-__all__ = ["BilinearHead", "BilinearModel", "build_bilinear", "load_bilinear"]
+__all__ = ["BilinearHead", "BilinearModel", "build_bilinear", "load_bilinear",
+           "read_model_file"]
 
 MODEL_FORMAT = 1
 MOVE_THRESHOLD = 1e-6
@@ -230,7 +231,7 @@ def load_bilinear(path: str | os.PathLike[str] | None = None) -> BilinearModel:
     stat = path.stat()
     key = (str(path.resolve()), stat.st_ino, stat.st_mtime_ns, stat.st_size)
     if key not in _LOADED:
-        arrays, meta = _read_model(path)
+        arrays, meta = read_model_file(path)
         for name in _SHARED:
             arrays[name].flags.writeable = False
         _LOADED.clear()
@@ -242,8 +243,13 @@ def load_bilinear(path: str | os.PathLike[str] | None = None) -> BilinearModel:
     return model
 
 
-def _read_model(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """The arrays and metadata (with its ``sha256``) of a model file, checked."""
+def read_model_file(path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The arrays and metadata (with its ``sha256``) of a model file (a path or a binary
+    file object), checked, without the caching of :func:`load_bilinear`.
+
+    Raises:
+        FileFormatError: Not a readable head360 bilinear model.
+    """
     try:
         with np.load(path, allow_pickle=False) as npz:
             data = {k: npz[k] for k in npz.files}

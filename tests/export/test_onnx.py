@@ -298,3 +298,22 @@ def test_export_reads_the_head_once_so_a_pipe_works(run_cli, monkeypatch, tmp_pa
         assert set(got.files) == set(want)
         for key, value in want.items():
             np.testing.assert_array_equal(got[key], value)
+
+
+def test_inspect_tells_what_an_exported_graph_takes(run_cli, exported):
+    """``head360 inspect gen.onnx``: the graph's inputs and head360's export metadata, as
+    the runner reads them."""
+    import json
+
+    from head360cli.export.onnx import OnnxFrameRunner
+
+    _, out, code, _ = exported
+    assert code == 0
+    r = run_cli("inspect", out, "--json")
+    assert r.code == 0, r.err
+    j = json.loads(r.out)
+    runner = OnnxFrameRunner(out)
+    assert (j["kind"], j["format"]) == ("model", "head360-onnx")
+    assert j["export"] == {**runner.meta, "hair": True}
+    assert list(j["inputs"]) == [i.name for i in runner.sessions[True].get_inputs()]
+    assert j["export"]["size"] == 48
