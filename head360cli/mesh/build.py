@@ -64,8 +64,12 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
     Returns:
         Summary with the model hash, size and reconstruction errors.
     """
+    from head360cli.io.atomic import check_folder_name
     from head360cli.mesh import corpora
 
+    if Path(out).suffix.lower() != ".npz":
+        raise BadInputError(f"expected a model output ending in .npz, found {str(out)!r}")
+    check_folder_name(Path(out).parent)  # made if missing, but writable: before the work
     if identities < 2 or held_out < 0:
         raise BadInputError(f"expected --identities >= 2 and --held-out >= 0, found "
                             f"{identities} and {held_out}")

@@ -214,3 +214,26 @@ def test_build_refuses_counts_that_cannot_make_a_model(tmp_path, identities, hel
     with pytest.raises(BadInputError, match=f"found {identities} and {held_out}"):
         build_model(identities=identities, held_out=held_out, out=tmp_path / "b.npz")
     assert not (tmp_path / "b.npz").exists()
+
+
+def test_build_refuses_an_output_it_could_not_write_before_the_work(tmp_path):
+    """``build-model -o b.txt`` built for a minute and wrote the model under a text name;
+    an unwritable folder was found only at the end."""
+    import os
+
+    from head360cli.errors import BadInputError
+    from head360cli.mesh.build import build_model
+
+    with pytest.raises(BadInputError, match=r"ending in \.npz, found .*b\.txt"):
+        build_model(identities=2, held_out=0, out=tmp_path / "b.txt")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if not os.access(locked, os.W_OK):  # root writes anywhere: nothing to refuse
+            with pytest.raises(BadInputError):
+                build_model(identities=2, held_out=0, out=locked / "new" / "b.npz")
+    finally:
+        locked.chmod(0o700)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["locked"]
+    assert not any(locked.iterdir())
