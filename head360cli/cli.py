@@ -824,7 +824,7 @@ def _check_rate_and_minutes(lr: float, minutes: float) -> None:
               help="Start from this hair prior's weights (fine-tuning) instead of random "
                    "ones.")
 @click.option("--lr", default=2e-3, show_default=True,
-              help="Learning rate at the start (it decays linearly to 5 %% of it).")
+              help="Learning rate at the start (it decays linearly to 5 % of it).")
 @common_options
 def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, steps: int,
                          minutes: float, batch: int, width: int, frame_share: float,
@@ -856,9 +856,11 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
         from head360cli.paths import models_dir
 
         out = str(models_dir() / FILE_NAME)
-    out_dir = Path(out).parent
-    if not out_dir.is_dir():
-        raise BadInputError(f"output folder {str(out_dir)!r} does not exist")
+    if Path(out).suffix.lower() != ".pt":
+        raise BadInputError(f"expected a hair prior output ending in .pt, found {out!r}")
+    from head360cli.io.atomic import check_file_target
+
+    check_file_target(out)  # an existing, writable folder: before the renders and training
     device = str(resolve_device(_settings().device))
     if device != "cpu":
         _warn("train-hair-prior trains on the CPU (the renders are CPU work)")

@@ -134,6 +134,19 @@ def test_cli_train_hair_prior_refuses_settings_that_cannot_train(run_cli, tmp_pa
     assert not out.exists()
 
 
+def test_cli_train_hair_prior_refuses_an_output_it_cannot_write_before_rendering(run_cli,
+                                                                                   tmp_path):
+    """``-o prior.txt`` rendered 600 heads and trained before writing the weights under a
+    text name; its help printed the learning rate's floor as '5 %%'."""
+    for out, says in ((tmp_path / "prior.txt", "ending in .pt, found"),
+                      (tmp_path / "none" / "p.pt", "output folder")):
+        r = run_cli("train-hair-prior", "-o", out, "--steps", "1")
+        assert r.code == 3 and says in r.err, r.err
+    assert not any(tmp_path.iterdir())
+    text = " ".join(run_cli("train-hair-prior", "--help").out.split())
+    assert "decays linearly to 5 % of it" in text
+
+
 def test_cli_train_resume_names_the_options_its_checkpoint_replaces(run_cli, tmp_path):
     """Resuming used the checkpoint's configuration and dropped --preset, -n, --lr...
     without a word; a run already at --steps said 'trained to step None: L1 None'."""
