@@ -697,20 +697,21 @@ def smooth(stream: ArkitStream, sigma_seconds: float) -> ArkitStream:
 
     sigma = sigma_seconds * stream.fps
 
-    def filt(a: np.ndarray | None) -> np.ndarray | None:
+    def filt(a: np.ndarray | None, angles: bool = False) -> np.ndarray | None:
         if a is None:
             return None
-        return gaussian_filter1d(a.astype(np.float64), sigma, axis=0, mode="nearest").astype(
-            np.float32
-        )
+        # Angles are unwrapped first (as resample does): +179 and -179 degrees are two
+        # degrees apart, and averaged as they lie they would make 0, the head turned round.
+        src = np.unwrap(a.astype(np.float64), axis=0) if angles else a.astype(np.float64)
+        return gaussian_filter1d(src, sigma, axis=0, mode="nearest").astype(np.float32)
 
     weights = filt(stream.weights)
     assert weights is not None
     return dataclasses.replace(
         stream,
         weights=np.clip(weights, 0.0, 1.0),
-        head_rotation=filt(stream.head_rotation),
-        eye_rotation=filt(stream.eye_rotation),
+        head_rotation=filt(stream.head_rotation, angles=True),
+        eye_rotation=filt(stream.eye_rotation, angles=True),
         warnings=list(stream.warnings),
     )
 

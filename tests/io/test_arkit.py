@@ -336,6 +336,21 @@ def test_smooth_reduces_jitter_and_keeps_range():
         smooth(s, -1.0)
 
 
+def test_smoothing_a_rotation_across_the_half_turn_keeps_it_there():
+    """A head yaw passing from +179 to -179 degrees was averaged to about 0 by --smooth,
+    turning the head round for a few frames; resample already unwrapped it."""
+    s = make_stream(frames=120, fps=60.0)
+    yaw = np.radians(np.linspace(170.0, 190.0, 120))
+    s.head_rotation = np.stack([np.angle(np.exp(1j * yaw)), np.zeros(120), np.zeros(120)],
+                               axis=1).astype(np.float32)  # wrapped into (-pi, pi]
+    assert s.head_rotation[:, 0].min() < -3.0 < 3.0 < s.head_rotation[:, 0].max()
+    out = smooth(s, 0.05)
+    # every frame still looks along the half turn, and the unwrapped track is kept smooth
+    assert np.cos(out.head_rotation[:, 0]).max() < -0.95
+    np.testing.assert_allclose(out.head_rotation[10:-10, 0], yaw[10:-10], atol=1e-3)
+    assert np.abs(np.diff(out.head_rotation[:, 0])).max() < np.radians(1.0)
+
+
 def test_between_selects_and_retimes():
     s = make_stream(frames=120, fps=60.0)
     part = s.between(0.5, 1.0)
