@@ -408,6 +408,9 @@ def read_arkit_csv(
         # checked from zero: times near 2**53 seconds apart lose their steps to rounding
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked there
             timestamps = _check_monotonic(times - times[0], lines, label)
+        gap = _gap_warning(timestamps, lines)
+        if gap:
+            warnings.append(gap)
     effective = _effective_fps(timestamps, nominal if nominal else (fps or DEFAULT_FPS))
 
     head = layout.gather_rotation(values, 0)
@@ -472,6 +475,26 @@ def _check_monotonic(times: np.ndarray, lines: list[int], label: str) -> np.ndar
             f"{times[i + 1]:.6f} s after {times[i]:.6f} s"
         )
     return times
+
+
+GAP_SECONDS = 1.0
+"""A step in time longer than this, and than ten typical frame steps, is a gap in the
+take (two takes joined, a clock jump), not a dropped frame or two."""
+
+
+def _gap_warning(timestamps: np.ndarray, lines: list[int]) -> str | None:
+    """A warning naming the gaps in a stream's time (see :data:`GAP_SECONDS`), which
+    resampling would fill with frames interpolated across them, or ``None``."""
+    steps = np.diff(timestamps)
+    if steps.size < 2:
+        return None
+    long = steps > max(GAP_SECONDS, 10.0 * float(np.median(steps)))
+    if not long.any():
+        return None
+    i = int(np.argmax(np.where(long, steps, -np.inf)))
+    return (f"{int(long.sum())} gap(s) in time, the longest {steps[i]:.4g} s after "
+            f"{timestamps[i]:.3f} s (line {lines[i + 1]}): animate fills a gap with frames "
+            f"interpolated across it; --start/--end cut it out")
 
 
 def _effective_fps(timestamps: np.ndarray, fallback: float) -> float:

@@ -398,3 +398,22 @@ def test_udp_order_file_matches_a_lookup_by_name(shared_data):
         np.testing.assert_array_equal(s.weight(name), np.clip(raw, 0, 1))
     # The UDP order puts JawLeft before JawRight, the app's CSV the other way round:
     assert header.index("JawLeft") < header.index("JawRight")
+
+
+def test_a_gap_in_time_is_named_not_silently_bridged(tmp_path):
+    """A take with an hour between two frames read as a 3604 s stream at 60 fps without a
+    word, and animate would have interpolated 216,000 frames across the hour."""
+    rows = ["time,jawOpen"] + [f"{i / 60:.6f},0.5" for i in range(60)]
+    rows += [f"{3600 + i / 60:.6f},0.2" for i in range(60)]
+    path = tmp_path / "joined.csv"
+    path.write_text("\n".join(rows) + "\n")
+    stream = read_arkit_csv(path)
+    gaps = [w for w in stream.warnings if "gap" in w]
+    assert gaps == ["1 gap(s) in time, the longest 3599 s after 0.983 s (line 62): animate "
+                    "fills a gap with frames interpolated across it; --start/--end cut it "
+                    "out"]
+    assert stream.fps == 60.0
+    # dropped frames (a step of a few frames) are not gaps
+    rows = ["time,jawOpen"] + [f"{i / 60:.6f},0.5" for i in range(120) if i % 7]
+    path.write_text("\n".join(rows) + "\n")
+    assert not [w for w in read_arkit_csv(path).warnings if "gap" in w]
