@@ -492,6 +492,10 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
         from head360cli.io.atomic import check_folder_name
 
         check_folder_name(out)
+    from head360cli.io.images import check_companion_png, png_info
+
+    sheet = out.with_suffix(".png") if one_file else out / "samples.png"
+    check_companion_png(sheet, "picture of the heads")  # NAME.png may be the user's photo
     device = str(resolve_device(_settings().device))
     heads = sample_heads(count, seed, spread, bald, device, lids=not no_lid_fit)
     if one_file:
@@ -509,10 +513,9 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"])
         tiles.append(next(r.frames(cam, np.zeros((1, 52)), view_intrinsics(r.size)))[0])
-    sheet = out.with_suffix(".png") if one_file else out / "samples.png"
     with atomic_path(sheet) as tmp:
         Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
-            tmp, format="PNG")
+            tmp, format="PNG", pnginfo=png_info())
     _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
           f"wrote {out} and {sheet}" if one_file
           else f"wrote {count} heads into {out}/ and {sheet}")

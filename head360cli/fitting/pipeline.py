@@ -534,14 +534,16 @@ def fit_outputs(out: str | Path) -> dict[str, Path]:
 
 
 def check_fit_outputs(photo: Any, out: str | Path) -> None:
-    """Refuse a fit whose outputs would replace its own photo, or a ``<stem>.json`` that an
-    earlier fit did not write (a LabelMe annotation beside ``photo.jpg``, say): both
-    would be lost without a word.
+    """Refuse a fit whose outputs would replace its own photo, a ``<stem>_preview.png``
+    head360 did not write, or a ``<stem>.json`` that an earlier fit did not write (a
+    LabelMe annotation beside ``photo.jpg``, say): each would be lost without a word.
 
     Raises:
         BadInputError: Either, naming the file and how to avoid it.
     """
     import os
+
+    from head360cli.io.images import check_companion_png
 
     paths = fit_outputs(out)
     if isinstance(photo, str | os.PathLike) and Path(photo).is_file():
@@ -550,6 +552,7 @@ def check_fit_outputs(photo: Any, out: str | Path) -> None:
                 raise BadInputError(f"expected outputs other than the photo, found the "
                                     f"{what} {str(path)!r} would replace it: give -o "
                                     f"another name")
+    check_companion_png(paths["preview"], "preview")
     summary = paths["summary"]
     if summary.exists():
         try:
@@ -622,6 +625,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     )
     from head360cli.io.atomic import atomic_path, check_file_target
     from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
+    from head360cli.io.images import png_info
     from head360cli.model.head_render import HeadRenderer, to_uint8
     from head360cli.model.train import load_generator
     from head360cli.synth.hair import HAIRSTYLES
@@ -775,7 +779,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     write_head(head_file, out)
     sheet = np.concatenate([crop, front, *views], 1)
     with atomic_path(paths["preview"]) as tmp:
-        Image.fromarray(sheet).save(tmp)
+        Image.fromarray(sheet).save(tmp, format="PNG", pnginfo=png_info())
     timings["write"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     euler = fit.euler_degrees()

@@ -23,7 +23,8 @@ from head360cli.errors import BadInputError, FileFormatError
 if TYPE_CHECKING:
     from head360cli.io.sources import NamedBytes
 
-__all__ = ["MAX_PIXELS", "MAX_SIDE", "LoadedImage", "describe_image", "load_image"]
+__all__ = ["MAX_PIXELS", "MAX_SIDE", "LoadedImage", "check_companion_png", "describe_image",
+           "load_image", "png_info", "written_by_head360"]
 
 MAX_PIXELS = 100_000_000
 """Images with more pixels than this are refused."""
@@ -291,3 +292,39 @@ def load_image(
         focal_35mm=focal_35mm,
         frames=frames,
     )
+
+
+def png_info():
+    """PNG text metadata that marks a picture as head360's (``Software: head360 x.y.z``),
+    for the pictures a command names after its output (see
+    :func:`check_companion_png`)."""
+    from PIL.PngImagePlugin import PngInfo
+
+    from head360cli import __version__
+
+    info = PngInfo()
+    info.add_text("Software", f"head360 {__version__}")
+    return info
+
+
+def written_by_head360(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a PNG that head360 wrote with :func:`png_info`."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return str(getattr(im, "text", {}).get("Software", "")).startswith("head360")
+    except Exception:  # not an image, unreadable: not ours
+        return False
+
+
+def check_companion_png(path: str | os.PathLike[str], what: str) -> None:
+    """Refuse to write a picture a command names after its output (``NAME.png`` beside
+    ``NAME.h360``) over a file head360 did not write: it may be the user's photo.
+
+    Raises:
+        BadInputError: ``path`` exists and is not a PNG marked by :func:`png_info`.
+    """
+    if os.path.lexists(path) and not written_by_head360(path):
+        raise BadInputError(f"expected to write the {what} as {str(path)!r}, found a file "
+                            f"head360 did not write there: move it or give -o another name")

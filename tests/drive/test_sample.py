@@ -57,6 +57,28 @@ def test_cli_sample_to_one_head_file_and_its_checks(run_cli, tmp_path):
     assert (tmp_path / "f").read_text() == "keep me"
 
 
+def test_cli_sample_does_not_write_its_picture_over_a_photo(run_cli, tmp_path):
+    """``sample -o me.h360`` wrote its picture as me.png over the user's photo of that
+    name; a picture an earlier sample wrote is replaced, as before."""
+    from PIL import Image
+
+    photo = tmp_path / "me.png"
+    Image.new("RGB", (8, 8), (200, 150, 100)).save(photo)
+    before = photo.read_bytes()
+    r = run_cli("sample", "-o", tmp_path / "me.h360", "--no-lid-fit")
+    assert r.code == 3 and "head360 did not write there" in r.err, r.err
+    assert photo.read_bytes() == before and not (tmp_path / "me.h360").exists()
+    r = run_cli("sample", "-o", tmp_path / "again.h360", "--no-lid-fit")
+    assert r.code == 0, r.err
+    r = run_cli("sample", "-o", tmp_path / "again.h360", "--no-lid-fit", "--seed", "1")
+    assert r.code == 0, r.err
+    folder = tmp_path / "heads"
+    folder.mkdir()
+    (folder / "samples.png").write_bytes(before)
+    r = run_cli("sample", "-n", "1", "-o", folder, "--no-lid-fit")
+    assert r.code == 3 and "samples.png" in r.err and not list(folder.glob("*.h360"))
+
+
 def test_writing_no_samples_is_refused(tmp_path):
     """Before, write_samples([]) made an empty folder and returned no paths."""
     from head360cli.drive.sample import write_samples

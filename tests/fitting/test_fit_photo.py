@@ -110,6 +110,15 @@ def test_a_fit_does_not_replace_its_photo_or_a_json_it_did_not_write(run_cli, as
             check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
     labelme.write_text(json.dumps(dict.fromkeys(FIT_SUMMARY_KEYS, 0)))
     check_fit_outputs(astronaut, tmp_path / "astronaut.h360")  # an earlier fit's: replaced
+    # a preview head360 wrote is replaced; a picture of the same name it did not write is not
+    from head360cli.io.images import png_info
+
+    preview = tmp_path / "astronaut_preview.png"
+    Image.new("RGB", (4, 4)).save(preview, pnginfo=png_info())
+    check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
+    Image.new("RGB", (4, 4)).save(preview)
+    with pytest.raises(BadInputError, match=r"preview as .*head360 did not write"):
+        check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
 
 
 def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
