@@ -24,6 +24,7 @@ frame). Weights outside [0, 1] are clamped and counted in a warning.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import dataclasses
 import io
@@ -201,13 +202,19 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
             raw = path.read_bytes()  # a pipe (<(...)) too: it is read once, whole
         except OSError as exc:
             raise FileFormatError(f"cannot read {str(path)!r}: {exc.strerror}") from exc
+    # Excel's "Unicode text" and other Windows tools write UTF-16 with a byte-order mark
+    utf16 = raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE))
     try:
-        text = raw.decode("utf-8-sig")
+        text = raw.decode("utf-16" if utf16 else "utf-8-sig")
     except UnicodeDecodeError as exc:
         raise FileFormatError(
-            f"expected a UTF-8 text CSV in {str(path)!r}, found binary data "
-            f"(byte {exc.start})"
+            f"expected a UTF-8 (or UTF-16 with a byte-order mark) text CSV in "
+            f"{str(path)!r}, found binary data (byte {exc.start})"
         ) from exc
+    if "\x00" in text:  # valid UTF-8, but no CSV has NULs: UTF-16 without its mark
+        raise FileFormatError(
+            f"expected a UTF-8 (or UTF-16 with a byte-order mark) text CSV in "
+            f"{str(path)!r}, found NUL characters (UTF-16 without a byte-order mark?)")
     return io.StringIO(text), str(path)
 
 

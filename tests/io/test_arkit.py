@@ -417,3 +417,23 @@ def test_a_gap_in_time_is_named_not_silently_bridged(tmp_path):
     rows = ["time,jawOpen"] + [f"{i / 60:.6f},0.5" for i in range(120) if i % 7]
     path.write_text("\n".join(rows) + "\n")
     assert not [w for w in read_arkit_csv(path).warnings if "gap" in w]
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-be"])
+def test_utf16_text_with_a_byte_order_mark_reads_as_utf8_does(tmp_path, encoding):
+    """Excel's "Unicode text" export (UTF-16, tab-separated) was refused as binary data."""
+    import codecs
+
+    text = "Timecode\tJawOpen\tEyeBlinkLeft\n" + "".join(
+        f"00:00:00:{i:02d}.000\t{i / 10:.1f}\t0\n" for i in range(10))
+    path = tmp_path / "excel.csv"
+    bom = codecs.BOM_UTF16_BE if encoding.endswith("be") else b""
+    path.write_bytes(bom + text.encode(encoding))
+    utf8 = tmp_path / "utf8.csv"
+    utf8.write_text(text)
+    a, b = read_arkit_csv(path), read_arkit_csv(utf8)
+    np.testing.assert_array_equal(a.weights, b.weights)
+    np.testing.assert_array_equal(a.timestamps, b.timestamps)
+    path.write_bytes(text.encode("utf-16-le"))  # no mark: not told from binary data
+    with pytest.raises(FileFormatError, match="UTF-16 with a byte-order mark"):
+        read_arkit_csv(path)
