@@ -13,6 +13,7 @@ they are made, so memory does not grow with the length of the take.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -58,6 +59,33 @@ class AnimateConfig:
     """Processes that render frames on a CPU (``None``: one per usable core, at most 4,
     when there are enough frames: :func:`~head360cli.drive.parallel.auto_workers`);
     1 renders in this process alone."""
+
+    def __post_init__(self) -> None:
+        """Refuse values no take can be rendered with (the CLI's options are checked with
+        their own names first; these guard library callers).
+
+        Raises:
+            BadInputError: The first field out of range, expected against found.
+        """
+        from head360cli.drive.views import check_angles
+
+        def finite(x) -> bool:
+            return isinstance(x, int | float | np.number) and math.isfinite(x)
+
+        if self.fps is not None and not (finite(self.fps) and MIN_FPS <= self.fps <= MAX_FPS):
+            raise BadInputError(f"expected fps from {MIN_FPS:g} to {MAX_FPS:g} or None, found "
+                                f"{self.fps!r}")
+        for name in ("start", "end"):
+            value = getattr(self, name)
+            if value is not None and not (finite(value) and value >= 0):
+                raise BadInputError(f"expected {name} >= 0 seconds or None, found {value!r}")
+        if not (finite(self.smooth) and self.smooth >= 0):
+            raise BadInputError(f"expected smooth >= 0 seconds, found {self.smooth!r}")
+        check_angles(self.yaw, self.pitch)
+        for name in ("batch", "workers"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, int | np.integer) and value >= 1):
+                raise BadInputError(f"expected {name} >= 1 or None, found {value!r}")
 
 
 def head_motion(rotation: np.ndarray, pivot=HEAD_PIVOT) -> np.ndarray:

@@ -323,3 +323,23 @@ def test_extreme_expression_and_vertical_views_stay_finite(head_file):
     w = np.ones((3, 52))
     img = r.render(cams, view_intrinsics(32), w)
     assert torch.isfinite(img).all() and (img < 0.9).any(dim=1).flatten(1).any(1).all()
+
+
+@pytest.mark.parametrize(("field", "value", "says"), [
+    ("smooth", -1.0, "smooth >= 0 seconds, found -1.0"),
+    ("smooth", float("nan"), "smooth >= 0 seconds, found nan"),
+    ("fps", float("nan"), "fps from 1 to 240 or None, found nan"),
+    ("fps", 0.5, "fps from 1 to 240 or None, found 0.5"),
+    ("start", -1.0, "start >= 0 seconds or None, found -1.0"),
+    ("end", float("inf"), "end >= 0 seconds or None, found inf"),
+    ("pitch", 100.0, "pitch within [+]-90 degrees, found 0.0, 100.0"),
+    ("batch", 0, "batch >= 1 or None, found 0"),
+    ("workers", -1, "workers >= 1 or None, found -1"),
+])
+def test_animate_config_refuses_what_no_take_renders_with(field, value, says):
+    """From Python, smooth=-1 or NaN rendered unsmoothed, start=-1 from the start and
+    workers=0 with the automatic count, where the CLI refuses each option."""
+    with pytest.raises(BadInputError, match=says):
+        AnimateConfig(**{field: value})
+    AnimateConfig(fps=30, start=0, end=1.5, smooth=0.05, yaw=-720.0, pitch=-90, batch=np.int64(2),
+                  workers=1)
