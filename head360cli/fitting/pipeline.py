@@ -86,8 +86,9 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    if face != "all" and int(face) < 0:
-        raise BadInputError(f"expected a face number >= 0, found {face}")
+    if face != "all" and not (str(face).isdigit() or (isinstance(face, int | np.integer)
+                                                     and face >= 0)):
+        raise BadInputError(f"expected a face number >= 0 or 'all', found {face!r}")
     check_camera(focal, distance)  # before any work
     check_folder_name(out_dir)
     img = load_image(photo)

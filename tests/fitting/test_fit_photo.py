@@ -497,3 +497,13 @@ def test_classify_hair_and_parse_hair_pass_on_the_photo_s_warnings(run_cli, astr
     assert r.code == 0 and "two.gif holds 2 frames; the first is used" in r.err
     r = run_cli("classify-hair", frames)
     assert r.code == 0 and "two.gif holds 2 frames; the first is used" in r.err
+
+
+def test_the_shape_fit_refuses_a_face_that_is_no_number_from_python(astronaut, tmp_path):
+    """fit_shape_photo(face="x") was int()'s ValueError; the CLI checked its own option."""
+    from head360cli.fitting.pipeline import fit_shape_photo
+
+    for face, found in (("x", "'x'"), (-1, "-1"), ("-1", "'-1'"), (1.5, "1.5")):
+        with pytest.raises(BadInputError, match=f"face number >= 0 or 'all', found {found}"):
+            fit_shape_photo(astronaut, tmp_path / "out", face=face)
+    assert not (tmp_path / "out").exists()
