@@ -89,6 +89,39 @@ class TrainConfig:
     random initialisation: the networks and the training codes (``""``: none). The
     generator configuration is then the weights' own."""
 
+    def __post_init__(self) -> None:
+        """Refuse settings no run can train with (the CLI checks its options first, with
+        their own names; this guards library callers and resumed checkpoints).
+
+        Raises:
+            BadInputError: The first field out of range, expected against found.
+        """
+        import math
+
+        from head360cli.errors import BadInputError
+
+        def bad(name: str, expected: str) -> BadInputError:
+            return BadInputError(f"expected TrainConfig.{name} {expected}, found "
+                                 f"{getattr(self, name)!r}")
+
+        for name in ("identities", "batch", "group", "workers", "log_every",
+                     "checkpoint_every"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise bad(name, ">= 1")
+        for name in ("steps", "warmup", "seed"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 0):
+                raise bad(name, ">= 0")
+        for name in ("lr", "code_lr", "clip"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise bad(name, "finite and > 0")
+        for name in ("minutes", "code_prior", "low_res_weight", "mask_weight",
+                     "hair_weight"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise bad(name, "finite and >= 0")
+        for name in ("bald_share", "featured_share", "final_lr"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise bad(name, "in [0, 1]")
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -164,6 +165,23 @@ def test_cli_train_resume_names_the_options_its_checkpoint_replaces(run_cli, tmp
     assert r.code == 0 and "not used" not in r.err
     out = json.loads(r.out)
     assert out["trained"] is True and out["last"]["step"] == 2
+
+
+@pytest.mark.parametrize(("field", "value", "expected"), [
+    ("lr", -1.0, "finite and > 0"), ("lr", float("nan"), "finite and > 0"),
+    ("batch", 0, ">= 1"), ("identities", 0, ">= 1"), ("workers", 0, ">= 1"),
+    ("steps", -1, ">= 0"), ("minutes", -0.5, "finite and >= 0"),
+    ("bald_share", 1.5, "in [0, 1]"), ("featured_share", float("nan"), "in [0, 1]"),
+    ("checkpoint_every", 0, ">= 1"),
+])
+def test_train_config_refuses_settings_no_run_trains_with(field, value, expected):
+    """From Python, TrainConfig(lr=-1) trained (the CLI checked only its options)."""
+    from head360cli.errors import BadInputError
+
+    with pytest.raises(BadInputError, match=re.escape(
+            f"expected TrainConfig.{field} {expected}, found {value!r}")):
+        TrainConfig(**{field: value})
+    assert TrainConfig(steps=0, minutes=0.0, code_prior=0.0, final_lr=1.0) is not None
 
 
 class _Payload:
