@@ -571,7 +571,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
               detector: str = "hog", focal: float | None = None, device: str = "cpu",
               hair_style: int | None = None, distance: float | None = None,
               progress: Any = None, learned_prior: bool = True,
-              hair_placement: bool = True, closed_lids: bool = True) -> dict[str, Any]:
+              hair_placement: bool = True, closed_lids: bool = True,
+              own_folder: bool = False) -> dict[str, Any]:
     """``head360 fit``: every stage, from a photo to a head file.
 
     Stages: detection and shape fit; hair parsing; hairstyle classification and hair
@@ -607,6 +608,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
             where the style's fit to the head puts it.
         closed_lids: Fit the texture change that closed eyes show as a lid (stored in
             the head file as ``lid_index``/``lid_change``); ``False``: none.
+        own_folder: The outputs' folder is the caller's own (``head360 demo``'s): skip
+            :func:`check_fit_outputs`, which keeps a fit from replacing other programs'
+            files beside the photo.
 
     Returns:
         The JSON summary (also written to ``<out stem>.json``).
@@ -638,7 +642,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     if out.suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
     check_file_target(out)
-    check_fit_outputs(photo, out)
+    if not own_folder:
+        check_fit_outputs(photo, out)
     if hair_style is not None and not 0 <= hair_style < len(HAIRSTYLES):
         raise BadInputError(f"expected a hairstyle id 0..{len(HAIRSTYLES) - 1}, found "
                             f"{hair_style}")
@@ -915,7 +920,7 @@ def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,
     with atomic_path(photo) as tmp:
         Image.fromarray(data.astronaut()).save(tmp)
     fit = fit_photo(photo, out / "astronaut.h360", preset=preset, device=device,
-                    progress=progress)
+                    progress=progress, own_folder=True)  # every file in it is the demo's
     from head360cli.drive.views import write_turntable
 
     renderer = load_head_renderer(out / "astronaut.h360", device)
