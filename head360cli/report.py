@@ -132,10 +132,11 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
 
 def file_kind(path: str | NamedBytes) -> str:
     """``"stream"``, ``"head"``, ``"image"``, ``"model"`` (head360's weights, checkpoints,
-    bilinear model or ONNX graphs) or ``"mesh"`` (glTF binary), from the name and the first bytes (a
-    pipe's content already read, :class:`~head360cli.io.sources.NamedBytes`: from its
-    bytes alone, and what is neither a zip nor an image is taken for a stream). A file
-    whose name says nothing is a stream when its first bytes are text."""
+    bilinear model or ONNX graphs) or ``"mesh"`` (glTF binary or OBJ), from the name and
+    the first bytes (a pipe's content already read,
+    :class:`~head360cli.io.sources.NamedBytes`: from its bytes alone, and what is neither
+    a zip nor an image is taken for a stream). A file whose name says nothing is a
+    stream when its first bytes are text."""
     from head360cli.io.sources import NamedBytes, existing
 
     if path == "-":
@@ -270,8 +271,9 @@ def describe_model(path: str | NamedBytes, shown: str) -> dict[str, Any]:
             installed = None
         return {**out, "format": fmt, "format_version": blob.get("format_version"),
                 "model_hash": out["sha256"], "installed": out["sha256"] == installed,
-                "step": blob.get("step"), "identities": int(blob["codes"].shape[0]),
-                "parameters": _count_parameters(blob["generator"]),
+                "step": blob.get("step"),
+                "identities": len(blob["codes"]) if "codes" in blob else None,
+                "parameters": _count_parameters(blob.get("generator", {})),
                 "generator_config": blob.get("generator_config")}
     if fmt == "head360-train":
         return {**out, "format": fmt, "step": blob.get("step"),
@@ -281,7 +283,8 @@ def describe_model(path: str | NamedBytes, shown: str) -> dict[str, Any]:
     from head360cli.fitting.hair_prior import FORMAT as PRIOR_FORMAT
 
     if fmt == PRIOR_FORMAT:
-        return {**out, "format": fmt, "parameters": _count_parameters(blob["state_dict"]),
+        return {**out, "format": fmt,
+                "parameters": _count_parameters(blob.get("state_dict", {})),
                 "config": blob.get("config"), "meta": blob.get("meta", {})}
     found = repr(fmt) if fmt else type(blob).__name__
     raise FileFormatError(f"{shown}: expected head360 generator weights, a training "

@@ -212,6 +212,9 @@ def test_inspect_model_files_without_running_their_code(run_cli, tmp_path):
     torch.save({"a": Image.new("RGB", (1, 1))}, tmp_path / "other.pt")  # an object: code
     r = run_cli("inspect", tmp_path / "other.pt")
     assert r.code == 5 and "could run code, so it is not loaded" in r.err, r.err
+    torch.save({"format": "head360-generator"}, tmp_path / "bare.pt")  # entries missing
+    j = json.loads(run_cli("inspect", tmp_path / "bare.pt", "--json").out)
+    assert (j["identities"], j["parameters"], j["installed"]) == (None, 0, False)
     torch.save({"format": "someone else's"}, tmp_path / "plain.pt")
     r = run_cli("inspect", tmp_path / "plain.pt")
     assert r.code == 5 and "found \"someone else's\"" in r.err, r.err
