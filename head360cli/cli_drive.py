@@ -495,7 +495,8 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     from head360cli.io.images import check_companion_png, png_info
 
     sheet = out.with_suffix(".png") if one_file else out / "samples.png"
-    check_companion_png(sheet, "picture of the heads")  # NAME.png may be the user's photo
+    if not _sampled_before(out if one_file else out / "sample_000.h360"):
+        check_companion_png(sheet, "picture of the heads")  # NAME.png may be the user's photo
     device = str(resolve_device(_settings().device))
     heads = sample_heads(count, seed, spread, bald, device, lids=not no_lid_fit)
     if one_file:
@@ -519,6 +520,20 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
           f"wrote {out} and {sheet}" if one_file
           else f"wrote {count} heads into {out}/ and {sheet}")
+
+
+def _sampled_before(head: Path) -> bool:
+    """Whether ``head`` is a head file ``sample`` wrote (its info says ``sampled``): the
+    picture beside it is then that run's, written before pictures carried head360's PNG
+    mark."""
+    from head360cli.io.headfile import read_head
+
+    if not head.is_file():
+        return False
+    try:
+        return "sampled" in read_head(head).info
+    except Exception:  # not a head file: the picture's own mark decides
+        return False
 
 
 @cli.command("export-mesh")

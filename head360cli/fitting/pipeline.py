@@ -553,18 +553,22 @@ def check_fit_outputs(photo: Any, out: str | Path) -> None:
                 raise BadInputError(f"expected outputs other than the photo, found the "
                                     f"{what} {str(path)!r} would replace it: give -o "
                                     f"another name")
-    check_companion_png(paths["preview"], "preview")
-    summary = paths["summary"]
+    summary, found = paths["summary"], None
     if summary.exists():
         try:
             found = json.loads(summary.read_text(encoding="utf-8"))
-            ours = isinstance(found, dict) and all(k in found for k in FIT_SUMMARY_KEYS)
         except (OSError, ValueError):  # unreadable, not UTF-8 or not JSON
-            ours = False
-        if not ours:
+            found = None
+        if not (isinstance(found, dict) and all(k in found for k in FIT_SUMMARY_KEYS)):
             raise BadInputError(f"expected {str(summary)!r} to be an earlier fit's summary "
                                 f"before replacing it, found another file: move it or give "
                                 f"-o another name")
+    # A preview an earlier fit wrote is named in its summary (versions before the PNG
+    # mark included); any other picture of that name is refused.
+    listed = found["files"].get("preview") if isinstance(found, dict) and isinstance(
+        found.get("files"), dict) else None
+    if not (listed and Path(listed).name == paths["preview"].name):
+        check_companion_png(paths["preview"], "preview")
 
 
 def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,

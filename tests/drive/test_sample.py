@@ -77,6 +77,10 @@ def test_cli_sample_does_not_write_its_picture_over_a_photo(run_cli, tmp_path):
     (folder / "samples.png").write_bytes(before)
     r = run_cli("sample", "-n", "1", "-o", folder, "--no-lid-fit")
     assert r.code == 3 and "samples.png" in r.err and not list(folder.glob("*.h360"))
+    # an earlier version's run: its picture has no mark, but the head beside it was sampled
+    Image.new("RGB", (8, 8)).save(tmp_path / "again.png")
+    r = run_cli("sample", "-o", tmp_path / "again.h360", "--no-lid-fit", "--seed", "2")
+    assert r.code == 0, r.err
 
 
 def test_writing_no_samples_is_refused(tmp_path):

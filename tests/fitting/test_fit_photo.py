@@ -119,6 +119,10 @@ def test_a_fit_does_not_replace_its_photo_or_a_json_it_did_not_write(run_cli, as
     Image.new("RGB", (4, 4)).save(preview)
     with pytest.raises(BadInputError, match=r"preview as .*head360 did not write"):
         check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
+    # an earlier version's fit: its preview has no mark, but its summary names it
+    labelme.write_text(json.dumps({**dict.fromkeys(FIT_SUMMARY_KEYS, 0),
+                                   "files": {"preview": str(preview)}}))
+    check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
 
 
 def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
