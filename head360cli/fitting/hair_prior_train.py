@@ -92,6 +92,42 @@ class HairPriorTrainConfig:
     pixels are not hair in the target, so the prior learns that a cap or beanie over
     the hair is not hair."""
 
+    def __post_init__(self) -> None:
+        """Refuse settings no run can train with (the CLI checks its options first, with
+        their own names; this guards library callers).
+
+        Raises:
+            BadInputError: The first field out of range, expected against found.
+        """
+        import math
+
+        from head360cli.errors import BadInputError
+
+        def bad(name: str, expected: str) -> BadInputError:
+            return BadInputError(f"expected HairPriorTrainConfig.{name} {expected}, found "
+                                 f"{getattr(self, name)!r}")
+
+        for name in ("heads", "views", "steps", "batch", "render_size"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise bad(name, ">= 1")
+        if not (isinstance(self.seed, int) and self.seed >= 0):
+            raise bad("seed", ">= 0")
+        for name in ("lr",):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise bad(name, "finite and > 0")
+        for name in ("minutes", "weight_decay", "yaw"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise bad(name, "finite and >= 0")
+        for name in ("style_share", "colour_share", "expression_share", "frame_share",
+                     "hat_share"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise bad(name, "in [0, 1]")
+        if not 0.0 < self.shrink <= 1.0:
+            raise bad("shrink", "in (0, 1]")
+        low, high = self.pitch
+        if not -90.0 <= low <= high <= 90.0:
+            raise bad("pitch", "a (low, high) range within -90..90 degrees")
+
 
 def canonical_landmarks(views: Any, crop: int, shrink: float, heads: int = 20) -> np.ndarray:
     """Mean frontal positions ``(41, 2)`` of landmarks 27-67 in the crop's pixels.

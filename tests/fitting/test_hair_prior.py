@@ -297,3 +297,18 @@ def test_shipped_prior_alone_reads_held_out_corpus_heads(shipped, index, iou):
     p = shipped.predict(img, lm)
     assert mask_iou(p > 0.5, truth) == pytest.approx(iou, abs=0.02)
     np.testing.assert_array_equal(shipped.predict(img, lm), p)  # deterministic
+
+
+@pytest.mark.parametrize(("field", "value", "expected"), [
+    ("lr", float("inf"), "finite and > 0"), ("batch", 0, ">= 1"), ("heads", -1, ">= 1"),
+    ("hat_share", 2.0, "in [0, 1]"), ("shrink", 0.0, "in (0, 1]"),
+    ("pitch", (30.0, -10.0), "a (low, high) range within -90..90 degrees"),
+    ("minutes", float("nan"), "finite and >= 0"),
+])
+def test_train_config_refuses_settings_no_run_trains_with(field, value, expected):
+    """From Python, HairPriorTrainConfig took any value (the CLI checked its options)."""
+    import re
+
+    with pytest.raises(BadInputError, match=re.escape(
+            f"expected HairPriorTrainConfig.{field} {expected}, found {value!r}")):
+        HairPriorTrainConfig(**{field: value})
