@@ -273,8 +273,9 @@ def pick_face(faces: list[DetectedFace], index: int, kind: str,
             :func:`upside_down`, with what to do about that), or fewer than
             ``index + 1``.
     """
-    if index < 0:  # Python's indexing would pick a face from the end
-        raise BadInputError(f"expected a face number >= 0, found {index}")
+    # Python's indexing would pick a face from the end, and fail on a fraction
+    if isinstance(index, bool) or not isinstance(index, int | np.integer) or index < 0:
+        raise BadInputError(f"expected a face number >= 0, found {index!r}")
     if not faces:
         if rgb is not None and kind != "cnn" and upside_down(rgb):
             raise NoFaceError("no face found in the image as it lies, but one upside down: "

@@ -164,6 +164,10 @@ def test_a_negative_face_number_is_refused_not_taken_from_the_end():
     assert pick_face(faces, 1, "hog") is faces[1]
     with pytest.raises(BadInputError, match="expected a face number >= 0, found -1"):
         pick_face(faces, -1, "hog")
+    # from Python, a fraction was a TypeError from list indexing
+    assert pick_face(faces, np.int64(1), "hog") is faces[1]
+    with pytest.raises(BadInputError, match=r"expected a face number >= 0, found 1\.5"):
+        pick_face(faces, 1.5, "hog")
 
 
 @pytest.mark.parametrize("degrees, turn", [(60.0, -60.0), (-90.0, 90.0), (45.0, -30.0)])
