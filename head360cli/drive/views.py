@@ -206,10 +206,14 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
     """Render ``frames`` views turning once around a head (neutral expression unless one
     is given), starting at ``yaw`` degrees, with or without its ``hair``, into a video
     (mp4, GIF or PNG folder by name), streaming frames to the encoder."""
+    from head360cli.drive.animate import MAX_FPS, MIN_FPS
     from head360cli.io.video import VideoWriter
 
     if frames < 1:
         raise BadInputError(f"expected at least 1 frame, found {frames}")
+    if not MIN_FPS <= fps <= MAX_FPS:  # ffmpeg wrote 1e9 fps as a video of 0 s at 0 fps
+        raise BadInputError(f"expected a frame rate of {MIN_FPS:g} to {MAX_FPS:g} frames per "
+                            f"second, found {fps:g}")
     yaws = yaw + np.arange(frames) * (360.0 / frames)
     cams = view_cameras(yaws, np.full(frames, pitch))
     w = np.zeros(52) if expression is None else np.asarray(expression)

@@ -97,6 +97,14 @@ def test_turntable_streams_every_frame(head_file, tmp_path):
         write_turntable(r, tmp_path / "none.gif", frames=0)
 
 
+@pytest.mark.parametrize("fps", [0.5, 1e9, float("nan")])
+def test_turntable_refuses_a_frame_rate_no_player_shows(tmp_path, fps):
+    """--fps 1e9 wrote an mp4 that ffmpeg reads back as 0 fps and 0 s long."""
+    with pytest.raises(BadInputError, match="frame rate of 1 to 240 frames per second"):
+        write_turntable(None, tmp_path / "turn.mp4", frames=2, fps=fps)
+    assert not list(tmp_path.iterdir())
+
+
 def test_turntable_refuses_a_malformed_expression_before_opening_the_video(tmp_path):
     """A (51,) expression was a numpy broadcast error; nothing is written now."""
     out = tmp_path / "turn.gif"
