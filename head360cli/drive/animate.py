@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from head360cli.errors import BadInputError
+from head360cli.io.video import GIF_MAX_FPS, check_gif_rate
 
 __all__ = ["HEAD_PIVOT", "AnimateConfig", "animate", "head_motion", "head_pose_cameras",
            "prepare_stream"]
@@ -186,6 +187,14 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
     if out is None and mesh_dir is None:
         raise BadInputError("expected a video output or a mesh folder, found neither")
     _check_outputs(out, mesh_dir)
+    notes = []
+    if out is not None and cfg.fps is None and _gif_rate(out, stream.fps) is not None:
+        cfg = dataclasses.replace(cfg, fps=_gif_rate(out, stream.fps))
+        notes.append(f"a GIF plays at most {GIF_MAX_FPS:g} frames per second: the "
+                     f"{stream.fps:g} fps take is resampled to {cfg.fps:g} (give --fps, or "
+                     f"write an .mp4 for every frame)")
+    if out is not None and cfg.fps is not None:
+        check_gif_rate(out, cfg.fps)  # before any work
     stream = prepare_stream(stream, cfg)
     # processes for the frames on a CPU (one-frame batches only)
     workers = (cfg.workers or auto_workers(stream.num_frames, "cpu")
@@ -195,10 +204,24 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
     try:
         if loader:
             renderer = renderer()
-        return _animate(renderer, stream, out, cfg, mesh_dir, progress, workers, pool)
+        result = _animate(renderer, stream, out, cfg, mesh_dir, progress, workers, pool)
     finally:
         if pool is not None:
             pool.close()
+    if notes:
+        result["warnings"] = notes + result.get("warnings", [])
+    return result
+
+
+def _gif_rate(out: str | Path, fps: float) -> float | None:
+    """For a GIF output of a take at ``fps`` above :data:`GIF_MAX_FPS`, the rate to
+    resample it to (the take's divided by the smallest whole number that brings it to
+    the limit or under: 60 -> 30, 120 -> 40); otherwise ``None``."""
+    from head360cli.io.video import output_kind
+
+    if output_kind(out) != "gif" or fps <= GIF_MAX_FPS:
+        return None
+    return fps / math.ceil(fps / GIF_MAX_FPS - 1e-9)
 
 
 def _check_outputs(out: str | Path | None, mesh_dir: str | Path | None) -> None:

@@ -31,9 +31,27 @@ from head360cli.io.atomic import (
     temp_name_beside,
 )
 
-__all__ = ["VIDEO_SUFFIXES", "VideoWriter", "check_video_target", "output_kind", "write_video"]
+__all__ = ["GIF_MAX_FPS", "VIDEO_SUFFIXES", "VideoWriter", "check_gif_rate",
+           "check_video_target", "output_kind", "write_video"]
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov")
+
+GIF_MAX_FPS = 50.0
+"""The fastest GIF that plays at its speed: a GIF frame lasts whole hundredths of a second,
+and browsers show a frame of one hundredth (or none) for a tenth, so a 60 fps take,
+stored as frames of 2, 1, 2, 2, 1... hundredths, played several times too slowly."""
+
+
+def check_gif_rate(path: str | os.PathLike[str], fps: float) -> None:
+    """Refuse a GIF output at more than :data:`GIF_MAX_FPS` frames per second.
+
+    Raises:
+        BadInputError: ``path`` names a GIF and ``fps`` is above the limit.
+    """
+    if fps > GIF_MAX_FPS and output_kind(path) == "gif":
+        raise BadInputError(f"expected at most {GIF_MAX_FPS:g} frames per second for a GIF "
+                            f"(browsers slow shorter frames down), found {fps:g}: give "
+                            f"--fps {GIF_MAX_FPS:g} or less, or write an .mp4")
 
 
 def output_kind(path: str | os.PathLike[str]) -> str:
@@ -112,6 +130,7 @@ class VideoWriter:
             raise BadInputError(f"expected a positive frame rate, found {fps!r}")
         self.path = Path(os.fspath(path).rstrip("/") or ".")
         self.kind = output_kind(path)
+        check_gif_rate(path, fps)
         self.fps = float(fps)
         self.quality = int(quality)
         self.overwrite = overwrite

@@ -105,6 +105,28 @@ def test_animate_renders_each_frame_and_follows_the_jaw(head_file, tmp_path):
         animate(r, _stream(), None)
 
 
+def test_a_60_fps_take_into_a_gif_is_resampled_to_a_rate_browsers_play(head_file,
+                                                                        tmp_path):
+    """A 60 fps take written as a GIF had frames of 10 ms, which browsers show for 100:
+    animate now halves the rate (with a warning); an explicit rate over 50 is refused
+    before any frame is rendered."""
+    from PIL import Image
+
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    r = load_head_renderer(head_file, samples=2, size=32)
+    res = animate(r, _stream(12, fps=60.0), tmp_path / "a.gif", AnimateConfig(workers=1))
+    assert (res["frames"], res["fps"]) == (6, 30.0)
+    assert any("resampled to 30" in w for w in res["warnings"])
+    with Image.open(tmp_path / "a.gif") as im:
+        assert im.n_frames == 6
+    with pytest.raises(BadInputError, match="at most 50 frames per second for a GIF"):
+        animate(r, _stream(12, fps=60.0), tmp_path / "b.gif", AnimateConfig(fps=60.0))
+    res = animate(r, _stream(4, fps=60.0), tmp_path / "c.mp4", AnimateConfig(workers=1))
+    assert res["fps"] == 60.0 and "warnings" not in res  # an mp4 keeps the take's rate
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "c.mp4"]
+
+
 def test_frames_do_not_accumulate(head_file):
     """The generator of frames keeps nothing: a long run allocates no more than a short
     one (tracemalloc over numpy and Python; torch's CPU tensors are freed per batch)."""

@@ -74,6 +74,32 @@ def test_gif_streams_with_exact_flat_colours(tmp_path):
     assert tuple(back[3, 0, 0, :3]) == (60, 255, 0)
 
 
+def _gif_durations(path) -> list[int]:
+    from PIL import Image
+
+    out = []
+    with Image.open(path) as im:
+        for i in range(im.n_frames):
+            im.seek(i)
+            out.append(im.info["duration"])
+    return out
+
+
+def test_a_gif_faster_than_browsers_play_is_refused(tmp_path):
+    """At 60 fps the frames were stored as 20, 10, 20 ms...: browsers show a frame of 10
+    ms for 100, so the GIF played several times too slowly. 50 fps is the limit."""
+    assert set(_gif_durations(_write(tmp_path / "a.gif", 50))) == {20}
+    with pytest.raises(BadInputError, match="at most 50 frames per second for a GIF"):
+        VideoWriter(tmp_path / "b.gif", fps=60)
+    _write(tmp_path / "c.mp4", 60)  # an mp4 keeps any rate
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "c.mp4"]
+
+
+def _write(path, fps):
+    write_video(frames(4), path, fps=fps)
+    return path
+
+
 def test_png_folder(tmp_path):
     out = tmp_path / "frames"
     write_video(frames(5), out, fps=10)
