@@ -307,7 +307,7 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         from head360cli.io.sources import check_stdin
 
         check_stdin("an ARKit stream")
-    stream = read_arkit_csv(sys.stdin if arkit == "-" else arkit, on_bad=on_bad)
+    stream = read_arkit_csv(arkit, on_bad=on_bad)  # "-": standard input, decoded as a file
     for warning in stream.warnings:
         _warn(warning)
     scratch = None  # the mean head's file when no HEAD is given, removed at the end

@@ -195,7 +195,10 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
         from head360cli.io.sources import check_stdin
 
         check_stdin("an ARKit stream")
-        return sys.stdin, "<stdin>"
+        if not hasattr(sys.stdin, "buffer"):  # a text stream put in its place
+            return sys.stdin, "<stdin>"
+        # bytes, decoded as a file's are: UTF-16 with a mark, NULs named
+        path, raw = "<stdin>", sys.stdin.buffer.read()
     else:
         path = existing(source, "an ARKit CSV file")
         try:

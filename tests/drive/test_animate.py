@@ -169,6 +169,23 @@ def test_cli_animate_reads_stdin_and_writes_a_gif(run_cli, head_file, tmp_path,
     assert res["frames"] == 3 and out.is_file()  # 8 frames at 30 fps = 0.233 s -> 3 at 10
 
 
+def test_cli_animate_reads_a_utf16_take_from_stdin(run_cli, head_file, tmp_path,
+                                                   monkeypatch):
+    """Standard input went to the CSV reader as text in the locale's encoding: a UTF-16
+    take (Excel's "Unicode text") piped in failed on a header of NULs and escapes."""
+    from head360cli.io.arkit import write_arkit_csv
+
+    buf = io.StringIO()
+    write_arkit_csv(_stream(8), buf)
+    data = buf.getvalue().replace(",", "\t").encode("utf-16")
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(data)))
+    out = tmp_path / "a.mp4"
+    r = run_cli("animate", head_file, "--arkit", "-", "-o", out, "--size", "32",
+                "--samples", "2", "--json", "--workers", "1")
+    assert r.code == 0, r.err
+    assert json.loads(r.out)["frames"] == 8 and out.is_file()
+
+
 def test_cli_animate_and_render_read_pipes(run_cli, head_file, tmp_path, pipe):
     """``--arkit <(...)`` and a head given as ``<(...)``: a pipe is no file, has no size
     and is read once; it was refused as "does not exist"."""

@@ -437,3 +437,18 @@ def test_utf16_text_with_a_byte_order_mark_reads_as_utf8_does(tmp_path, encoding
     path.write_bytes(text.encode("utf-16-le"))  # no mark: not told from binary data
     with pytest.raises(FileFormatError, match="UTF-16 with a byte-order mark"):
         read_arkit_csv(path)
+
+
+def test_standard_input_is_decoded_as_a_file_is(monkeypatch):
+    """``cat excel.csv | head360 animate ... --arkit -``: standard input was read as text
+    in the locale's encoding, so a UTF-16 take failed on a header of NULs and escapes."""
+    import io
+    import sys
+
+    text = "Timecode\tJawOpen\n" + "".join(f"00:00:00:{i:02d}.000\t0.5\n" for i in range(5))
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(text.encode("utf-16"))))
+    stream = read_arkit_csv("-")
+    assert stream.num_frames == 5 and stream.columns_found == ["jawOpen"]
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(b"\x89PNG\r\n\x1a\n\xff")))
+    with pytest.raises(FileFormatError, match="'<stdin>', found binary data"):
+        read_arkit_csv("-")
