@@ -20,7 +20,7 @@ __all__ = ["describe_mesh", "describe_model", "environment_report", "file_kind",
 
 MODEL_SUFFIXES = (".pt", ".npz", ".onnx", ".json")
 _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".tif", ".tiff",
-                   ".webp", ".bmp")  # fmt: skip
+                   ".webp", ".bmp", ".heic", ".heif")  # fmt: skip
 _STREAM_SUFFIXES = (".csv", ".tsv", ".txt")
 _HEAD_SUFFIXES = (".h360", ".npz")
 _OTHER_SUFFIXES = (".json", ".jsonl", ".mtl", ".md", ".mp4", ".mov", ".m4v", ".npy",

@@ -53,7 +53,7 @@ def test_installed_metadata_and_dependencies():
         assert name in deps, name
     assert "==" not in deps["torch"] and "<" in deps["torch"]  # a range, not a pin
     assert dist.metadata["Requires-Python"] == ">=3.10"
-    assert extras == {"test", "export"}
+    assert extras == {"test", "export", "heic"}
     scripts = {ep.name: ep.value for ep in dist.entry_points if ep.group == "console_scripts"}
     assert scripts == {"head360": "head360cli.cli:main"}
 

@@ -33,7 +33,11 @@ MAX_SIDE = 4096
 """Default limit on the longer side after loading; larger images are downscaled."""
 
 EXTENSIONS = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".tif", ".tiff",
-              ".webp", ".bmp")  # fmt: skip
+              ".webp", ".bmp", ".heic", ".heif")  # fmt: skip
+
+HEIF_BRANDS = (b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"mif1", b"msf1")
+"""ISO base-media ``ftyp`` brands of HEIF stills (an iPhone's photos are ``heic``), read
+through the optional ``pillow-heif`` (``pip install 'head360[heic]'``)."""
 
 _ORIENTATION_TAG = 0x0112
 _ORIENTATION_NAMES = {
@@ -88,6 +92,8 @@ def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
         raise FileFormatError(f"expected an image in {label!r}, found an empty file")
     # Our own limit is checked on the header below; switch Pillow's off meanwhile.
     Image.MAX_IMAGE_PIXELS = None
+    if _is_heif(source):
+        _register_heif(label)
     try:
         img = Image.open(source)
     except UnidentifiedImageError:
@@ -98,6 +104,38 @@ def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
     except OSError as exc:
         raise FileFormatError(f"cannot read image {label!r}: {exc}") from exc
     return img, size
+
+
+def _is_heif(source) -> bool:
+    """Whether a file (or a pipe's bytes) starts as a HEIF still does: ``ftyp`` at byte 4
+    and one of :data:`HEIF_BRANDS`."""
+    from head360cli.io.sources import NamedBytes
+
+    if isinstance(source, NamedBytes):
+        head = source.getvalue()[:12]
+    else:
+        with open(source, "rb") as f:
+            head = f.read(12)
+    return head[4:8] == b"ftyp" and head[8:12] in HEIF_BRANDS
+
+
+def _register_heif(label: str) -> None:
+    """Let Pillow open HEIF files through ``pillow-heif``.
+
+    Raises:
+        ModelNotFoundError: ``pillow-heif`` is not installed (exit 7, as other optional
+            packages).
+    """
+    from head360cli.errors import ModelNotFoundError
+
+    try:
+        import pillow_heif
+    except ImportError:
+        raise ModelNotFoundError(
+            f"{label!r} is a HEIF/HEIC photo (an iPhone's format), which needs the optional "
+            f"pillow-heif: pip install 'head360[heic]', or save the photo as JPEG"
+        ) from None
+    pillow_heif.register_heif_opener()
 
 
 _EXIF_IFD = 0x8769
