@@ -295,8 +295,9 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
     For a head file: its metadata and arrays. For head360's model files (generator
     weights, training checkpoints, the hair prior, the bilinear model, ONNX graphs): their
     format, configuration and the model hash head files record; nothing in them is run.
-    For a .glb: its meshes, morph targets and textures. FILE may be - (standard input) or
-    a pipe (<(...)), whose content says which it is.
+    For a .glb: its meshes, morph targets and textures; for an .obj, counts of its
+    records. FILE may be - (standard input) or a pipe (<(...)), whose content says which
+    it is.
 
     \b
     Examples:
