@@ -188,8 +188,9 @@ def animate(renderer, stream, out: str | Path | None, cfg: AnimateConfig | None 
         raise BadInputError("expected a video output or a mesh folder, found neither")
     _check_outputs(out, mesh_dir)
     notes = []
-    if out is not None and cfg.fps is None and _gif_rate(out, stream.fps) is not None:
-        cfg = dataclasses.replace(cfg, fps=_gif_rate(out, stream.fps))
+    gif_fps = None if out is None or cfg.fps is not None else _gif_rate(out, stream.fps)
+    if gif_fps is not None:
+        cfg = dataclasses.replace(cfg, fps=gif_fps)
         notes.append(f"a GIF plays at most {GIF_MAX_FPS:g} frames per second: the "
                      f"{stream.fps:g} fps take is resampled to {cfg.fps:g} (give --fps, or "
                      f"write an .mp4 for every frame)")

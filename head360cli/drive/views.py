@@ -7,7 +7,6 @@ looks from above.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +33,7 @@ def view_cameras(yaw_deg, pitch_deg):
     yaw = np.atleast_1d(np.asarray(yaw_deg, np.float32))
     pitch = np.atleast_1d(np.asarray(pitch_deg, np.float32))
     yaw, pitch = np.broadcast_arrays(yaw, pitch)
-    bad = ~(np.isfinite(yaw) & np.isfinite(pitch) & (np.abs(pitch) <= 90))
-    if bad.any():
-        i = int(np.argmax(bad))
-        check_angles(float(yaw[i]), float(pitch[i]))
+    check_angles(yaw, pitch)
     return camera_on_sphere(torch.from_numpy(yaw.copy()), torch.from_numpy(pitch.copy()),
                             RIG_DISTANCE)
 
@@ -101,17 +97,21 @@ def parse_expression(text: str | None) -> np.ndarray:
     return w
 
 
-def check_angles(yaw: float, pitch: float, found: str | None = None) -> None:
+def check_angles(yaw, pitch, found: str | None = None) -> None:
     """Refuse a view (degrees) with a yaw that is not finite or a pitch past a pole, as
-    ``render``, ``animate`` and ``--views`` take them; ``found`` names it in the message
-    (default: the two numbers).
+    ``render``, ``animate`` and ``--views`` take them; ``yaw`` and ``pitch`` are numbers
+    or arrays of one shape (the first bad pair is named). ``found`` names it in the
+    message (default: the two numbers).
 
     Raises:
         BadInputError: Either is out of range.
     """
-    if not (math.isfinite(yaw) and math.isfinite(pitch) and abs(pitch) <= 90):
+    yaw, pitch = np.asarray(yaw, np.float64), np.asarray(pitch, np.float64)
+    bad = ~(np.isfinite(yaw) & np.isfinite(pitch) & (np.abs(pitch) <= 90))
+    if bad.any():
+        i = np.unravel_index(int(np.argmax(bad)), bad.shape)
         raise BadInputError(f"expected a finite yaw and a pitch within +-90 degrees, found "
-                            f"{found or f'{yaw}, {pitch}'}")
+                            f"{found or f'{float(yaw[i])}, {float(pitch[i])}'}")
 
 
 def parse_views(text: str) -> list[tuple[float, float]]:
