@@ -58,12 +58,24 @@ class CorpusConfig:
     start: int = 0
     """Index of the first identity (to write a split in parts)."""
 
-    def validate(self) -> None:
+    def __post_init__(self) -> None:
+        """Refuse settings no corpus can be written with (the CLI checks its options first;
+        this guards library callers, before any file is made).
+
+        Raises:
+            BadInputError: The first field out of range, expected against found.
+        """
+        for name in ("identities", "expressions", "views", "size", "seed", "samples",
+                     "start"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise BadInputError(f"expected an integer {name}, found {value!r}")
         checks = [
             (self.identities >= 1, f"identities >= 1, found {self.identities}"),
             (1 <= self.expressions <= 53, f"expressions in 1..53, found {self.expressions}"),
             (1 <= self.views <= 72, f"views in 1..72, found {self.views}"),
             (16 <= self.size <= 2048, f"size in 16..2048, found {self.size}"),
+            (self.seed >= 0, f"seed >= 0, found {self.seed}"),
             (self.split in ("train", "test"), f"split train or test, found {self.split!r}"),
             (self.samples in (1, 2, 4), f"samples 1, 2 or 4, found {self.samples}"),
             (self.start >= 0, f"start >= 0, found {self.start}"),
@@ -191,7 +203,6 @@ def write_corpus(cfg: CorpusConfig, outdir: str | os.PathLike[str],
 
     from head360cli.io.atomic import atomic_path, commit_dir, temp_dir_beside
 
-    cfg.validate()
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     config_path = out / "corpus.json"

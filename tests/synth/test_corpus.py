@@ -86,10 +86,15 @@ def test_expression_and_view_selection():
 
 
 @pytest.mark.parametrize("bad", [{"identities": 0}, {"expressions": 54}, {"views": 0},
-                                 {"size": 8}, {"split": "val"}, {"samples": 3}])
+                                 {"size": 8}, {"split": "val"}, {"samples": 3},
+                                 {"seed": -1}, {"identities": 2.5}, {"size": 48.5},
+                                 {"identities": True}, {"start": "1"}])
 def test_bad_settings(tmp_path, bad):
+    """Each bad field is refused when the configuration is made, so no folder or
+    ``corpus.json`` is left behind (``seed=-1`` used to fail in numpy after writing one)."""
     with pytest.raises(BadInputError, match="expected"):
-        write_corpus(CorpusConfig(**{**TINY.__dict__, **bad}), tmp_path)
+        write_corpus(CorpusConfig(**{**TINY.__dict__, **bad}), tmp_path / "c")
+    assert not (tmp_path / "c").exists()
 
 
 def test_cli_synth(run_cli, tmp_path):
