@@ -82,7 +82,9 @@ def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
 def _emit(result: dict[str, Any], text: str) -> None:
     """Print ``result`` as JSON under --json, else ``text``."""
     if _settings().json:
-        click.echo(json.dumps(result, indent=None, sort_keys=False))
+        from head360cli.io.jsontext import dumps
+
+        click.echo(dumps(result))
     else:
         click.echo(text.rstrip("\n"))
 

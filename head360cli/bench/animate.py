@@ -363,7 +363,9 @@ def correlation(a, b, rounds: int = 1000, seed: int = 0) -> dict[str, Any] | Non
     x, y = x - x.mean(1, keepdims=True), y - y.mean(1, keepdims=True)
     den = np.sqrt((x * x).sum(1) * (y * y).sum(1))
     boot = (x * y).sum(1)[den > 0] / den[den > 0]
-    lo, hi = np.percentile(boot, [2.5, 97.5]) if len(boot) else (np.nan, np.nan)
+    if not len(boot):  # every resample constant: no interval to give
+        return {"r": r, "interval_95": None}
+    lo, hi = np.percentile(boot, [2.5, 97.5])
     return {"r": r, "interval_95": [round(float(lo), 4), round(float(hi), 4)]}
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import platform
 from pathlib import Path
 from typing import Any
@@ -52,11 +51,12 @@ def markdown_table(rows: list[dict[str, Any]], columns: list[str]) -> str:
 def save(result: dict[str, Any], markdown: str, out_dir: str | Path, name: str) -> list[str]:
     """Write ``<name>.json`` and ``<name>.md`` into ``out_dir`` (atomically)."""
     from head360cli.io.atomic import atomic_path
+    from head360cli.io.jsontext import dumps
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    for suffix, text in ((".json", json.dumps(result, indent=1)), (".md", markdown + "\n")):
+    for suffix, text in ((".json", dumps(result, indent=1)), (".md", markdown + "\n")):
         path = out / f"{name}{suffix}"
         with atomic_path(path) as tmp:
             tmp.write_text(text)

@@ -17,6 +17,7 @@ import numpy as np
 
 from head360cli.errors import BadInputError
 from head360cli.io.atomic import check_folder_name
+from head360cli.io.jsontext import dumps
 from head360cli.io.sources import input_stem
 
 __all__ = ["FIT_SUMMARY_KEYS", "check_fit_outputs", "check_head_sizes", "classify_photo",
@@ -157,7 +158,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
         result["timings"] = {**{k: round(v, 4) for k, v in timings.items()},
                              "fit": round(t_fit, 4), "write": round(t_write, 4)}
         with atomic_path(paths["params"]) as tmp:
-            tmp.write_text(json.dumps(result, indent=1))
+            tmp.write_text(dumps(result, indent=1))
         results.append(result)
     return results[0] if face != "all" else {"faces": results}
 
@@ -830,7 +831,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         "files": {k_: str(v) for k_, v in paths.items()},
     }
     with atomic_path(paths["summary"]) as tmp:
-        tmp.write_text(json.dumps(summary, indent=1))
+        tmp.write_text(dumps(summary, indent=1))
     return summary
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError
+from head360cli.io.jsontext import dumps
 
 __all__ = ["CORPUS_FORMAT", "CorpusConfig", "expressions_for", "views_for", "write_corpus",
            "write_previews"]
@@ -178,7 +179,7 @@ def _write_identity(cfg: CorpusConfig, index: int, folder: Path, rel: str) -> li
         "hair_colour": head.hair_colour,
         "records": records,
     }
-    (folder / "meta.json").write_text(json.dumps(meta, indent=1))
+    (folder / "meta.json").write_text(dumps(meta, indent=1))
     return records
 
 
@@ -258,7 +259,7 @@ def _rebuild_index(out: Path) -> int:
     with atomic_path(out / "index.jsonl") as tmp, open(tmp, "w") as f:
         for meta_path in sorted(out.glob("*/id*/meta.json")):
             for record in json.loads(meta_path.read_text())["records"]:
-                f.write(json.dumps(record, sort_keys=True) + "\n")
+                f.write(dumps(record, sort_keys=True) + "\n")
                 count += 1
     return count
 
