@@ -17,7 +17,6 @@ CPU, NCCL on GPUs): every process draws its own views, gradients are averaged.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from head360cli.io.jsontext import dumps
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.generator import Generator
 
@@ -267,14 +267,16 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         opt.zero_grad(set_to_none=True)
         total.backward()
         norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.clip)
+        parts["grad_norm"] = norm
         if torch.isfinite(total) and torch.isfinite(norm):
             opt.step()
+            for k, v in parts.items():  # the logged means are over the steps taken
+                sums[k] = sums.get(k, 0.0) + v.item()
+            count += 1
         else:
             skipped += 1
-        parts["grad_norm"] = norm
-        for k, v in parts.items():
-            sums[k] = sums.get(k, 0.0) + v.item()
-        count += 1
+            for k in parts:
+                sums.setdefault(k, 0.0)
         done = step + 1
         elapsed = time.perf_counter() - t0
         stop = (cfg.minutes > 0 and elapsed > 60.0 * cfg.minutes) or done == stop_at
@@ -285,11 +287,11 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         if done % cfg.log_every == 0 or done == cfg.steps or stop:
             last = {"step": done, "seconds": round(elapsed, 1), "skipped": skipped,
                     "lr": round(opt.param_groups[0]["lr"], 7),
-                    **{k: round(v / count, 5) for k, v in sums.items()}}
+                    **{k: round(v / count, 5) if count else None for k, v in sums.items()}}
             sums, count = {}, 0
             if rank == 0:
                 with open(out / "log.jsonl", "a") as f:
-                    f.write(json.dumps(last) + "\n")
+                    f.write(dumps(last) + "\n")
         if done % cfg.checkpoint_every == 0 or done == cfg.steps or stop:
             _checkpoint(out, model, opt, cfg, gen_cfg, done, rng, world, rank)
         if stop:

@@ -212,3 +212,30 @@ def test_a_checkpoint_that_would_run_code_is_refused_not_loaded(tmp_path, run_cl
     torch.save({"format": "other"}, run / CHECKPOINT)
     with pytest.raises(FileFormatError, match="training checkpoint, found 'other'"):
         train(run, CFG, TINY, progress=False)
+
+
+def test_a_skipped_step_leaves_the_log_finite_and_standard_json(tmp_path, monkeypatch):
+    """A step whose loss overflows is skipped; the interval's logged losses are the mean of
+    the steps taken, not NaN (written as a bare ``NaN``, which JSON readers refuse)."""
+    import head360cli.model.train as train_module
+
+    real, calls = train_module.losses, []
+
+    def overflow_first(out, batch, cfg):
+        parts = real(out, batch, cfg)
+        calls.append(1)
+        if len(calls) == 1:
+            parts["total"] = parts["total"] * float("inf")
+        return parts
+
+    monkeypatch.setattr(train_module, "losses", overflow_first)
+    last = train(tmp_path / "r", CFG, TINY, progress=False)
+
+    def refuse(word):
+        raise ValueError(f"not JSON: {word}")
+
+    lines = [json.loads(x, parse_constant=refuse)
+             for x in (tmp_path / "r" / "log.jsonl").read_text().splitlines()]
+    assert [x["step"] for x in lines] == [2, 4] and [x["skipped"] for x in lines] == [1, 1]
+    assert all(x["l1"] > 0 and x["total"] > 0 for x in lines)
+    assert last["l1"] == lines[-1]["l1"]
