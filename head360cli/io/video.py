@@ -131,12 +131,16 @@ class VideoWriter:
         self.path = Path(os.fspath(path).rstrip("/") or ".")
         self.kind = output_kind(path)
         check_gif_rate(path, fps)
+        if isinstance(quality, bool) or not (isinstance(quality, int | np.integer)
+                                             and 0 <= quality <= 51):
+            raise BadInputError(f"expected an x264 quality (constant rate factor) from 0 to "
+                                f"51, found {quality!r}")
         self.fps = float(fps)
         self.quality = int(quality)
         self.overwrite = overwrite
         self.count = 0
         self._size: tuple[int, int] | None = None  # (W, H) of the first frame
-        self._encoder = None
+        self._encoder: _Encoder | None = None
         self._tmp: Path | None = None
         parent = self.path.parent
         if not parent.is_dir():
@@ -163,8 +167,7 @@ class VideoWriter:
         try:
             if self._encoder is not None:
                 if failed:
-                    with contextlib.suppress(Exception):
-                        self._encoder.close()
+                    self._encoder.kill()
                 else:
                     self._encoder.close()
             if not failed and self.count == 0:
@@ -211,31 +214,145 @@ class VideoWriter:
             self._encoder.send(np.ascontiguousarray(a))
         self.count += 1
 
-    def _open_encoder(self, width: int, height: int):
-        import imageio_ffmpeg
-
+    def _open_encoder(self, width: int, height: int) -> _Encoder:
         assert self._tmp is not None
         if self.kind == "mp4":
-            gen = imageio_ffmpeg.write_frames(
-                str(self._tmp), (width, height), fps=self.fps, codec="libx264",
-                pix_fmt_out="yuv420p", quality=None, macro_block_size=1,
-                output_params=["-crf", str(self.quality), "-movflags", "+faststart"],
-            )
+            args = ["-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", str(self.quality),
+                    "-movflags", "+faststart"]
+            level = "warning"
         else:
-            gen = imageio_ffmpeg.write_frames(
-                str(self._tmp), (width, height), fps=self.fps, codec="gif",
-                pix_fmt_out="pal8", quality=None, macro_block_size=1,
-                # palettegen warns "Duped color" for every frame of a skin-toned head,
-                # dozens of lines past --quiet; errors still show
-                ffmpeg_log_level="error",
-                output_params=[
-                    "-filter_complex",
+            args = ["-vcodec", "gif", "-pix_fmt", "pal8", "-filter_complex",
                     "split[a][b];[a]palettegen=stats_mode=single[p];[b][p]paletteuse=new=1",
-                    "-loop", "0",
-                ],
-            )
-        gen.send(None)  # start ffmpeg
-        return gen
+                    "-loop", "0"]
+            # palettegen warns "Duped color" for every frame of a skin-toned head,
+            # dozens of lines past --quiet; errors still show
+            level = "error"
+        return _Encoder(self._tmp, self.path, width, height, self.fps, args, level)
+
+
+class _Encoder:
+    """One ffmpeg process (the binary imageio-ffmpeg ships) encoding raw RGB frames from
+    its standard input into a file, whose exit status is checked.
+
+    imageio-ffmpeg's own writer does not check it, so an encoder that ran out of disk
+    space, or was stopped by the shell's file-size limit, left a cut-off file that was
+    renamed into place and reported as written. ffmpeg's messages are kept in a temporary
+    file: on failure its last line is the error's, on success they are shown as before.
+    ffmpeg runs in its own session, so a Ctrl-C reaches head360, which ends it and removes
+    the temporary output, rather than cutting the file short on its own.
+
+    Args:
+        path: The file ffmpeg writes (the temporary name).
+        shown: The name the error messages give (the output the user asked for).
+        width: Frame width in pixels.
+        height: Frame height in pixels.
+        fps: Frames per second.
+        args: Codec and output options.
+        level: ffmpeg's ``-v`` log level.
+    """
+
+    def __init__(self, path: Path, shown: Path, width: int, height: int, fps: float,
+                 args: list[str], level: str) -> None:
+        import subprocess
+        import tempfile
+        from fractions import Fraction
+
+        import imageio_ffmpeg
+
+        self.shown = shown
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
+               "-s", f"{width}x{height}", "-pix_fmt", "rgb24",
+               "-r", str(Fraction(fps).limit_denominator()), "-i", "-", "-an", *args,
+               "-v", level, str(path)]
+        self._log = tempfile.TemporaryFile()  # noqa: SIM115 (closed once ffmpeg is done)
+        try:
+            self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE,
+                                          stdout=subprocess.DEVNULL, stderr=self._log,
+                                          start_new_session=True)
+        except BaseException:
+            self._log.close()
+            raise
+
+    def send(self, frame: np.ndarray) -> None:
+        """Write one contiguous ``(H, W, 3)`` uint8 frame.
+
+        Raises:
+            BadInputError: ffmpeg stopped because the output could not be written.
+            RuntimeError: ffmpeg stopped for another reason (its last message).
+        """
+        assert self._proc.stdin is not None
+        try:
+            self._proc.stdin.write(frame.data)
+        except OSError:  # ffmpeg has stopped reading: it failed
+            raise self._failure() from None
+
+    def close(self) -> None:
+        """Let ffmpeg finish the file and wait for it.
+
+        Raises:
+            BadInputError, RuntimeError: As for :meth:`send`, including failures while
+                ffmpeg writes the file's end (a full disk at the mp4's index).
+        """
+        assert self._proc.stdin is not None
+        with contextlib.suppress(OSError):  # a broken pipe: the exit status tells
+            self._proc.stdin.close()
+        if self._proc.wait() != 0:
+            raise self._failure()
+        text = self._messages()
+        if text:
+            import sys
+
+            sys.stderr.write(text if text.endswith("\n") else text + "\n")
+
+    def kill(self) -> None:
+        """Stop ffmpeg at once (the caller removes what it wrote)."""
+        with contextlib.suppress(OSError):
+            self._proc.kill()
+        self._proc.wait()
+        with contextlib.suppress(OSError):
+            if self._proc.stdin is not None:
+                self._proc.stdin.close()
+        self._log.close()
+
+    def _messages(self) -> str:
+        self._log.seek(0)
+        text = self._log.read().decode("utf-8", "replace")
+        self._log.close()
+        return text
+
+    def _failure(self) -> Exception:
+        """The error of a failed ffmpeg: a :class:`BadInputError` when the output could
+        not be written (no space, a size limit, no permission), else a ``RuntimeError``
+        with ffmpeg's last message."""
+        import signal
+
+        with contextlib.suppress(OSError):
+            if self._proc.stdin is not None:
+                self._proc.stdin.close()
+        code = self._proc.wait()
+        text = self._messages()
+        lower = text.lower()
+        where = str(self.shown)
+        kept = "(nothing half-written was kept)"
+        if code == -getattr(signal, "SIGXFSZ", 0) or "file too large" in lower:
+            return BadInputError(f"cannot write {where!r}: it grew past the file system's "
+                                 f"or the shell's file-size limit (ulimit -f): write "
+                                 f"elsewhere {kept}")
+        if "no space left" in lower or "quota exceeded" in lower:
+            return BadInputError(f"cannot write {where!r}: no space left on device: free "
+                                 f"space or write elsewhere {kept}")
+        if "permission denied" in lower or "read-only file system" in lower:
+            return BadInputError(f"cannot write {where!r}: permission denied or a read-only "
+                                 f"file system: write elsewhere {kept}")
+        lines = [line.strip() for line in text.splitlines() if line.strip()]
+        if lines:
+            detail = lines[-1]
+        elif code < 0:
+            detail = f"stopped by signal {signal.Signals(-code).name}"
+        else:
+            detail = "no message"
+        return RuntimeError(f"ffmpeg could not write {where!r} (exit status {code}): "
+                            f"{detail}")
 
 
 def write_video(

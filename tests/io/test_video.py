@@ -140,11 +140,64 @@ def test_failure_keeps_the_previous_output(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["keep.mp4"]
 
 
+_SIZE_LIMITED = """
+import resource, sys
+import numpy as np
+from head360cli.errors import BadInputError
+from head360cli.io.video import write_video
+resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+noise = (np.random.default_rng(0).integers(0, 256, (24, 128, 128, 3), np.uint8))
+try:
+    write_video(iter(noise), sys.argv[1], fps=24)
+except BadInputError as exc:
+    print("refused:", exc)
+else:
+    print("written")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the file-size limit is POSIX's")
+@pytest.mark.parametrize("name", ["noise.mp4", "noise.gif"])
+def test_an_encoder_that_cannot_finish_the_file_is_an_error(tmp_path, name):
+    """Under a 20 kB file-size limit (as a full disk or a FAT32 stick's 4 GiB does for
+    larger files) ffmpeg is stopped part-way. The writer used to rename the cut-off mp4
+    into place, over the previous one, and report it written."""
+    import subprocess
+    import sys
+
+    out = tmp_path / name
+    out.write_bytes(b"the previous output")
+    run = subprocess.run([sys.executable, "-c", _SIZE_LIMITED, str(out)], capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("refused:"), run.stdout
+    assert "file-size limit" in run.stdout and repr(str(out)) in run.stdout
+    assert out.read_bytes() == b"the previous output"
+    assert [p.name for p in tmp_path.iterdir()] == [name]
+
+
+def test_an_ffmpeg_failure_is_one_line_with_its_message(tmp_path):
+    """A failure that is not the output's disk names ffmpeg's own last message."""
+    from head360cli.io.video import _Encoder
+
+    enc = _Encoder(tmp_path / "x.mp4", tmp_path / "shown.mp4", 32, 32, 10.0,
+                   ["-vcodec", "no_such_encoder"], "error")
+    with pytest.raises(RuntimeError, match=r"ffmpeg could not write .*shown\.mp4.* \(exit "
+                       r"status [1-9]\d*\): .*[Ee]ncoder not found") as info:
+        for _ in range(50):  # ffmpeg exits at once; the pipe breaks on a write or the close
+            enc.send(np.zeros((32, 32, 3), np.uint8))
+        enc.close()
+    assert "\n" not in str(info.value)
+
+
 def test_bad_arguments(tmp_path):
     with pytest.raises(BadInputError, match="does not exist"):
         VideoWriter(tmp_path / "nope" / "a.mp4")
     with pytest.raises(BadInputError, match="positive frame rate"):
         VideoWriter(tmp_path / "a.mp4", fps=0)
+    for quality in (-1, 52, 18.5, True):
+        with pytest.raises(BadInputError, match=r"quality .* from 0 to 51"):
+            VideoWriter(tmp_path / "a.mp4", quality=quality)
     with pytest.raises(BadInputError, match="no frames"):
         write_video([], tmp_path / "empty.mp4")
     with pytest.raises(BadInputError, match=r"shape \(H, W, 3\)"):
