@@ -1121,10 +1121,13 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
     except OSError as exc:
         import errno
 
-        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG):
             return _internal(exc, debug, as_json)
         where = f" ({exc.filename})" if exc.filename else ""
-        todo = "write elsewhere" if exc.errno == errno.EROFS else "free space or write elsewhere"
+        todo = {errno.EROFS: "write elsewhere",
+                errno.EFBIG: "past the file system's or the shell's file-size limit (ulimit "
+                             "-f): write elsewhere"}.get(exc.errno,
+                                                         "free space or write elsewhere")
         return _failed("BadInputError", f"{exc.strerror or exc}{where}: {todo} (nothing "
                        "half-written was kept)", EXIT_CODES["BadInputError"], debug, as_json)
     except Exception as exc:

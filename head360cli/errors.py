@@ -15,7 +15,7 @@ code  exception              meaning
 3     BadInputError          the input's content is invalid (NaN in a stream,
                              image too large, missing file, bad parameter value),
                              or the output cannot be written (no permission, a
-                             read-only or full disk)
+                             read-only or full disk, a file-size limit)
 4     NoFaceError            no face was found where one was needed
 5     FileFormatError        a file is unreadable, truncated, corrupted, of an
                              unsupported version or unsafe (pickles)

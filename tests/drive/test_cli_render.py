@@ -182,3 +182,34 @@ def test_unwritable_folders_and_a_full_disk_are_clear_errors(run_cli, head_file,
     r = run_cli("render", head_file, "--size", "64", "-o", tmp_path / "v.png")
     assert r.code == 3 and "No space left on device" in r.err and "free space" in r.err
     assert list(tmp_path.iterdir()) == []  # the temporary file is gone too
+
+
+def test_a_file_size_limit_is_a_clear_error(run_cli, head_file, tmp_path, monkeypatch):
+    """EFBIG (a FAT32 stick's 4 GiB, or ``ulimit -f``) was an internal error; a turntable
+    whose encoder the limit stopped was reported written, cut off, exit 0."""
+    import errno
+    import os
+    import resource
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    def too_large(self, fp, *args, **kwargs):
+        raise OSError(errno.EFBIG, os.strerror(errno.EFBIG), str(fp))
+
+    with monkeypatch.context() as m:
+        m.setattr(Image.Image, "save", too_large)
+        r = run_cli("render", head_file, "--size", "64", "-o", tmp_path / "v.png")
+    assert r.code == 3 and "File too large" in r.err and "ulimit -f" in r.err, r.err
+    assert list(tmp_path.iterdir()) == []
+
+    hard = resource.getrlimit(resource.RLIMIT_FSIZE)[1]
+    run = subprocess.run(
+        [sys.executable, "-m", "head360cli", "render", str(head_file), "--turntable",
+         "--frames", "6", "--size", "64", "-o", str(tmp_path / "t.mp4")],
+        capture_output=True, text=True, timeout=300,
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (3000, hard)))
+    assert run.returncode == 3, run.stderr
+    assert "file-size limit" in run.stderr and "wrote" not in run.stdout
+    assert list(tmp_path.iterdir()) == []
