@@ -50,15 +50,13 @@ def markdown_table(rows: list[dict[str, Any]], columns: list[str]) -> str:
 
 def save(result: dict[str, Any], markdown: str, out_dir: str | Path, name: str) -> list[str]:
     """Write ``<name>.json`` and ``<name>.md`` into ``out_dir`` (atomically)."""
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_paths
     from head360cli.io.jsontext import dumps
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for suffix, text in ((".json", dumps(result, indent=1)), (".md", markdown + "\n")):
-        path = out / f"{name}{suffix}"
-        with atomic_path(path) as tmp:
-            tmp.write_text(text)
-        paths.append(str(path))
+    paths = [str(out / f"{name}.json"), str(out / f"{name}.md")]
+    with atomic_paths(*paths) as (tmp_json, tmp_md):  # renamed together once both are written
+        tmp_json.write_text(dumps(result, indent=1))
+        tmp_md.write_text(markdown + "\n")
     return paths

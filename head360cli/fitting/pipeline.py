@@ -79,7 +79,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
 
     from head360cli.fitting.landmarks import find_faces, pick_face
     from head360cli.fitting.shape import ShapeFitter, check_camera, check_focal, default_focal
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_paths
     from head360cli.io.images import load_image
     from head360cli.io.mesh import MeshPart, write_obj
     from head360cli.mesh.arkit52 import ARKIT52
@@ -129,36 +129,39 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
         name = f"{stem}_face{index}" if face == "all" else stem
         paths = {"mesh": out / f"{name}_shape.obj", "overlay": out / f"{name}_overlay.png",
                  "params": out / f"{name}_shape.json"}
-        write_obj(paths["mesh"], [MeshPart("head", verts, model.faces, model.uv,
-                                           model.faces_uv)],
-                  comment=f"head360 shape fit of {Path(photo).name}\nmetres, +y up, face +z")
-        overlay = _overlay(img.pixels, found.landmarks, fit.landmarks_fitted, v2d,
-                           model.faces, visible)
-        with atomic_path(paths["overlay"]) as tmp:
-            Image.fromarray(overlay).save(tmp)
-        euler = fit.euler_degrees()
-        result = {
-            "photo": str(photo),
-            "face": index,
-            "image_size": [full_w, full_h],
-            "face_box": [round(c / scale, 2) for c in found.box],
-            "face_turn_degrees": found.turn,
-            "landmarks_detected": (found.landmarks / scale).round(2).tolist(),
-            "landmarks_fitted": (fit.landmarks_fitted / scale).round(2).tolist(),
-            "shape": fit.shape.round(6).tolist(),
-            "expression": {n: round(float(w), 4) for n, w in zip(ARKIT52, fit.expression,
-                                                                  strict=True)},
-            "pose": {**{k: round(v, 3) for k, v in euler.items()},
-                     "translation": fit.translation.round(5).tolist(),
-                     "distance": round(fit.distance(), 5), "focal": round(f_disk, 2)},
-            "model": model.meta["sha256"],
-            "files": {k: str(v) for k, v in paths.items()},
-        }
-        t_write = time.perf_counter() - t0
-        result["timings"] = {**{k: round(v, 4) for k, v in timings.items()},
-                             "fit": round(t_fit, 4), "write": round(t_write, 4)}
-        with atomic_path(paths["params"]) as tmp:
-            tmp.write_text(dumps(result, indent=1))
+        # the three files are renamed into place together, once all are written (the
+        # mesh has no texture, so its temporary name names no material)
+        with atomic_paths(paths["mesh"], paths["overlay"], paths["params"]) as (
+                tmp_mesh, tmp_overlay, tmp_params):
+            write_obj(tmp_mesh, [MeshPart("head", verts, model.faces, model.uv,
+                                          model.faces_uv)],
+                      comment=f"head360 shape fit of {Path(photo).name}\nmetres, +y up, "
+                              "face +z")
+            overlay = _overlay(img.pixels, found.landmarks, fit.landmarks_fitted, v2d,
+                               model.faces, visible)
+            Image.fromarray(overlay).save(tmp_overlay)
+            euler = fit.euler_degrees()
+            result = {
+                "photo": str(photo),
+                "face": index,
+                "image_size": [full_w, full_h],
+                "face_box": [round(c / scale, 2) for c in found.box],
+                "face_turn_degrees": found.turn,
+                "landmarks_detected": (found.landmarks / scale).round(2).tolist(),
+                "landmarks_fitted": (fit.landmarks_fitted / scale).round(2).tolist(),
+                "shape": fit.shape.round(6).tolist(),
+                "expression": {n: round(float(w), 4) for n, w in zip(ARKIT52, fit.expression,
+                                                                      strict=True)},
+                "pose": {**{k: round(v, 3) for k, v in euler.items()},
+                         "translation": fit.translation.round(5).tolist(),
+                         "distance": round(fit.distance(), 5), "focal": round(f_disk, 2)},
+                "model": model.meta["sha256"],
+                "files": {k: str(v) for k, v in paths.items()},
+            }
+            t_write = time.perf_counter() - t0
+            result["timings"] = {**{k: round(v, 4) for k, v in timings.items()},
+                                 "fit": round(t_fit, 4), "write": round(t_write, 4)}
+            tmp_params.write_text(dumps(result, indent=1))
         results.append(result)
     return results[0] if face != "all" else {"faces": results}
 
@@ -309,7 +312,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     from PIL import Image
 
     from head360cli.fitting.hair_parse import MIN_SIDE, parse_hair
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_paths
     from head360cli.io.images import MAX_SIDE, load_image
 
     check_folder_name(out_dir)
@@ -333,14 +336,14 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     overlay = img.pixels.astype(np.float32)
     overlay[parse.hair] = 0.45 * overlay[parse.hair] + 0.55 * np.array([235, 40, 40])
     overlay[parse.face] = 0.6 * overlay[parse.face] + 0.4 * np.array([40, 90, 235])
-    for key, mask in (("hair_mask", parse.hair), ("face_mask", parse.face)):
-        full = cv2.resize(mask.astype(np.uint8) * 255, (w, h),
-                          interpolation=cv2.INTER_NEAREST) if (w, h) != img.size else \
-            mask.astype(np.uint8) * 255
-        with atomic_path(paths[key]) as tmp:
+    # the three files are renamed into place together, once all are written
+    with atomic_paths(paths["hair_mask"], paths["face_mask"], paths["overlay"]) as tmps:
+        for tmp, mask in zip(tmps, (parse.hair, parse.face), strict=False):
+            full = cv2.resize(mask.astype(np.uint8) * 255, (w, h),
+                              interpolation=cv2.INTER_NEAREST) if (w, h) != img.size else \
+                mask.astype(np.uint8) * 255
             Image.fromarray(full).save(tmp)
-    with atomic_path(paths["overlay"]) as tmp:
-        Image.fromarray(overlay.round().astype(np.uint8)).save(tmp)
+        Image.fromarray(overlay.round().astype(np.uint8)).save(tmps[2])
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
             "warnings": first_frame(img) + prior_missing(learned_prior),
             "face_turn_degrees": None if found is None else found.turn,
@@ -633,7 +636,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         invert_texture,
         mirror_grid,
     )
-    from head360cli.io.atomic import atomic_path, check_file_target
+    from head360cli.io.atomic import atomic_paths, check_file_target
     from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
     from head360cli.io.images import png_info
     from head360cli.model.head_render import HeadRenderer, to_uint8
@@ -787,51 +790,53 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         info={"photo": Path(photo).name, "preset": preset, "face": face,
               "hair_style_name": HAIRSTYLES[style].name,
               "bilinear_model": model.meta["sha256"]})
-    write_head(head_file, out)
     sheet = np.concatenate([crop, front, *views], 1)
-    with atomic_path(paths["preview"]) as tmp:
-        Image.fromarray(sheet).save(tmp, format="PNG", pnginfo=png_info())
-    timings["write"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_all
-    euler = fit.euler_degrees()
-    summary = {
-        "photo": str(photo), "preset": preset, "face": face,
-        "pose": {**{k_: round(v, 2) for k_, v in euler.items()},
-                 "distance": round(fit.distance(), 4)},
-        "hair_style": {"id": style, "name": HAIRSTYLES[style].name,
-                       "chosen_by": "classifier" if hair_style is None else "user",
-                       # the placement: mm up and forward, and its silhouette's IoU
-                       # with the parsed hair before and after
-                       "offset_mm": {"up": round(float(offset[1]) * 1e3, 1),
-                                     "forward": round(float(offset[2]) * 1e3, 1)},
-                       "iou_unplaced": None if plain_iou is None else round(plain_iou, 4),
-                       "iou_placed": None if placed_iou is None else round(placed_iou, 4)},
-        "hair_candidates": guess.top(3),
-        "hair_color": [round(float(c), 4) for c in colour],
-        "hair_color_name": colour_name,
-        "hair_color_chosen_by": colour_by,
-        "hair_color_estimate": [round(float(c), 4) for c in estimate],
-        "hair_parse": {"seeded": parse.seeded,
-                       "learned_prior": parse.prior,
-                       "hair_fraction": round(float(parse.hair.mean()), 4)},
-        "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
-                      "loss_last": round(inv.losses[-1], 5)},
-        "closed_lids": None if lids is None else {
-            "loss_first": round(lids.loss_first, 5), "loss_last": round(lids.loss_last, 5),
-            "texels": lids.texels},
-        "psnr_face_input_view": round(psnr_face, 2),
-        "psnr_face_input_view_bald": round(psnr_bald, 2),
-        "image_size": list(img.source_size),
-        "face_width": round(float(found.box[2] - found.box[0]) / img.scale, 1),
-        "face_detector": found.detector,
-        "face_turn_degrees": found.turn,
-        "warnings": warnings,
-        "device": str(dev),  # where the generator ran: the timings depend on it
-        "timings": {k_: round(v, 3) for k_, v in timings.items()},
-        "files": {k_: str(v) for k_, v in paths.items()},
-    }
-    with atomic_path(paths["summary"]) as tmp:
-        tmp.write_text(dumps(summary, indent=1))
+    # The head file, its preview and its summary are renamed into place together once all
+    # three are written, so a full disk leaves an earlier fit's set as it was.
+    with atomic_paths(paths["head"], paths["preview"], paths["summary"]) as (
+            tmp_head, tmp_preview, tmp_summary):
+        write_head(head_file, tmp_head)
+        Image.fromarray(sheet).save(tmp_preview, format="PNG", pnginfo=png_info())
+        timings["write"] = time.perf_counter() - t0
+        timings["total"] = time.perf_counter() - t_all
+        euler = fit.euler_degrees()
+        summary = {
+            "photo": str(photo), "preset": preset, "face": face,
+            "pose": {**{k_: round(v, 2) for k_, v in euler.items()},
+                     "distance": round(fit.distance(), 4)},
+            "hair_style": {"id": style, "name": HAIRSTYLES[style].name,
+                           "chosen_by": "classifier" if hair_style is None else "user",
+                           # the placement: mm up and forward, and its silhouette's IoU
+                           # with the parsed hair before and after
+                           "offset_mm": {"up": round(float(offset[1]) * 1e3, 1),
+                                         "forward": round(float(offset[2]) * 1e3, 1)},
+                           "iou_unplaced": None if plain_iou is None else round(plain_iou, 4),
+                           "iou_placed": None if placed_iou is None else round(placed_iou, 4)},
+            "hair_candidates": guess.top(3),
+            "hair_color": [round(float(c), 4) for c in colour],
+            "hair_color_name": colour_name,
+            "hair_color_chosen_by": colour_by,
+            "hair_color_estimate": [round(float(c), 4) for c in estimate],
+            "hair_parse": {"seeded": parse.seeded,
+                           "learned_prior": parse.prior,
+                           "hair_fraction": round(float(parse.hair.mean()), 4)},
+            "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
+                          "loss_last": round(inv.losses[-1], 5)},
+            "closed_lids": None if lids is None else {
+                "loss_first": round(lids.loss_first, 5), "loss_last": round(lids.loss_last, 5),
+                "texels": lids.texels},
+            "psnr_face_input_view": round(psnr_face, 2),
+            "psnr_face_input_view_bald": round(psnr_bald, 2),
+            "image_size": list(img.source_size),
+            "face_width": round(float(found.box[2] - found.box[0]) / img.scale, 1),
+            "face_detector": found.detector,
+            "face_turn_degrees": found.turn,
+            "warnings": warnings,
+            "device": str(dev),  # where the generator ran: the timings depend on it
+            "timings": {k_: round(v, 3) for k_, v in timings.items()},
+            "files": {k_: str(v) for k_, v in paths.items()},
+        }
+        tmp_summary.write_text(dumps(summary, indent=1))
     return summary
 
 

@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "check_dir_target", "check_file_target",
+__all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
            "check_folder_name", "check_writable", "commit_dir",
            "current_umask", "temp_dir_beside", "temp_name_beside"]
 
@@ -74,6 +74,27 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+
+
+@contextlib.contextmanager
+def atomic_paths(*targets: str | os.PathLike[str]) -> Iterator[list[Path]]:
+    """Yield temporary paths for files that belong together (a mesh and its texture, a
+    head file and its preview); rename every one onto its target, in the order given, only
+    once the block ends without error.
+
+    A failure part-way (a full disk at the last file) therefore leaves every target as it
+    was, rather than some files of the new set beside others of the old one or none.
+
+    Args:
+        targets: The final output paths; their folders must exist.
+
+    Yields:
+        One temporary path per target, in the same order. Each must be written.
+    """
+    with contextlib.ExitStack() as stack:
+        # ExitStack leaves the last one entered first: enter in reverse to rename in order.
+        tmps = [stack.enter_context(atomic_path(t)) for t in reversed(targets)]
+        yield tmps[::-1]
 
 
 def check_writable(folder: Path) -> None:

@@ -98,12 +98,13 @@ def write_obj(path: str | os.PathLike[str], parts: list[MeshPart],
     Returns:
         The paths written.
     """
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_paths
 
     path = Path(path)
     stem = material or path.stem
     textured = any(p.texture is not None and p.uv is not None for p in parts)
     written: list[Path] = []
+    textures: list[tuple[Path, np.ndarray]] = []
     mtl_lines: list[str] = []
     lines = [f"# {line}" for line in comment.splitlines()]
     if textured:
@@ -137,17 +138,18 @@ def write_obj(path: str | os.PathLike[str], parts: list[MeshPart],
             png = path.with_name(f"{stem}_{part.name}.png")
             mtl_lines.append(f"map_Kd {png.name}")
             if write_material:
-                with atomic_path(png) as tmp:
-                    Path(tmp).write_bytes(_png(part.texture))
-                written.append(png)
+                textures.append((png, part.texture))
         base_v += len(verts)
+    # All are renamed into place only once every one is complete, so a full disk leaves
+    # neither a texture without its OBJ nor an earlier export's files mixed with these.
     if textured and write_material:
-        mtl = path.with_name(f"{stem}.mtl")
-        with atomic_path(mtl) as tmp:
-            Path(tmp).write_text("\n".join(mtl_lines) + "\n")
-        written.insert(0, mtl)
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text("\n".join(lines) + "\n")
+        written = [path.with_name(f"{stem}.mtl"), *(png for png, _ in textures)]
+    with atomic_paths(*written, path) as tmps:
+        if textured and write_material:
+            tmps[0].write_text("\n".join(mtl_lines) + "\n")
+            for tmp, (_, texture) in zip(tmps[1:-1], textures, strict=True):
+                tmp.write_bytes(_png(texture))
+        tmps[-1].write_text("\n".join(lines) + "\n")
     return [path, *written]
 
 

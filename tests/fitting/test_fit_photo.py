@@ -86,6 +86,39 @@ def test_fit_errors_leave_nothing_behind(run_cli, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["coffee.png", "wall.png"]
 
 
+def test_a_full_disk_at_the_last_file_leaves_no_part_of_the_set(run_cli, astronaut, tmp_path,
+                                                               monkeypatch):
+    """Each command's files were renamed into place one by one, so a full disk at the last
+    one (the fit's summary, the shape fit's parameters, parse-hair's overlay) left the new
+    head and preview, mesh and overlay, or masks, beside no summary or an earlier run's."""
+    import errno
+    import os
+
+    real_text, real_save = Path.write_text, Image.Image.save
+
+    def full(path):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    def write_text(self, *args, **kwargs):
+        if self.suffix == ".json" and self.parent == tmp_path:
+            full(self)
+        return real_text(self, *args, **kwargs)
+
+    def save(self, fp, *args, **kwargs):
+        if "_parse." in str(fp):
+            full(fp)
+        return real_save(self, fp, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", write_text)
+    monkeypatch.setattr(Image.Image, "save", save)
+    for args in (("fit", astronaut, "-o", tmp_path / "me.h360"),
+                 ("fit", astronaut, "--stage", "shape", "-o", tmp_path),
+                 ("parse-hair", astronaut, "-o", tmp_path)):
+        r = run_cli(*args, "--quiet")
+        assert r.code == 3 and "No space left" in r.err, (args, r.err)
+        assert list(tmp_path.iterdir()) == [], args
+
+
 def test_a_fit_does_not_replace_its_photo_or_a_json_it_did_not_write(run_cli, astronaut,
                                                                      tmp_path):
     """``fit me_preview.png -o me.h360`` wrote its preview over the photo, and ``fit

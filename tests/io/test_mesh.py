@@ -87,6 +87,43 @@ def test_obj_round_trip(tmp_path):
     assert "mtllib m.mtl" in (tmp_path / "n.obj").read_text()
 
 
+def test_a_full_disk_leaves_an_obj_export_as_it_was(tmp_path, monkeypatch):
+    """The texture and material were renamed into place one by one before the OBJ was
+    written, so a full disk at the OBJ left them beside no OBJ (or beside an earlier
+    export's OBJ that they no longer match)."""
+    import errno
+    import os
+    from pathlib import Path
+
+    verts, faces, uv, faces_uv = _quad()
+
+    def export(level):
+        return write_obj(tmp_path / "m.obj", [MeshPart(
+            "head", verts, faces, uv, faces_uv, np.full((4, 4, 3), level, np.uint8))])
+
+    export(10)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    real = Path.write_text
+
+    def full_at_the_obj(self, *args, **kwargs):
+        if self.suffix == ".obj":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full_at_the_obj)
+    with pytest.raises(OSError, match="No space left"):
+        export(200)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    monkeypatch.undo()
+    (tmp_path / "m.obj").unlink()
+    (tmp_path / "m.mtl").unlink()
+    (tmp_path / "m_head.png").unlink()
+    monkeypatch.setattr(Path, "write_text", full_at_the_obj)
+    with pytest.raises(OSError, match="No space left"):
+        export(200)
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.slow
 def test_exported_head_has_the_52_arkit_targets(head_file, tmp_path, run_cli):
     import trimesh

@@ -246,6 +246,23 @@ def test_atomic_path_and_dir(tmp_path):
     assert (tmp_path / "d" / "x").read_text() == "1"
 
 
+def test_atomic_paths_renames_a_set_only_when_every_file_is_written(tmp_path):
+    from head360cli.io.atomic import atomic_paths
+
+    a, b, c = tmp_path / "a.h360", tmp_path / "a.png", tmp_path / "a.json"
+    with atomic_paths(a, b, c) as tmps:
+        assert [t.suffix for t in tmps] == [".h360", ".png", ".json"]
+        for t, text in zip(tmps, "123", strict=True):
+            t.write_text(text)
+    assert [p.read_text() for p in (a, b, c)] == ["1", "2", "3"]
+    with pytest.raises(OSError, match="disk full"), atomic_paths(a, b, c) as tmps:
+        tmps[0].write_text("new 1")
+        tmps[1].write_text("new 2")
+        raise OSError("disk full")  # at the last file
+    assert [p.read_text() for p in (a, b, c)] == ["1", "2", "3"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h360", "a.json", "a.png"]
+
+
 @pytest.fixture
 def umask_027():
     """Run with a umask that a shared machine might set, then put the old one back."""
