@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
-           "check_folder_name", "check_writable", "commit_dir",
+           "check_folder_name", "check_name_length", "check_writable", "commit_dir",
            "current_umask", "temp_dir_beside", "temp_name_beside"]
 
 
@@ -36,12 +36,17 @@ def current_umask() -> int:
     return mask
 
 
+_TEMP_STEM = 48
+"""How much of an output's name its temporary name repeats: a name near the file system's
+limit (255 bytes on most) would otherwise make a temporary name over it."""
+
+
 def temp_name_beside(target: Path) -> Path:
     """A fresh temporary file name in ``target``'s folder, keeping its suffix; the file
     does not exist, so whatever writes it creates it with the usual permissions (a
     reserved ``mkstemp`` file would stay readable by its owner only)."""
-    fd, name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".tmp{target.suffix}",
-                                dir=target.parent)
+    fd, name = tempfile.mkstemp(prefix=f".{target.stem[:_TEMP_STEM]}.",
+                                suffix=f".tmp{target.suffix[:_TEMP_STEM]}", dir=target.parent)
     os.close(fd)
     os.unlink(name)
     return Path(name)
@@ -124,10 +129,30 @@ def _check_file_name(target: Path) -> None:
     """Refuse a file target whose folder does not exist, or which is a folder."""
     from head360cli.errors import BadInputError
 
+    check_name_length(target)
     if not target.parent.is_dir():
         raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
     if target.is_dir():
         raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
+
+
+def check_name_length(target: Path) -> None:
+    """Refuse an output whose name is longer than its file system allows (255 bytes on
+    most; ``os.pathconf`` where the folder exists), naming the limit.
+
+    Raises:
+        BadInputError: The name's UTF-8 bytes are over the limit.
+    """
+    from head360cli.errors import BadInputError
+
+    size = len(os.fsencode(target.name))
+    try:
+        limit = os.pathconf(target.parent, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # no such folder, or not POSIX
+        limit = 255
+    if size > limit:
+        raise BadInputError(f"expected an output name of at most {limit} bytes, found "
+                            f"{size}: {target.name[:40]}...{target.name[-12:]}")
 
 
 def check_file_target(target: str | os.PathLike[str]) -> None:
@@ -189,7 +214,8 @@ def temp_dir_beside(target: Path) -> Path:
     """A new empty temporary folder in the same parent as ``target``, with the
     permissions a plain ``mkdir`` would give it (``mkdtemp`` makes it private, and the
     folder it becomes would stay so)."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name[:_TEMP_STEM]}.", suffix=".tmp",
+                                dir=target.parent))
     os.chmod(tmp, 0o777 & ~current_umask())
     return tmp
 

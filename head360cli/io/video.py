@@ -25,6 +25,7 @@ import numpy as np
 from head360cli.errors import BadInputError
 from head360cli.io.atomic import (
     check_dir_target,
+    check_name_length,
     check_writable,
     commit_dir,
     temp_dir_beside,
@@ -62,6 +63,7 @@ def output_kind(path: str | os.PathLike[str]) -> str:
     """
     text = os.fspath(path)
     p = Path(text)
+    check_name_length(p)
     suffix = p.suffix.lower()
     if text.endswith(("/", os.sep)) or p.is_dir() or suffix == "":
         return "png"

@@ -213,3 +213,18 @@ def test_a_file_size_limit_is_a_clear_error(run_cli, head_file, tmp_path, monkey
     assert run.returncode == 3, run.stderr
     assert "file-size limit" in run.stderr and "wrote" not in run.stdout
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_name_too_long_for_the_file_system_is_exit_3(run_cli, head_file, tmp_path):
+    """An output or input name over the limit was an internal error (ENAMETOOLONG)."""
+    import os
+
+    long = "b" * (os.pathconf(tmp_path, "PC_NAME_MAX") + 5)
+    for args in (("render", head_file, "--turntable", "--frames", "2", "--size", "32", "-o",
+                  tmp_path / f"{long}.mp4"),
+                 ("export-mesh", head_file, "-o", tmp_path / f"{long}.glb"),
+                 ("inspect", tmp_path / f"{long}.csv")):
+        r = run_cli(*args)
+        assert r.code == 3 and len(r.err.strip().splitlines()) == 1, (args[0], r.err)
+        assert "name" in r.err and "..." in r.err, r.err
+    assert list(tmp_path.iterdir()) == []

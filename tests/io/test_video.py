@@ -263,6 +263,27 @@ def test_atomic_paths_renames_a_set_only_when_every_file_is_written(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h360", "a.json", "a.png"]
 
 
+def test_names_near_the_file_system_s_limit(tmp_path):
+    """A name a few bytes under the limit was refused ("cannot write into output folder:
+    File name too long") because its temporary name was longer; one over it was an
+    internal error from ``is_dir``."""
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    near = "n" * (limit - 8)
+    with atomic_path(tmp_path / f"{near}.png") as tmp:
+        tmp.write_text("x")
+    with atomic_dir(tmp_path / near) as d:
+        (d / "f").write_text("y")
+    assert write_video(frames(2), tmp_path / f"{near}.mp4", fps=10) == 2
+    assert sorted(len(p.name) for p in tmp_path.iterdir()) == [limit - 8, limit - 4,
+                                                               limit - 4]
+    over = "o" * limit + ".mp4"
+    for make in (lambda: atomic_path(tmp_path / over).__enter__(),
+                 lambda: VideoWriter(tmp_path / over),
+                 lambda: write_video(frames(2), tmp_path / ("o" * (limit + 1) + "/"))):
+        with pytest.raises(BadInputError, match=f"at most {limit} bytes, found"):
+            make()
+
+
 @pytest.fixture
 def umask_027():
     """Run with a umask that a shared machine might set, then put the old one back."""
