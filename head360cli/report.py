@@ -426,10 +426,10 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
     if path == "-":  # standard input: a stream, a head file or an image, by its bytes
         import sys
 
-        from head360cli.io.sources import NamedBytes, check_stdin
+        from head360cli.io.sources import NamedBytes, check_stdin, read_whole
 
         check_stdin("a stream, a head file or an image")
-        raw = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else (
+        raw = read_whole(sys.stdin.buffer, "<stdin>") if hasattr(sys.stdin, "buffer") else (
             sys.stdin.read().encode("utf-8"))  # a text stream put in its place
         path, shown = NamedBytes(raw, "<stdin>"), "<stdin>"
     elif is_pipe(path):  # <(...), /dev/stdin: read once, looked at twice

@@ -185,7 +185,7 @@ class ArkitStream:
 
 
 def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]:
-    from head360cli.io.sources import NamedBytes, existing
+    from head360cli.io.sources import NamedBytes, existing, read_whole
 
     if isinstance(source, NamedBytes):  # a pipe's content, read already
         path, raw = source.name, source.getvalue()
@@ -198,11 +198,11 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
         if not hasattr(sys.stdin, "buffer"):  # a text stream put in its place
             return sys.stdin, "<stdin>"
         # bytes, decoded as a file's are: UTF-16 with a mark, NULs named
-        path, raw = "<stdin>", sys.stdin.buffer.read()
+        path, raw = "<stdin>", read_whole(sys.stdin.buffer, "<stdin>")
     else:
         path = existing(source, "an ARKit CSV file")
         try:
-            raw = path.read_bytes()  # a pipe (<(...)) too: it is read once, whole
+            raw = read_whole(path, str(path))  # a pipe (<(...)) too: read once, whole
         except OSError as exc:
             raise FileFormatError(f"cannot read {str(path)!r}: {exc.strerror}") from exc
     # Excel's "Unicode text" and other Windows tools write UTF-16 with a byte-order mark

@@ -14,8 +14,15 @@ import io
 import os
 import stat
 from pathlib import Path
+from typing import BinaryIO
 
-__all__ = ["NamedBytes", "check_stdin", "existing", "input_stem", "is_pipe", "readable"]
+__all__ = ["MAX_READ_BYTES", "NamedBytes", "check_stdin", "existing", "input_stem", "is_pipe",
+           "read_whole", "readable"]
+
+MAX_READ_BYTES = 1 << 30
+"""The most an input that is read whole into memory may hold (1 GiB): a pipe, standard
+input or an ARKit stream. An hour of a Live Link Face take is about 130 MB; without a
+bound, ``--arkit /dev/zero`` or an endless pipe read until the memory ran out."""
 
 
 class NamedBytes(io.BytesIO):
@@ -76,6 +83,37 @@ def existing(path: str | os.PathLike[str] | NamedBytes, what: str) -> Path | Nam
     return path
 
 
+def read_whole(source: str | os.PathLike[str] | BinaryIO, name: str) -> bytes:
+    """Everything ``source`` (a path, a pipe or an open binary stream) holds, read in
+    pieces up to :data:`MAX_READ_BYTES`.
+
+    Raises:
+        BadInputError: It holds more (a regular file is told by its size, unread).
+        OSError: The read failed.
+    """
+    from head360cli.errors import BadInputError
+
+    limit = MAX_READ_BYTES
+
+    def too_large() -> BadInputError:
+        return BadInputError(f"expected at most {limit / 2**30:g} GiB in {name!r} (it is "
+                             f"read whole into memory), found more")
+
+    if not hasattr(source, "read"):
+        path = Path(source)
+        if path.is_file() and path.stat().st_size > limit:
+            raise too_large()
+        with open(path, "rb") as f:
+            return read_whole(f, name)
+    pieces, size = [], 0
+    while piece := source.read(min(1 << 22, limit + 1 - size)):
+        pieces.append(piece)
+        size += len(piece)
+        if size > limit:
+            raise too_large()
+    return b"".join(pieces)
+
+
 def readable(path: str | os.PathLike[str] | NamedBytes) -> tuple[Path | NamedBytes, int]:
     """What a reader should open for an existing, non-folder ``path``, and its size.
 
@@ -88,7 +126,7 @@ def readable(path: str | os.PathLike[str] | NamedBytes) -> tuple[Path | NamedByt
         return path, len(path.getbuffer())
     path = Path(path)
     if is_pipe(path):
-        data = path.read_bytes()
+        data = read_whole(path, str(path))
         return NamedBytes(data, str(path)), len(data)
     return path, path.stat().st_size
 

@@ -108,3 +108,25 @@ def test_the_exif_focal_length_comes_with_the_pixels_even_from_a_pipe(tmp_path, 
     assert load_image(f).focal_35mm == 52.0
     assert load_image(pipe(buf.getvalue(), "lens")).focal_35mm == 52.0
     assert load_image(pipe(_png(np.zeros((4, 4, 3), np.uint8)), "plain")).focal_35mm is None
+
+
+def test_inputs_read_whole_are_bounded(tmp_path, pipe, monkeypatch, run_cli, head_file):
+    """``--arkit /dev/zero``, or an endless pipe, was read until the memory ran out (the
+    process was killed); a CSV larger than the bound is refused by its size, unread."""
+    from head360cli.io import sources
+
+    monkeypatch.setattr(sources, "MAX_READ_BYTES", 1000)
+    big = tmp_path / "big.csv"
+    big.write_text("time,jawOpen\n" + "0.1,0.5\n" * 200)
+    for source in (big, pipe(big.read_bytes(), "fifo.csv"), "/dev/zero"):
+        with pytest.raises(BadInputError, match=r"at most 9\.3\d*e-07 GiB .* found more"):
+            read_arkit_csv(source)
+    with pytest.raises(BadInputError, match="found more"):
+        readable("/dev/zero")
+    r = run_cli("animate", head_file, "--arkit", "/dev/zero", "-o", tmp_path / "x.mp4")
+    assert r.code == 3 and "read whole into memory" in r.err, r.err
+    r = run_cli("inspect", "/dev/zero")
+    assert r.code == 3 and "read whole into memory" in r.err, r.err
+    small = tmp_path / "small.csv"
+    small.write_text("time,jawOpen\n0,0.5\n0.1,0.6\n")
+    assert read_arkit_csv(small).weights[1, INDEX["jawOpen"]] == pytest.approx(0.6)
