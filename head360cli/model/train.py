@@ -9,7 +9,9 @@ Adam with a short warm-up and a cosine decay, gradients clipped; a step whose lo
 finite is skipped rather than applied.
 
 Resumable (``checkpoint.pt`` in the run folder holds everything: configs, weights, codes,
-optimiser, step, random states), logged (``log.jsonl``, one line per logged step),
+optimiser, step, random states; Ctrl-C or SIGTERM in a one-process run checkpoints the
+step it is on before stopping), logged (``log.jsonl``, one line per logged step, trimmed
+to the checkpoint's step on resuming),
 deterministic for a seed and a process count, and data parallel under ``torchrun`` (gloo on
 CPU, NCCL on GPUs): every process draws its own views, gradients are averaged.
 """
@@ -254,48 +256,63 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     bar = progress_bar(range(start, cfg.steps), total=cfg.steps - start, desc="train",
                        enabled=progress and rank == 0)
     step = start
-    for step in bar:
-        batch = views.sample(rng, cfg.batch, bald_share, cfg.group, cfg.featured_share).to(device)
-        scale = learning_rate_scale(step, cfg, time.perf_counter() - t0)
-        for group, lr in zip(opt.param_groups, base_lrs, strict=True):
-            group["lr"] = lr * scale
-        output = run(batch, jitter=True)
-        parts = losses(output, batch, dataclasses.replace(
-            cfg, detach=cfg.detach and gen_cfg.hair))
-        total = parts["total"] + cfg.code_prior * model.codes[batch.identity].square().sum(
-            1).mean()
-        opt.zero_grad(set_to_none=True)
-        total.backward()
-        norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.clip)
-        parts["grad_norm"] = norm
-        if torch.isfinite(total) and torch.isfinite(norm):
-            opt.step()
-            for k, v in parts.items():  # the logged means are over the steps taken
-                sums[k] = sums.get(k, 0.0) + v.item()
-            count += 1
-        else:
-            skipped += 1
-            for k in parts:
-                sums.setdefault(k, 0.0)
-        done = step + 1
-        elapsed = time.perf_counter() - t0
-        stop = (cfg.minutes > 0 and elapsed > 60.0 * cfg.minutes) or done == stop_at
-        if world > 1:  # every process stops at the same step
-            flag = torch.tensor([float(stop)], device=device)
-            torch.distributed.all_reduce(flag, op=torch.distributed.ReduceOp.MAX)
-            stop = bool(flag.item())
-        if done % cfg.log_every == 0 or done == cfg.steps or stop:
-            last = {"step": done, "seconds": round(elapsed, 1), "skipped": skipped,
-                    "lr": round(opt.param_groups[0]["lr"], 7),
-                    **{k: round(v / count, 5) if count else None for k, v in sums.items()}}
-            sums, count = {}, 0
-            if rank == 0:
-                with open(out / "log.jsonl", "a") as f:
-                    f.write(dumps(last) + "\n")
-        if done % cfg.checkpoint_every == 0 or done == cfg.steps or stop:
-            _checkpoint(out, model, opt, cfg, gen_cfg, done, rng, world, rank)
-        if stop:
-            break
+    if rank == 0:
+        _trim_log(out / "log.jsonl", start)
+    # Ctrl-C or SIGTERM (one process): finish the step, log and checkpoint it, then stop as
+    # the signal asks; a second one stops at once (the last checkpoint stays).
+    interrupted: list[int] = []
+    previous = _catch_interrupts(interrupted) if world == 1 else {}
+    try:
+        for step in bar:
+            batch = views.sample(rng, cfg.batch, bald_share, cfg.group,
+                                 cfg.featured_share).to(device)
+            scale = learning_rate_scale(step, cfg, time.perf_counter() - t0)
+            for group, lr in zip(opt.param_groups, base_lrs, strict=True):
+                group["lr"] = lr * scale
+            output = run(batch, jitter=True)
+            parts = losses(output, batch, dataclasses.replace(
+                cfg, detach=cfg.detach and gen_cfg.hair))
+            total = parts["total"] + cfg.code_prior * model.codes[batch.identity].square().sum(
+                1).mean()
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.clip)
+            parts["grad_norm"] = norm
+            if torch.isfinite(total) and torch.isfinite(norm):
+                opt.step()
+                for k, v in parts.items():  # the logged means are over the steps taken
+                    sums[k] = sums.get(k, 0.0) + v.item()
+                count += 1
+            else:
+                skipped += 1
+                for k in parts:
+                    sums.setdefault(k, 0.0)
+            done = step + 1
+            elapsed = time.perf_counter() - t0
+            stop = ((cfg.minutes > 0 and elapsed > 60.0 * cfg.minutes) or done == stop_at
+                    or bool(interrupted))
+            if world > 1:  # every process stops at the same step
+                flag = torch.tensor([float(stop)], device=device)
+                torch.distributed.all_reduce(flag, op=torch.distributed.ReduceOp.MAX)
+                stop = bool(flag.item())
+            if done % cfg.log_every == 0 or done == cfg.steps or stop:
+                last = {"step": done, "seconds": round(elapsed, 1), "skipped": skipped,
+                        "lr": round(opt.param_groups[0]["lr"], 7),
+                        **{k: round(v / count, 5) if count else None for k, v in sums.items()}}
+                sums, count = {}, 0
+                if rank == 0:
+                    with open(out / "log.jsonl", "a") as f:
+                        f.write(dumps(last) + "\n")
+            if done % cfg.checkpoint_every == 0 or done == cfg.steps or stop:
+                _checkpoint(out, model, opt, cfg, gen_cfg, done, rng, world, rank)
+            if stop:
+                break
+    finally:
+        _restore_handlers(previous)
+    if interrupted:
+        import signal
+
+        signal.raise_signal(interrupted[0])  # handled as it would have been, now saved
     if world > 1:
         torch.distributed.barrier()
     if world > 1 and owned:
@@ -304,6 +321,66 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         # that had finished and checkpointed, one CI run in many
         torch.distributed.destroy_process_group()
     return last
+
+
+def _trim_log(path: Path, step: int) -> None:
+    """Drop the lines of a resumed run's log past its checkpoint's ``step`` (logged, then
+    interrupted before the next checkpoint: the resumed run logs those steps again), and
+    a last line cut off mid-write."""
+    import json
+
+    if not path.is_file():
+        return
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            logged = json.loads(line)["step"]
+        except (ValueError, KeyError, TypeError):
+            continue
+        if logged <= step:
+            kept.append(line)
+    from head360cli.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text("".join(f"{line}\n" for line in kept))
+
+
+def _catch_interrupts(caught: list[int]) -> dict[int, Any]:
+    """Make SIGINT and SIGTERM append their number to ``caught`` instead of stopping
+    the process at once (main thread only, and not where one is ignored); a second one
+    calls the handler it replaced.
+
+    Returns:
+        The replaced handlers, for :func:`_restore_handlers`.
+    """
+    import signal
+    import sys
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def on_signal(signum, frame) -> None:
+        if caught:  # asked twice: stop now
+            handler = previous[signum]
+            if callable(handler):
+                handler(signum, frame)
+            raise KeyboardInterrupt
+        caught.append(signum)
+        sys.stderr.write("\nhead360: interrupted: stopping after this step with a "
+                         "checkpoint (again to stop at once)\n")
+
+    # a signal ignored already stays so (a background job's SIGINT, as the shell set it)
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(sig) is not signal.SIG_IGN}
+    return previous
+
+
+def _restore_handlers(previous: dict[int, Any]) -> None:
+    import signal
+
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
 
 
 def _checkpoint(out, model, opt, cfg, gen_cfg, step, rng, world, rank) -> None:

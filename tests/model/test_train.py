@@ -239,3 +239,51 @@ def test_a_skipped_step_leaves_the_log_finite_and_standard_json(tmp_path, monkey
     assert [x["step"] for x in lines] == [2, 4] and [x["skipped"] for x in lines] == [1, 1]
     assert all(x["l1"] > 0 and x["total"] > 0 for x in lines)
     assert last["l1"] == lines[-1]["l1"]
+
+
+def _log_steps(run):
+    return [json.loads(x)["step"] for x in (run / "log.jsonl").read_text().splitlines()]
+
+
+def test_ctrl_c_checkpoints_the_step_it_is_on_and_resuming_ends_as_one_run(tmp_path,
+                                                                          monkeypatch):
+    """Ctrl-C used to lose every step since the last checkpoint (up to 199 by default)."""
+    import dataclasses
+    import signal
+
+    import head360cli.model.train as train_module
+    from head360cli.model.train import read_checkpoint
+
+    cfg = dataclasses.replace(CFG, steps=6, log_every=1, checkpoint_every=4)
+    real, calls = train_module.losses, []
+
+    def interrupted_in_the_third_step(out, batch, c):
+        calls.append(1)
+        if len(calls) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(out, batch, c)
+
+    monkeypatch.setattr(train_module, "losses", interrupted_in_the_third_step)
+    with pytest.raises(KeyboardInterrupt):
+        train(tmp_path / "r", cfg, TINY, progress=False)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    assert read_checkpoint(tmp_path / "r" / CHECKPOINT)["step"] == 3
+    monkeypatch.setattr(train_module, "losses", real)
+    train(tmp_path / "r", cfg, TINY, progress=False)
+    train(tmp_path / "whole", cfg, TINY, progress=False)
+    assert _log_steps(tmp_path / "r") == [1, 2, 3, 4, 5, 6]
+    for k, v in _weights(tmp_path / "whole").items():
+        assert torch.allclose(v, _weights(tmp_path / "r")[k], atol=1e-6), k
+
+
+def test_a_resumed_run_logs_each_step_once(tmp_path):
+    """Steps logged after the last checkpoint (a run killed before the next one) are
+    logged again when resumed; the log kept both, and a line cut off mid-write."""
+    import dataclasses
+
+    cfg = dataclasses.replace(CFG, steps=4, log_every=1)
+    train(tmp_path / "r", cfg, TINY, progress=False, stop_at=2)
+    with open(tmp_path / "r" / "log.jsonl", "a") as f:
+        f.write('{"step": 3, "l1": 0.5}\n{"step": 4, "l1"')
+    train(tmp_path / "r", cfg, TINY, progress=False)
+    assert _log_steps(tmp_path / "r") == [1, 2, 3, 4]
