@@ -39,10 +39,17 @@ def load_data(source: str | os.PathLike[str] | IO[bytes], expected: str,
     shown = name or str(source)
     try:
         return torch.load(source, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:  # weights_only refused an object: it could run code
-        raise FileFormatError(f"{shown}: expected {expected}, found a torch file holding "
-                              f"other objects than tensors and plain values (they could "
-                              f"run code, so it is not loaded)") from None
+    except pickle.UnpicklingError as exc:
+        text = _ANSI.sub("", str(exc))
+        if "global" in text.lower():  # weights_only refused an object: it could run code
+            raise FileFormatError(f"{shown}: expected {expected}, found a torch file "
+                                  f"holding other objects than tensors and plain values "
+                                  f"(they could run code, so it is not loaded)") from None
+        # bytes that are no pickle at all ("Unsupported operand 110"): not a torch file
+        detail = text.split("WeightsUnpickler error:")[-1].strip().splitlines()
+        first = detail[0][:200] if detail and detail[0] else type(exc).__name__
+        raise FileFormatError(f"{shown}: expected {expected}, found a file torch cannot "
+                              f"read ({first})") from None
     except Exception as exc:  # zip, EOF and storage errors alike
         text = _ANSI.sub("", str(exc)).strip()
         first = text.splitlines()[0][:200] if text else type(exc).__name__
