@@ -219,26 +219,34 @@ def save_hair_prior(prior: HairPrior, path: str | os.PathLike[str],
 
 
 def load_hair_prior(path: str | os.PathLike[str], device: str = "cpu") -> HairPrior:
-    """Read a hair prior written by :func:`save_hair_prior`.
+    """Read a hair prior written by :func:`save_hair_prior`, as data only.
 
     Raises:
-        BadInputError: The file is missing or is not a hair-prior checkpoint.
+        BadInputError: The file is missing.
+        FileFormatError: It is not a hair-prior checkpoint: unreadable, truncated, of
+            another kind, holding objects that could run code, or with weights that do
+            not fit its configuration (exit 5, as for the other model files).
     """
-    from head360cli.errors import BadInputError
+    from head360cli.errors import BadInputError, FileFormatError
+    from head360cli.io.torchfile import load_data
 
     path = Path(path)
     if not path.is_file():
         raise BadInputError(f"hair prior {str(path)!r} does not exist")
-    try:
-        blob = torch.load(path, map_location=device, weights_only=True)
-    except Exception as exc:  # any unreadable file is bad input here
-        raise BadInputError(f"could not read hair prior {str(path)!r}: {exc}") from None
+    blob = load_data(path, f"a {FORMAT} checkpoint")
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         found = blob.get("format") if isinstance(blob, dict) else type(blob).__name__
-        raise BadInputError(f"expected a {FORMAT} checkpoint in {str(path)!r}, found {found}")
-    net = HairPriorNet(HairPriorConfig(**blob["config"]))
-    net.load_state_dict(blob["state_dict"])
-    return HairPrior(net.to(device), blob["canon"].numpy(), blob.get("meta", {}))
+        raise FileFormatError(f"expected a {FORMAT} checkpoint in {str(path)!r}, found "
+                              f"{found}")
+    try:
+        net = HairPriorNet(HairPriorConfig(**blob["config"]))
+        net.load_state_dict(blob["state_dict"])
+        canon = blob["canon"].numpy()
+    except (KeyError, TypeError, RuntimeError, AttributeError) as exc:
+        first = " ".join(str(exc).split())[:160]
+        raise FileFormatError(f"{str(path)!r}: a {FORMAT} checkpoint whose contents do not "
+                              f"fit together ({type(exc).__name__}: {first})") from None
+    return HairPrior(net.to(device), canon, blob.get("meta", {}))
 
 
 @functools.lru_cache(maxsize=1)

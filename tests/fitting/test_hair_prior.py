@@ -97,14 +97,29 @@ def test_checkpoint_round_trip(tmp_path):
 
 
 def test_load_refuses_missing_and_foreign_files(tmp_path):
+    """A missing file is bad input (exit 3); one that is no hair prior is a file-format
+    error (exit 5), as for the generator and checkpoints (before stop 73 it was exit 3)."""
+    from head360cli.errors import FileFormatError
+
     with pytest.raises(BadInputError, match="does not exist"):
         load_hair_prior(tmp_path / "none.pt")
     torch.save({"weights": 1}, tmp_path / "other.pt")
-    with pytest.raises(BadInputError, match="expected a head360-hair-prior/1"):
+    with pytest.raises(FileFormatError, match="expected a head360-hair-prior/1"):
         load_hair_prior(tmp_path / "other.pt")
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(BadInputError, match="could not read"):
+    with pytest.raises(FileFormatError, match="found a file torch cannot read"):
         load_hair_prior(tmp_path / "junk.pt")
+    # weights that do not fit the configuration they carry: a KeyError or RuntimeError
+    save_hair_prior(_tiny_prior(1), tmp_path / "p.pt", {})
+    blob = torch.load(tmp_path / "p.pt", weights_only=True)
+    blob["state_dict"] = {k: v[..., :1] if v.ndim else v for k, v in blob["state_dict"].items()}
+    torch.save(blob, tmp_path / "cut.pt")
+    with pytest.raises(FileFormatError, match="do not fit together"):
+        load_hair_prior(tmp_path / "cut.pt")
+    del blob["config"]
+    torch.save(blob, tmp_path / "noconfig.pt")
+    with pytest.raises(FileFormatError, match="do not fit together"):
+        load_hair_prior(tmp_path / "noconfig.pt")
 
 
 def _disc_data(n: int = 12, size: int = 32):
