@@ -1,7 +1,9 @@
 """Atomic outputs: write to a temporary name beside the target, then rename.
 
 A failure or an interrupt at any point leaves the target as it was (absent, or the
-previous complete version) and removes the temporary file.
+previous complete version) and removes the temporary file. A run killed outright (SIGKILL,
+the out-of-memory killer) cannot; the next write of the same output removes what it left,
+once it is an hour old and its process has gone.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
            "check_folder_name", "check_name_length", "check_writable", "commit_dir",
-           "current_umask", "temp_dir_beside", "temp_name_beside"]
+           "current_umask", "remove_leftovers", "temp_dir_beside", "temp_name_beside"]
 
 
 def current_umask() -> int:
@@ -41,12 +43,68 @@ _TEMP_STEM = 48
 limit (255 bytes on most) would otherwise make a temporary name over it."""
 
 
+LEFTOVER_AGE_S = 3600.0
+"""How long a temporary file of a process that no longer runs is left alone before the
+next write of the same output removes it."""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # POSIX: no signal is sent, only whether the process exists
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process, or a check that failed: assume it runs
+        return True
+    return True
+
+
+def remove_leftovers(folder: Path, prefix: str, suffix: str) -> list[Path]:
+    """Remove the temporary files and folders of ``prefix`` and ``suffix`` in ``folder``
+    that a run killed outright (SIGKILL, the out-of-memory killer, a power cut) left:
+    named as this module names them, by a process that no longer runs, untouched for
+    :data:`LEFTOVER_AGE_S`. Nothing else is touched; nothing at all off POSIX.
+
+    Returns:
+        What was removed.
+    """
+    import glob
+    import re
+    import time
+
+    if os.name != "posix":
+        return []
+    pattern = re.compile(re.escape(prefix) + r"(\d+)-[^./]*" + re.escape(suffix) + "$")
+    removed = []
+    now = time.time()
+    for entry in folder.glob(glob.escape(prefix) + "*" + glob.escape(suffix)):
+        found = pattern.match(entry.name)
+        if not found or int(found.group(1)) == os.getpid() or _alive(int(found.group(1))):
+            continue
+        try:
+            if now - entry.lstat().st_mtime < LEFTOVER_AGE_S:
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+        except OSError:
+            continue
+        removed.append(entry)
+    return removed
+
+
 def temp_name_beside(target: Path) -> Path:
     """A fresh temporary file name in ``target``'s folder, keeping its suffix; the file
     does not exist, so whatever writes it creates it with the usual permissions (a
-    reserved ``mkstemp`` file would stay readable by its owner only)."""
-    fd, name = tempfile.mkstemp(prefix=f".{target.stem[:_TEMP_STEM]}.",
-                                suffix=f".tmp{target.suffix[:_TEMP_STEM]}", dir=target.parent)
+    reserved ``mkstemp`` file would stay readable by its owner only).
+
+    The name carries this process's id, so the next write of ``target`` can tell the
+    leftovers of a killed run (:func:`remove_leftovers`), and removes them."""
+    prefix = f".{target.stem[:_TEMP_STEM]}."
+    suffix = f".tmp{target.suffix[:_TEMP_STEM]}"
+    remove_leftovers(target.parent, prefix, suffix)
+    fd, name = tempfile.mkstemp(prefix=f"{prefix}{os.getpid()}-", suffix=suffix,
+                                dir=target.parent)
     os.close(fd)
     os.unlink(name)
     return Path(name)
@@ -214,7 +272,9 @@ def temp_dir_beside(target: Path) -> Path:
     """A new empty temporary folder in the same parent as ``target``, with the
     permissions a plain ``mkdir`` would give it (``mkdtemp`` makes it private, and the
     folder it becomes would stay so)."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name[:_TEMP_STEM]}.", suffix=".tmp",
+    prefix = f".{target.name[:_TEMP_STEM]}."
+    remove_leftovers(target.parent, prefix, ".tmp")
+    tmp = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-", suffix=".tmp",
                                 dir=target.parent))
     os.chmod(tmp, 0o777 & ~current_umask())
     return tmp

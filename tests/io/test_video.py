@@ -284,6 +284,41 @@ def test_names_near_the_file_system_s_limit(tmp_path):
             make()
 
 
+def test_the_next_write_removes_what_a_killed_run_left(tmp_path):
+    """A run killed outright (SIGKILL, the out-of-memory killer) leaves its temporary
+    file or folder, hidden; they used to stay for good, a partial mp4 perhaps gigabytes."""
+    import subprocess
+    import sys
+    import time
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead = int(gone.stdout)  # a process that has ended
+    hour_ago = time.time() - 2 * 3600
+    left = {
+        "dead_old": tmp_path / f".out.{dead}-abc123.tmp.mp4",
+        "dead_old_dir": tmp_path / f".frames.{dead}-xyz.tmp",
+        "dead_new": tmp_path / f".out.{dead}-new.tmp.mp4",  # may be another host's, writing
+        "alive_old": tmp_path / f".out.{os.getppid()}-par.tmp.mp4",
+        "other_output": tmp_path / f".other.{dead}-abc.tmp.mp4",
+        "not_ours": tmp_path / ".out.tmp.mp4",
+    }
+    for key, path in left.items():
+        if key.endswith("_dir"):
+            path.mkdir()
+            (path / "frame_000000.png").write_bytes(b"x")
+        else:
+            path.write_bytes(b"partial")
+        if key != "dead_new":
+            os.utime(path, (hour_ago, hour_ago))
+    write_video(frames(2), tmp_path / "out.mp4", fps=10)
+    write_video(frames(2), tmp_path / "frames", fps=10)
+    kept = {key for key, path in left.items() if path.exists()}
+    assert kept == {"dead_new", "alive_old", "other_output", "not_ours"}
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == [
+        "frame_000000.png", "frame_000001.png"]
+
+
 @pytest.fixture
 def umask_027():
     """Run with a umask that a shared machine might set, then put the old one back."""
