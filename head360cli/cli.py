@@ -62,6 +62,24 @@ def _set(field: str) -> Callable[[click.Context, click.Parameter, Any], Any]:
     return callback
 
 
+def _photo_from_stdin(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    """A photo argument of ``-``: standard input, read through ``/dev/stdin`` as any pipe
+    is (outputs named after it are called ``pipe``)."""
+    if value != "-":
+        return value
+    from head360cli.io.sources import check_stdin
+
+    check_stdin("a photo")
+    if not os.path.exists("/dev/stdin"):
+        raise BadInputError("expected a photo file: this system has no /dev/stdin to read "
+                            "'-' from")
+    return "/dev/stdin"
+
+
+PHOTO = click.argument("photo", type=click.Path(dir_okay=False), callback=_photo_from_stdin)
+"""The photo argument of fit, parse-hair and classify-hair: a file, a pipe or ``-``."""
+
+
 def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
     """Add --device/--quiet/--json/--debug to a command (they also work on the group)."""
     options = [
@@ -423,7 +441,7 @@ def _progress_printer():
 
 
 @cli.command()
-@click.argument("photo", type=click.Path(dir_okay=False))
+@PHOTO
 @click.option("--stage", type=click.Choice(["all", "shape"]), default="all", show_default=True,
               help="How far to go. all: every stage, writing a head file; shape: landmarks, "
               "pose, identity and expression of the parametric head only.")
@@ -471,6 +489,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
       head360 fit profile.jpg --no-prior          hair parsed by colour and landmarks alone
       head360 fit rig_photo.jpg --distance 1.0 --focal 2400
       head360 fit photo.jpg --stage shape -o out/
+      curl -s URL | head360 fit - -o me.h360     a photo on standard input
       head360 fit group.jpg --stage shape --face all --json > faces.json
     """
     from head360cli.errors import BadInputError
@@ -525,7 +544,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 
 
 @cli.command("parse-hair")
-@click.argument("photo", type=click.Path(dir_okay=False))
+@PHOTO
 @click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
               type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
@@ -569,7 +588,7 @@ def _unseeded(r: dict) -> str:
 
 
 @cli.command("classify-hair")
-@click.argument("photo", type=click.Path(dir_okay=False))
+@PHOTO
 @click.option("--top", default=3, show_default=True, help="How many styles to list.")
 @click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
               help="Which face (0 = the largest).")

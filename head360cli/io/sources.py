@@ -136,6 +136,6 @@ def input_stem(path: str | os.PathLike[str]) -> str:
     without a name of its own (process substitution's ``/dev/fd/63``, ``/dev/stdin``),
     which gives ``"pipe"`` (a named pipe keeps its name)."""
     stem = Path(path).stem
-    if is_pipe(path) and (stem.isdigit() or str(path) == "/dev/stdin"):
-        return "pipe"
+    if str(path) == "/dev/stdin" or (is_pipe(path) and stem.isdigit()):
+        return "pipe"  # /dev/stdin even when it is a file redirected with <
     return stem

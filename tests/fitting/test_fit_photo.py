@@ -215,6 +215,34 @@ def test_parse_hair_of_a_pipe_names_its_masks_pipe(run_cli, astronaut, tmp_path,
                           np.array(Image.open(from_file["hair_mask"])))
 
 
+@pytest.mark.skipif(not Path("/dev/stdin").exists(), reason="no /dev/stdin")
+def test_a_photo_on_standard_input_is_given_as_dash(astronaut, tmp_path):
+    """``curl URL | head360 parse-hair -`` was "no such file: '-'" (streams and inspect
+    took ``-``, photos only ``/dev/stdin``). Piped or redirected, the masks are the file's,
+    named ``pipe_*``; with nothing on standard input, an empty photo (exit 5)."""
+    import subprocess
+    import sys
+
+    masks = {}
+    for how in ("piped", "redirected"):
+        cmd = [sys.executable, "-m", "head360cli", "parse-hair", "-", "-o",
+               str(tmp_path / how), "--json", "--quiet"]
+        if how == "piped":
+            run = subprocess.run(cmd, input=astronaut.read_bytes(), capture_output=True,
+                                 timeout=300)
+        else:
+            with open(astronaut, "rb") as f:
+                run = subprocess.run(cmd, stdin=f, capture_output=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        out = json.loads(run.stdout)
+        assert Path(out["hair_mask"]).name == "pipe_hair.png"
+        masks[how] = np.array(Image.open(out["hair_mask"]))
+    assert np.array_equal(masks["piped"], masks["redirected"]) and masks["piped"].any()
+    run = subprocess.run([sys.executable, "-m", "head360cli", "classify-hair", "-"],
+                         stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 5 and "empty" in run.stderr, run.stderr
+
+
 def test_parse_hair_says_it_found_a_face_in_profile(run_cli, tmp_path):
     """A held-out corpus head turned 65 degrees: no face for dlib, a face in profile for
     the cascade, whose skin is the face mask (before, the face was parsed as hair)."""
