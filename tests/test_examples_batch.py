@@ -43,11 +43,16 @@ def test_fit_folder_keeps_going_and_counts_failures(tmp_path):
     # two photos with one name: each once wrote over the other's outputs
     Image.new("RGB", (64, 64), "grey").save(photos / "twin.png")
     (photos / "twin.jpg").write_text("not a photo either")
+    # the other formats head360 reads (the script once listed only jpg, jpeg and png)
+    Image.new("RGB", (64, 64), "white").save(photos / "wall.webp")
+    Image.new("RGB", (64, 64), "white").save(photos / "scan.tif")
+    (photos / "IMG_0001.HEIC").write_text("not a photo")
+    (photos / "notes.txt").write_text("not a photo, and not listed")
     out = tmp_path / "out"
     p = subprocess.run(["bash", str(REPO / "examples/batch/fit_folder.sh"), str(photos),
                         str(out), "2"], capture_output=True, text=True, env=_env())
-    assert p.returncode == 4, p.stderr  # four of five failed
-    assert "ran 5 photo(s), 4 failed" in p.stderr
+    assert p.returncode == 7, p.stderr  # seven of eight failed
+    assert "ran 8 photo(s), 7 failed" in p.stderr
     assert (out / "astronaut.h360").is_file()
     rows = {r["name"]: r for r in _collect(out)}
     assert rows["astronaut"]["ok"] == "True" and rows["astronaut"]["hair_style"]
@@ -55,8 +60,11 @@ def test_fit_folder_keeps_going_and_counts_failures(tmp_path):
     assert rows["blank"]["error_type"] == "NoFaceError"
     assert rows["twin_png"]["error_type"] == "NoFaceError"
     assert rows["twin_jpg"]["error_type"] == "FileFormatError"
+    assert rows["wall"]["error_type"] == rows["scan"]["error_type"] == "NoFaceError"
+    assert rows["IMG_0001"]["error_type"] == "FileFormatError"
     assert sorted((out / "failed.txt").read_text().split()) == sorted(
-        str(photos / n) for n in ("blank.png", "broken.jpg", "twin.png", "twin.jpg"))
+        str(photos / n) for n in ("blank.png", "broken.jpg", "twin.png", "twin.jpg",
+                                  "wall.webp", "scan.tif", "IMG_0001.HEIC"))
 
 
 def test_animate_heads_one_stream_many_heads(tmp_path, head_file):

@@ -3,7 +3,7 @@
 #
 #   examples/batch/fit_folder.sh PHOTOS_DIR OUT_DIR [JOBS] [-- extra head360 fit options]
 #
-# For each photo NAME.jpg|jpeg|png it writes OUT_DIR/NAME.h360 (+ preview and summary),
+# For each photo NAME.jpg|jpeg|png|heic|heif|webp|tif|tiff|bmp it writes OUT_DIR/NAME.h360 (+ preview and summary),
 # OUT_DIR/NAME.result.json (head360's --json answer, also for failures) and NAME.err
 # (warnings and errors). Photos that share a NAME (x.jpg and x.png) are written as
 # NAME_jpg, NAME_png, so that neither overwrites the other. Failed photos are listed in OUT_DIR/failed.txt. The exit status
@@ -23,8 +23,10 @@ rm -f "$out/failed.txt"
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 
 list_photos() {
-    find "$photos" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \) \
-        -print0 | sort -z
+    # the formats head360 reads (HEIC, an iPhone's, with the optional pillow-heif)
+    find "$photos" -maxdepth 1 -type f \( -iname '*.jpg' -o -iname '*.jpeg' -o -iname '*.png' \
+        -o -iname '*.heic' -o -iname '*.heif' -o -iname '*.webp' -o -iname '*.tif' \
+        -o -iname '*.tiff' -o -iname '*.bmp' \) -print0 | sort -z
 }
 # the names two or more photos share, one a line
 shared=$(mktemp) || exit 2
