@@ -218,7 +218,7 @@ def _open_text(source: str | Path | IO[str] | NamedBytes) -> tuple[IO[str], str]
         raise FileFormatError(
             f"expected a UTF-8 (or UTF-16 with a byte-order mark) text CSV in "
             f"{str(path)!r}, found NUL characters (UTF-16 without a byte-order mark?)")
-    return io.StringIO(text), str(path)
+    return io.StringIO(text, newline=""), str(path)  # lines end in \n, \r\n or \r (old Mac)
 
 
 def _delimiter(first_line: str) -> str:

@@ -452,3 +452,17 @@ def test_standard_input_is_decoded_as_a_file_is(monkeypatch):
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(b"\x89PNG\r\n\x1a\n\xff")))
     with pytest.raises(FileFormatError, match="'<stdin>', found binary data"):
         read_arkit_csv("-")
+
+
+def test_old_mac_line_endings_read_as_the_others(tmp_path):
+    """Excel for Mac's "CSV (Macintosh)" ends lines with a lone CR: the whole file read as
+    one line, "new-line character seen in unquoted field"."""
+    body = ["time,jawOpen,eyeBlinkLeft", "0,0.5,0", "0.1,0.6,0.2", "0.2,0.7,0"]
+    streams = {}
+    for name, end in (("lf", "\n"), ("crlf", "\r\n"), ("cr", "\r")):
+        (tmp_path / f"{name}.csv").write_bytes(end.join(body).encode() + end.encode())
+        streams[name] = read_arkit_csv(tmp_path / f"{name}.csv")
+    for name in ("crlf", "cr"):
+        np.testing.assert_array_equal(streams[name].weights, streams["lf"].weights)
+        np.testing.assert_array_equal(streams[name].timestamps, streams["lf"].timestamps)
+    assert streams["cr"].weights[1, INDEX["eyeBlinkLeft"]] == pytest.approx(0.2)
