@@ -7,6 +7,7 @@ stderr and their own exit code; ``--debug`` shows the traceback instead.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -1090,13 +1091,34 @@ def _error_json(kind: str, message: str, code: int) -> None:
 
 
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, ``timeout``, a batch system), raised in the main thread as an
-    interrupt is, so that half-written outputs are removed and spawned processes ended;
-    by default Python dies at once and leaves both behind."""
+    """SIGTERM (``kill``, ``timeout``, a batch system) or SIGHUP (the terminal or ssh
+    session closed), raised in the main thread as an interrupt is, so that half-written
+    outputs are removed and spawned processes ended; by default Python dies at once and
+    leaves both behind.
+
+    Attributes:
+        signum: The signal's number.
+    """
+
+    signum = 15  # SIGTERM's
 
 
 def _on_terminate(signum, frame) -> None:
-    raise _Terminated
+    exc = _Terminated()
+    exc.signum = signum
+    raise exc
+
+
+def _stop_signals() -> list[int]:
+    """The signals :func:`_on_terminate` handles: SIGTERM, and SIGHUP where there is one
+    and it is not ignored (``nohup`` ignores it, and it must stay so)."""
+    import signal
+
+    found = [signal.SIGTERM]
+    hup = getattr(signal, "SIGHUP", None)
+    if hup is not None and signal.getsignal(hup) is not signal.SIG_IGN:
+        found.append(hup)
+    return found
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -1108,12 +1130,13 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in args
     as_json = "--json" in args
     handles = threading.current_thread() is threading.main_thread()  # only it may
-    previous = signal.signal(signal.SIGTERM, _on_terminate) if handles else None
+    previous = {sig: signal.signal(sig, _on_terminate) for sig in _stop_signals()} \
+        if handles else {}
     try:
         return _run(args, debug, as_json)
     finally:
-        if handles:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _run(args: list[str], debug: bool, as_json: bool) -> int:
@@ -1129,6 +1152,13 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
         return int(exc.exit_code)
     except (click.Abort, KeyboardInterrupt) as exc:  # click turns the interrupt into Abort
         if isinstance(exc, _Terminated) or isinstance(exc.__cause__, _Terminated):
+            import signal
+
+            stop = exc if isinstance(exc, _Terminated) else exc.__cause__
+            if stop.signum != signal.SIGTERM:  # SIGHUP: the terminal may be gone too
+                with contextlib.suppress(OSError):
+                    click.echo("head360: hung up", err=True)
+                return EXIT_CODES["hangup"]
             click.echo("head360: terminated", err=True)
             return EXIT_CODES["terminated"]
         click.echo("head360: interrupted", err=True)

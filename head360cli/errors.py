@@ -25,6 +25,7 @@ code  exception              meaning
                              needs is not installed
 8     (out of memory)        the CPU's or the GPU's memory ran out (MemoryError,
                              torch's OutOfMemoryError or failed CPU allocation)
+129   (SIGHUP)               the terminal or ssh session closed; as for 130
 130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
 143   (SIGTERM)              terminated (``kill``, ``timeout``); as for 130
 ====  =====================  ==================================================
@@ -98,6 +99,7 @@ EXIT_CODES: dict[str, int] = {
     ModelMismatchError.__name__: ModelMismatchError.exit_code,
     ModelNotFoundError.__name__: ModelNotFoundError.exit_code,
     "out_of_memory": 8,
+    "hangup": 129,
     "interrupted": 130,
     "terminated": 143,
 }

@@ -346,13 +346,14 @@ def _trim_log(path: Path, step: int) -> None:
 
 
 def _catch_interrupts(caught: list[int]) -> dict[int, Any]:
-    """Make SIGINT and SIGTERM append their number to ``caught`` instead of stopping
+    """Make SIGINT, SIGTERM and SIGHUP append their number to ``caught`` instead of stopping
     the process at once (main thread only, and not where one is ignored); a second one
     calls the handler it replaced.
 
     Returns:
         The replaced handlers, for :func:`_restore_handlers`.
     """
+    import contextlib
     import signal
     import sys
     import threading
@@ -367,11 +368,14 @@ def _catch_interrupts(caught: list[int]) -> dict[int, Any]:
                 handler(signum, frame)
             raise KeyboardInterrupt
         caught.append(signum)
-        sys.stderr.write("\nhead360: interrupted: stopping after this step with a "
-                         "checkpoint (again to stop at once)\n")
+        with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
+            sys.stderr.write("\nhead360: interrupted: stopping after this step with a "
+                             "checkpoint (again to stop at once)\n")
 
     # a signal ignored already stays so (a background job's SIGINT, as the shell set it)
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)
+    wanted = [signal.SIGINT, signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP")
+                                               else [])]
+    previous = {sig: signal.signal(sig, on_signal) for sig in wanted
                 if signal.getsignal(sig) is not signal.SIG_IGN}
     return previous
 

@@ -255,9 +255,13 @@ def test_a_spawned_process_ends_when_its_parent_is_killed(tmp_path):
     assert _gone(int(out.read_text().split()[0]), 60), "the orphaned process still runs"
 
 
-def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp_path):
+@pytest.mark.parametrize(("signame", "code", "says"), [("SIGTERM", 143, "terminated"),
+                                                       ("SIGHUP", 129, "hung up")])
+def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp_path,
+                                                                  signame, code, says):
     """SIGTERM (kill, timeout, a batch system) killed head360 at once: the video's
-    temporary file stayed beside the output and the spawned process kept running."""
+    temporary file stayed beside the output and the spawned process kept running. So did
+    SIGHUP (a closed terminal or ssh session) until stop 73."""
     import signal
     import subprocess
     import sys
@@ -280,11 +284,11 @@ def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp
         assert any(out.parent.iterdir()), "the video was never started"
         with open(f"/proc/{p.pid}/task/{p.pid}/children") as f:
             children = [int(c) for c in f.read().split()]
-        p.send_signal(signal.SIGTERM)
+        p.send_signal(getattr(signal, signame))
         _, err = p.communicate(timeout=60)
     finally:
         p.kill()
-    assert p.returncode == 143, err
-    assert "head360: terminated" in err
+    assert p.returncode == code, err
+    assert f"head360: {says}" in err
     assert list(out.parent.iterdir()) == []
     assert all(_gone(c, 30) for c in children)
