@@ -1129,6 +1129,10 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     as_json = "--json" in args
+    for stream in (sys.stdout, sys.stderr):  # a name the terminal's encoding lacks
+        if hasattr(stream, "reconfigure"):   # (an emoji, in Latin-1) is escaped, not
+            with contextlib.suppress(Exception):  # an internal error after the work
+                stream.reconfigure(errors="backslashreplace")
     handles = threading.current_thread() is threading.main_thread()  # only it may
     previous = {sig: signal.signal(sig, _on_terminate) for sig in _stop_signals()} \
         if handles else {}

@@ -558,3 +558,18 @@ def test_reading_a_terminal_as_standard_input_is_refused(run_cli, monkeypatch, t
     r = run_cli(*args)
     assert r.code == 3 and "on standard input ('-'), found a terminal" in r.err, r.err
     assert not (tmp_path / "o.mp4").exists()
+
+
+def test_a_name_the_terminal_cannot_print_is_escaped_not_an_error(head_file, tmp_path):
+    """With a Latin-1 terminal, 'wrote v\U0001f600.png' was an internal error (exit 1) after
+    the view was written, so a batch script took the run for a failure."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "v\U0001f600.png"
+    run = subprocess.run([sys.executable, "-m", "head360cli", "render", str(head_file),
+                          "--size", "32", "-o", str(out)], capture_output=True,
+                         env={**os.environ, "PYTHONIOENCODING": "latin-1"}, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert out.is_file() and b"wrote" in run.stdout and b"\\U0001f600" in run.stdout
