@@ -26,7 +26,7 @@ __all__ = ["cli", "main"]
 EPILOG_EXIT_CODES = (
     "Exit codes: 0 ok, 1 internal error, 2 usage error, 3 bad input, 4 no face found, "
     "5 bad file format, 6 model mismatch, 7 model or package not installed, 8 out of memory, "
-    "130 interrupted, 143 terminated."
+    "129 hung up, 130 interrupted, 143 terminated."
 )
 
 
