@@ -469,9 +469,10 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     from PIL import Image
 
     from head360cli.devices import resolve_device
-    from head360cli.drive.sample import sample_heads, write_samples
+    from head360cli.drive.sample import sample_heads, sample_names
     from head360cli.drive.views import grid_image, view_cameras, view_intrinsics
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_paths
+    from head360cli.io.headfile import write_head
     from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
 
@@ -499,13 +500,6 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
         check_companion_png(sheet, "picture of the heads")  # NAME.png may be the user's photo
     device = str(resolve_device(_settings().device))
     heads = sample_heads(count, seed, spread, bald, device, lids=not no_lid_fit)
-    if one_file:
-        from head360cli.io.headfile import write_head
-
-        out.parent.mkdir(parents=True, exist_ok=True)
-        paths = [write_head(heads[0], out)]
-    else:
-        paths = write_samples(heads, out)
     gen, _ = load_generator(device=device)
     cam = view_cameras(20.0, 0.0)
     tiles = []
@@ -514,9 +508,14 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"])
         tiles.append(next(r.frames(cam, np.zeros((1, 52)), view_intrinsics(r.size)))[0])
-    with atomic_path(sheet) as tmp:
+    # the heads and their picture are renamed into place together, once all are written
+    paths = [out] if one_file else sample_names(count, out)
+    (out.parent if one_file else out).mkdir(parents=True, exist_ok=True)
+    with atomic_paths(*paths, sheet) as tmps:
+        for head, tmp in zip(heads, tmps, strict=False):
+            write_head(head, tmp)
         Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
-            tmp, format="PNG", pnginfo=png_info())
+            tmps[-1], format="PNG", pnginfo=png_info())
     _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
           f"wrote {out} and {sheet}" if one_file
           else f"wrote {count} heads into {out}/ and {sheet}")

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["sample_heads", "write_samples"]
+__all__ = ["sample_heads", "sample_names", "write_samples"]
 
 
 def _gaussian(rng: np.random.Generator, mean: np.ndarray, cov: np.ndarray, scale: float
@@ -92,9 +92,12 @@ def write_samples(heads: list[Any], out_dir: str | Path, prefix: str = "sample"
         raise ValueError("expected at least one head to write, found none")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for i, head in enumerate(heads):
-        p = out / f"{prefix}_{i:03d}.h360"
+    paths = sample_names(len(heads), out, prefix)
+    for head, p in zip(heads, paths, strict=True):
         write_head(head, p)
-        paths.append(p)
     return paths
+
+
+def sample_names(count: int, out_dir: str | Path, prefix: str = "sample") -> list[Path]:
+    """The files :func:`write_samples` writes ``count`` heads to: ``<prefix>_000.h360``..."""
+    return [Path(out_dir) / f"{prefix}_{i:03d}.h360" for i in range(count)]

@@ -34,6 +34,28 @@ def test_cli_sample_writes_heads_and_a_sheet(run_cli, tmp_path):
     assert read_head(heads[0]).arrays["texture"].ndim == 3
 
 
+def test_a_full_disk_at_the_picture_leaves_no_sampled_heads(run_cli, tmp_path, monkeypatch):
+    """The heads were renamed into place before their picture was written, so a full disk
+    at the picture left them without it (or beside an earlier run's)."""
+    import errno
+    import os
+
+    from PIL import Image
+
+    real = Image.Image.save
+
+    def full_at_the_picture(self, fp, *args, **kwargs):
+        if str(fp).endswith(".png"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(fp))
+        return real(self, fp, *args, **kwargs)
+
+    monkeypatch.setattr(Image.Image, "save", full_at_the_picture)
+    for out in (tmp_path / "s", tmp_path / "one.h360"):
+        r = run_cli("sample", "-n", "2" if out.suffix == "" else "1", "-o", out)
+        assert r.code == 3 and "No space left" in r.err, r.err
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
 def test_cli_sample_to_one_head_file_and_its_checks(run_cli, tmp_path):
     from PIL import Image
 
