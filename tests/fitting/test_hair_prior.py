@@ -249,7 +249,11 @@ def test_training_can_start_from_a_checkpoint(tmp_path):
         train_hair_prior(cfg, TINY, progress=False, data=(canon + 5, data))
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     junk = HairPriorTrainConfig(steps=1, batch=2, init=str(tmp_path / "junk.pt"))
-    with pytest.raises(BadInputError):  # before any rendering (data=None would render)
+    from head360cli.errors import FileFormatError
+
+    # before any rendering (data=None would render); exit 5 since stop 73, as for the
+    # other model files (it was BadInputError, exit 3)
+    with pytest.raises(FileFormatError, match=r"junk\.pt: expected a head360-hair-prior/1"):
         train_hair_prior(junk, TINY, progress=False)
 
 
