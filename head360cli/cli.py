@@ -63,21 +63,27 @@ def _set(field: str) -> Callable[[click.Context, click.Parameter, Any], Any]:
     return callback
 
 
-def _photo_from_stdin(ctx: click.Context, param: click.Parameter, value: str) -> str:
-    """A photo argument of ``-``: standard input, read through ``/dev/stdin`` as any pipe
-    is (outputs named after it are called ``pipe``)."""
-    if value != "-":
-        return value
-    from head360cli.io.sources import check_stdin
+def _stdin_path(what: str) -> Callable[[click.Context, click.Parameter, Any], Any]:
+    """A click callback that reads an input argument of ``-`` (``what``: "a photo") from
+    standard input, through ``/dev/stdin`` as any pipe is read (outputs named after it
+    are called ``pipe``); refused when standard input is a terminal."""
 
-    check_stdin("a photo")
-    if not os.path.exists("/dev/stdin"):
-        raise BadInputError("expected a photo file: this system has no /dev/stdin to read "
-                            "'-' from")
-    return "/dev/stdin"
+    def callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+        if value != "-":
+            return value
+        from head360cli.io.sources import check_stdin
+
+        check_stdin(what)
+        if not os.path.exists("/dev/stdin"):
+            raise BadInputError(f"expected {what} in a file: this system has no /dev/stdin "
+                                "to read '-' from")
+        return "/dev/stdin"
+
+    return callback
 
 
-PHOTO = click.argument("photo", type=click.Path(dir_okay=False), callback=_photo_from_stdin)
+PHOTO = click.argument("photo", type=click.Path(dir_okay=False),
+                       callback=_stdin_path("a photo"))
 """The photo argument of fit, parse-hair and classify-hair: a file, a pipe or ``-``."""
 
 

@@ -17,6 +17,7 @@ from head360cli.cli import (
     _emit,
     _progress_printer,
     _settings,
+    _stdin_path,
     _unused,
     _warn,
     bench,
@@ -110,7 +111,7 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
 
 
 @cli.command()
-@click.argument("head", type=_HEAD)
+@click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
 @click.option("-o", "--out", required=True, type=click.Path(),
               help="Output: .png (or .jpg) for a view or a grid; .mp4, .gif or a folder "
               "for --turntable.")
@@ -143,6 +144,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
       head360 render me.h360 --views 0,45,90,180,270 -o views.png
       head360 render me.h360 --turntable --frames 96 -o turn.mp4
       head360 render me.h360 --backend onnx --onnx generator.onnx -o front.png
+      cat me.h360 | head360 render - --turntable -o turn.mp4   a head on standard input
     """
     import numpy as np
 
@@ -203,7 +205,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 
 
 @cli.command()
-@click.argument("head", type=_HEAD, required=False)
+@click.argument("head", type=_HEAD, required=False,
+                callback=_stdin_path("a head file"))
 @click.option("--arkit", required=True,
               help="ARKit-52 CSV stream (Live Link Face, MediaPipe names, generic), or - "
               "for standard input.")
@@ -267,6 +270,9 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
     from head360cli.drive.animate import animate as run
     from head360cli.io.arkit import read_arkit_csv
 
+    if head == "/dev/stdin" and arkit in ("-", "/dev/stdin"):
+        raise BadInputError("expected at most one input on standard input, found both the "
+                            "head and --arkit: give one of them as a file")
     if out is None and mesh_dir is None:  # as fit names its head after the photo
         from head360cli.io.sources import input_stem
 
@@ -353,7 +359,8 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
 
 
 @cli.command("swap-hair")
-@click.argument("head", type=_HEAD, required=False)
+@click.argument("head", type=_HEAD, required=False,
+                callback=_stdin_path("a head file"))
 @click.option("--hair", "hair_style", default=None,
               help="Hairstyle name (bob, 'long wavy'...) or id 0-29.")
 @click.option("--color", "--colour", "colour", default=None,
@@ -536,7 +543,7 @@ def _sampled_before(head: Path) -> bool:
 
 
 @cli.command("export-mesh")
-@click.argument("head", type=_HEAD)
+@click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
 @click.option("-o", "--out", required=True, type=click.Path(dir_okay=False),
               help=".glb (52 ARKit morph targets, baked texture) or .obj (+ .mtl, .png).")
 @click.option("--texture-size", default=512, show_default=True,

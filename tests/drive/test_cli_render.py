@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
+import pytest
 from PIL import Image
 
 
@@ -228,3 +230,23 @@ def test_a_name_too_long_for_the_file_system_is_exit_3(run_cli, head_file, tmp_p
         assert r.code == 3 and len(r.err.strip().splitlines()) == 1, (args[0], r.err)
         assert "name" in r.err and "..." in r.err, r.err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/stdin"), reason="no /dev/stdin")
+def test_a_head_on_standard_input_is_given_as_dash(head_file, tmp_path):
+    """``cat me.h360 | head360 render -`` was "no such file: '-'"; with the stream on
+    standard input too, animate says which one to give as a file."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "v.png"
+    run = subprocess.run([sys.executable, "-m", "head360cli", "render", "-", "--size", "32",
+                          "-o", str(out)], input=head_file.read_bytes(), capture_output=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert Image.open(out).size == (32, 32)
+    run = subprocess.run([sys.executable, "-m", "head360cli", "animate", "-", "--arkit", "-",
+                          "-o", str(tmp_path / "a.mp4")], input=head_file.read_bytes(),
+                         capture_output=True, text=False, timeout=300)
+    assert run.returncode == 3 and b"found both the head and --arkit" in run.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.png"]
