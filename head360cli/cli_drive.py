@@ -47,7 +47,9 @@ def _renderer(head: str, samples: int | None, size: int | None, precision: str =
     if size is not None and not 32 <= size <= 2048:
         raise BadInputError(f"expected --size between 32 and 2048, found {size}")
     if not Path(head).exists():  # a pipe (<(...)) is read like a file
-        raise BadInputError(f"head file {head!r} does not exist")
+        from head360cli.io.sources import missing
+
+        raise missing(head, f"head file {head!r} does not exist")
     try:
         return load_head_renderer(head, device or str(resolve_device(_settings().device)),
                                   samples=samples, size=size, precision=precision)
@@ -308,7 +310,9 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
             _warn(f"--workers {workers} is not used with {why}: this process renders "
                   "every frame")
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
-        raise BadInputError(f"ARKit stream {arkit!r} does not exist")
+        from head360cli.io.sources import missing
+
+        raise missing(arkit, f"ARKit stream {arkit!r} does not exist")
     if arkit == "-":
         from head360cli.io.sources import check_stdin
 

@@ -573,3 +573,16 @@ def test_a_name_the_terminal_cannot_print_is_escaped_not_an_error(head_file, tmp
                          env={**os.environ, "PYTHONIOENCODING": "latin-1"}, timeout=300)
     assert run.returncode == 0, run.stderr
     assert out.is_file() and b"wrote" in run.stdout and b"\\U0001f600" in run.stdout
+
+
+@pytest.mark.parametrize("args", [("fit", "https://example.org/me.jpg"),
+                                  ("parse-hair", "https://example.org/me.jpg"),
+                                  ("render", "s3://bucket/me.h360", "-o", "v.png"),
+                                  ("animate", "--arkit", "https://example.org/take.csv"),
+                                  ("inspect", "https://example.org/take.csv")])
+def test_a_url_given_as_an_input_says_what_to_do(run_cli, tmp_path, monkeypatch, args):
+    """A URL was 'no such file', with its '//' folded to '/' ('https:/example.org/...')."""
+    monkeypatch.chdir(tmp_path)
+    r = run_cli(*args)
+    assert r.code == 3 and "found a URL" in r.err and "pipe it in as '-'" in r.err, r.err
+    assert "://" in r.err and list(tmp_path.iterdir()) == []

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 __all__ = ["MAX_READ_BYTES", "NamedBytes", "check_stdin", "existing", "input_stem", "is_pipe",
-           "read_whole", "readable"]
+           "missing", "read_whole", "readable"]
 
 MAX_READ_BYTES = 1 << 30
 """The most an input that is read whole into memory may hold (1 GiB): a pipe, standard
@@ -75,9 +75,9 @@ def existing(path: str | os.PathLike[str] | NamedBytes, what: str) -> Path | Nam
 
     if isinstance(path, NamedBytes):
         return path
+    if not Path(path).exists():
+        raise missing(path, f"no such file: {os.fspath(path)!r}")
     path = Path(path)
-    if not path.exists():
-        raise BadInputError(f"no such file: {str(path)!r}")
     if path.is_dir():
         raise BadInputError(f"expected {what}, found a folder: {str(path)!r}")
     return path
@@ -112,6 +112,22 @@ def read_whole(source: str | os.PathLike[str] | BinaryIO, name: str) -> bytes:
         if size > limit:
             raise too_large()
     return b"".join(pieces)
+
+
+def missing(path: str | os.PathLike[str], message: str) -> Exception:
+    """The error for an input ``path`` that does not exist: ``message``, or, for a URL
+    (``https://...``, ``s3://...``; Path would also fold its ``//``), what to do instead,
+    since head360 reads local files and pipes only."""
+    import re
+
+    from head360cli.errors import BadInputError
+
+    text = os.fspath(path)
+    if re.match(r"[A-Za-z][A-Za-z0-9+.-]*://", text):
+        return BadInputError(f"expected a local file, found a URL ({text!r}): head360 does "
+                             f"not download; fetch it first, or pipe it in as '-' "
+                             f"(curl -s URL | head360 ... -)")
+    return BadInputError(message)
 
 
 def readable(path: str | os.PathLike[str] | NamedBytes) -> tuple[Path | NamedBytes, int]:
