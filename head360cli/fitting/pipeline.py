@@ -318,7 +318,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     check_folder_name(out_dir)
     t0 = time.perf_counter()
     img = load_image(photo)
-    if min(img.pixels.shape[:2]) < MIN_SIDE and img.scale != 1.0:  # name the size on disk
+    if min(img.pixels.shape[:2]) < MIN_SIDE and img.size != tuple(img.source_size):  # as on disk
         (w, h), (lw, lh) = img.source_size, img.size
         raise BadInputError(f"expected a photo at least {MIN_SIDE}x{MIN_SIDE} pixels to parse "
                             f"hair, found {w}x{h} ({lw}x{lh} once its longer side is brought "

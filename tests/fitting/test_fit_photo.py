@@ -199,6 +199,12 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     r = run_cli("parse-hair", strip, "-o", tmp_path / "strip")
     assert r.code == 3 and "found 5120x10 (4096x8 once its longer side is brought to 4096)" \
         in r.err, r.err
+    # one pixel wide: its width kept at 1, so the scale read 1.0 and the message named the
+    # loaded 1x4096 as if it were the file's size
+    needle = tmp_path / "needle.png"
+    Image.fromarray(np.zeros((40000, 1, 3), np.uint8)).save(needle)
+    r = run_cli("parse-hair", needle, "-o", tmp_path / "needle")
+    assert r.code == 3 and "found 1x40000 (1x4096 once its longer side" in r.err, r.err
 
 
 def test_parse_hair_of_a_pipe_names_its_masks_pipe(run_cli, astronaut, tmp_path, pipe):
