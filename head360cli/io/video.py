@@ -295,9 +295,7 @@ class _Encoder:
             BadInputError, RuntimeError: As for :meth:`send`, including failures while
                 ffmpeg writes the file's end (a full disk at the mp4's index).
         """
-        assert self._proc.stdin is not None
-        with contextlib.suppress(OSError):  # a broken pipe: the exit status tells
-            self._proc.stdin.close()
+        self._close_stdin()
         if self._proc.wait() != 0:
             raise self._failure()
         text = self._messages()
@@ -311,10 +309,13 @@ class _Encoder:
         with contextlib.suppress(OSError):
             self._proc.kill()
         self._proc.wait()
-        with contextlib.suppress(OSError):
+        self._close_stdin()
+        self._log.close()
+
+    def _close_stdin(self) -> None:
+        with contextlib.suppress(OSError):  # a broken pipe: the exit status tells
             if self._proc.stdin is not None:
                 self._proc.stdin.close()
-        self._log.close()
 
     def _messages(self) -> str:
         self._log.seek(0)
@@ -328,9 +329,7 @@ class _Encoder:
         with ffmpeg's last message."""
         import signal
 
-        with contextlib.suppress(OSError):
-            if self._proc.stdin is not None:
-                self._proc.stdin.close()
+        self._close_stdin()
         code = self._proc.wait()
         text = self._messages()
         lower = text.lower()
