@@ -1181,10 +1181,12 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
         import errno
 
         if exc.errno == errno.ENAMETOOLONG:  # a name no check before the work caught
+            from head360cli.io.atomic import short_name
+
             name = Path(str(exc.filename or "")).name
-            shown = f": {name[:40]}...{name[-12:]}" if len(name) > 60 else f": {name}"
-            return _failed("BadInputError", f"file name too long{shown if name else ''}: use "
-                           "a shorter name", EXIT_CODES["BadInputError"], debug, as_json)
+            shown = f": {short_name(name)}" if name else ""
+            return _failed("BadInputError", f"file name too long{shown}: use a shorter name",
+                           EXIT_CODES["BadInputError"], debug, as_json)
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG):
             return _internal(exc, debug, as_json)
         where = f" ({exc.filename})" if exc.filename else ""

@@ -17,7 +17,8 @@ from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
            "check_folder_name", "check_name_length", "check_writable", "commit_dir",
-           "current_umask", "remove_leftovers", "temp_dir_beside", "temp_name_beside"]
+           "current_umask", "remove_leftovers", "short_name", "temp_dir_beside",
+           "temp_name_beside"]
 
 
 def current_umask() -> int:
@@ -210,7 +211,13 @@ def check_name_length(target: Path) -> None:
         limit = 255
     if size > limit:
         raise BadInputError(f"expected an output name of at most {limit} bytes, found "
-                            f"{size}: {target.name[:40]}...{target.name[-12:]}")
+                            f"{size}: {short_name(target.name)}")
+
+
+def short_name(name: str) -> str:
+    """``name`` for a one-line message: its first 40 and last 12 characters when longer
+    than 60."""
+    return f"{name[:40]}...{name[-12:]}" if len(name) > 60 else name
 
 
 def check_file_target(target: str | os.PathLike[str]) -> None:
