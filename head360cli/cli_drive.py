@@ -523,7 +523,7 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     paths = [out] if one_file else sample_names(count, out)
     (out.parent if one_file else out).mkdir(parents=True, exist_ok=True)
     with atomic_paths(*paths, sheet) as tmps:
-        for head, tmp in zip(heads, tmps, strict=False):
+        for head, tmp in zip(heads, tmps[:-1], strict=True):
             write_head(head, tmp)
         Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
             tmps[-1], format="PNG", pnginfo=png_info())

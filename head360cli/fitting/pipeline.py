@@ -338,7 +338,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     overlay[parse.face] = 0.6 * overlay[parse.face] + 0.4 * np.array([40, 90, 235])
     # the three files are renamed into place together, once all are written
     with atomic_paths(paths["hair_mask"], paths["face_mask"], paths["overlay"]) as tmps:
-        for tmp, mask in zip(tmps, (parse.hair, parse.face), strict=False):
+        for tmp, mask in zip(tmps[:2], (parse.hair, parse.face), strict=True):
             full = cv2.resize(mask.astype(np.uint8) * 255, (w, h),
                               interpolation=cv2.INTER_NEAREST) if (w, h) != img.size else \
                 mask.astype(np.uint8) * 255
