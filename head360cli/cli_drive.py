@@ -606,10 +606,7 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
       head360 export-onnx -o generator.onnx
       head360 export-onnx --head me.h360 --samples 12 -o me.onnx
     """
-    import numpy as np
-
     from head360cli.export.onnx import export_onnx, head_inputs
-    from head360cli.io.atomic import atomic_path
     from head360cli.io.sources import input_stem
 
     if not 1 <= samples <= 64 or not 32 <= size <= 2048:
@@ -631,12 +628,10 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
             raise BadInputError(str(exc)) from None
         r.samples, r.size = samples, size
         r = r.with_hair(11, r.hair_colour)
-    res = export_onnx(r, out, progress=_progress_printer())
+    inputs = None  # the head's arrays for a torch-free runner, one set with the graphs
     if head is not None:
-        path = Path(out).with_name(f"{input_stem(head)}_inputs.npz")
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **head_inputs(own))
-        res["files"].append(str(path))
+        inputs = (Path(out).with_name(f"{input_stem(head)}_inputs.npz"), head_inputs(own))
+    res = export_onnx(r, out, progress=_progress_printer(), inputs=inputs)
     _emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
           f"{size}x{size}): " + ", ".join(res["files"]))
 

@@ -153,9 +153,16 @@ def _example(renderer, hair: bool) -> tuple:
 
 
 def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = True,
-                parallel: bool | None = None) -> dict[str, Any]:
+                parallel: bool | None = None,
+                inputs: tuple[str | Path, dict[str, np.ndarray]] | None = None
+                ) -> dict[str, Any]:
     """Export the generator as it renders ``renderer``'s head (its samples per ray and
     image size) to ``out`` (with hair) and ``<out stem>_bald.onnx``.
+
+    With ``inputs``, a path and a head's arrays (:func:`head_inputs`), those are written
+    there as ``.npz`` too. The files are one set: each is written under a temporary name,
+    and all are renamed once all are complete, so a failure (a full disk at the last one)
+    leaves an earlier export's set as it was.
 
     ``cull`` keeps the generator's ray culling in the graph (the rays near a surface are
     found with ``NonZero``, so the decoders see a data-dependent number of points);
@@ -174,7 +181,7 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     from head360cli.drive.parallel import usable_cpus
     from head360cli.errors import BadInputError, ModelNotFoundError
     from head360cli.fitting.pipeline import generator_hash
-    from head360cli.io.atomic import check_file_target
+    from head360cli.io.atomic import atomic_paths, check_file_target
 
     missing = [m for m in ("onnx", "onnxscript") if importlib.util.find_spec(m) is None]
     if missing:
@@ -184,7 +191,10 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     out = Path(out)
     if out.suffix.lower() != ".onnx":
         raise BadInputError(f"expected an .onnx output, found {out.name!r}")
-    check_file_target(out)
+    bald = out.with_name(f"{out.stem}_bald.onnx")
+    files = [out, bald] + ([Path(inputs[0])] if inputs is not None else [])
+    for f in files:  # the names made from out's too, before a minute of tracing
+        check_file_target(f)
     if renderer.hair is None:
         raise BadInputError("expected a head with hair to export the hair graph (a bald "
                             "head has no hair mesh to trace with)")
@@ -194,31 +204,34 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
             "generator_sha256": generator_hash(),
             "texture_channels": gen.cfg.texture_channels,
             "texture_res": gen.cfg.texture_res}
-    bald = out.with_name(f"{out.stem}_bald.onnx")
     if parallel is None:  # (a GPU renderer's tensors would have to cross by CUDA IPC)
         parallel = usable_cpus() >= 2 and renderer.device.type == "cpu"
     if progress:
         progress("export", 0, 2)
-    if parallel:
-        parallel = _export_pair(renderer, out, bald, cull, meta, progress)
-    else:
-        _export_graph(renderer, True, out, cull, meta)
-        if progress:
-            progress("export", 1, 2)
-        _export_graph(renderer, False, bald, cull, meta)
-    return {"files": [str(out), str(bald)], "seconds": time.perf_counter() - t0,
+    with atomic_paths(*files) as tmps:
+        if parallel:
+            parallel = _export_pair(renderer, tmps[0], tmps[1], cull, meta, progress)
+        else:
+            _export_graph(renderer, True, tmps[0], cull, meta)
+            if progress:
+                progress("export", 1, 2)
+            _export_graph(renderer, False, tmps[1], cull, meta)
+        if inputs is not None:
+            with open(tmps[2], "wb") as f:
+                np.savez(f, **inputs[1])
+    return {"files": [str(f) for f in files], "seconds": time.perf_counter() - t0,
             "parallel": parallel, **meta}
 
 
 def _export_graph(renderer, hair: bool, path: Path, cull: bool, meta: dict[str, Any]
                   ) -> None:
-    """Trace one graph (with or without hair) and write it to ``path`` atomically."""
+    """Trace one graph (with or without hair) and write it to ``path`` (a temporary
+    name: :func:`export_onnx` renames the set)."""
     import inspect
 
     import torch
 
     from head360cli.geometry.rasterize import static_windows
-    from head360cli.io.atomic import atomic_path
 
     gen = renderer.gen
     # An exporter with an ``optimize`` argument (torch 2.13 here) optimises the graph
@@ -241,8 +254,7 @@ def _export_graph(renderer, hair: bool, path: Path, cull: bool, meta: dict[str, 
             if tidy:
                 _tidy(program.model)
         program.model.metadata_props[META_KEY] = json.dumps({**meta, "hair": hair})
-        with atomic_path(path) as tmp:
-            program.save(tmp)
+        program.save(path)
     finally:
         gen.cull_rays, gen.hair_rays_only, gen.network_dtype = own
 

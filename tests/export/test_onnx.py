@@ -264,7 +264,7 @@ def test_export_traces_on_the_cpu_whatever_the_device(run_cli, monkeypatch, tmp_
 
     seen = []
 
-    def fake_export(renderer, out, progress=None):
+    def fake_export(renderer, out, progress=None, inputs=None):
         seen.append(renderer.device.type)
         return {"files": [str(out)], "seconds": 0.0}
 
@@ -287,17 +287,64 @@ def test_export_reads_the_head_once_so_a_pipe_works(run_cli, monkeypatch, tmp_pa
     from head360cli.export.onnx import head_inputs
     from head360cli.fitting.pipeline import load_head_renderer
 
-    monkeypatch.setattr(onnx_export, "export_onnx", lambda renderer, out, progress=None: {
-        "files": [str(out)], "seconds": 0.0})
+    asked = []
+
+    def fake_export(renderer, out, progress=None, inputs=None):
+        asked.append(inputs)
+        return {"files": [str(out)], "seconds": 0.0}
+
+    monkeypatch.setattr(onnx_export, "export_onnx", fake_export)
     r = run_cli("export-onnx", "--head", pipe(head_file.read_bytes(), "63"), "--samples",
                 "2", "--size", "32", "-o", tmp_path / "g.onnx")
     assert r.code == 0, r.err
-    with np.load(tmp_path / "pipe_inputs.npz") as got:
-        want = head_inputs(load_head_renderer(head_file, samples=2, size=32,
-                                              precision="fp32"))
-        assert set(got.files) == set(want)
-        for key, value in want.items():
-            np.testing.assert_array_equal(got[key], value)
+    (path, got), = asked  # written by export_onnx, with the graphs, as one set
+    assert path == tmp_path / "pipe_inputs.npz"
+    want = head_inputs(load_head_renderer(head_file, samples=2, size=32, precision="fp32"))
+    assert set(got) == set(want)
+    for key, value in want.items():
+        np.testing.assert_array_equal(got[key], value)
+
+
+def test_export_writes_the_graphs_and_inputs_as_one_set(head_file, tmp_path, monkeypatch):
+    """The two graphs and the head's inputs are renamed together: a failure at the last
+    one (a full disk) left the new graphs beside an older export's inputs. Names made
+    from the output's (``_bald``) are checked before the trace."""
+    import head360cli.export.onnx as onnx_export
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    traced = []
+
+    def fake_graph(renderer, hair, path, cull, meta):
+        traced.append(hair)
+        Path(path).write_bytes(b"new graph")
+
+    monkeypatch.setattr(onnx_export, "_export_graph", fake_graph)
+    r = load_head_renderer(head_file, samples=2, size=32)
+    old = {tmp_path / n: b"old" for n in ("g.onnx", "g_bald.onnx", "me_inputs.npz")}
+    for path, data in old.items():
+        path.write_bytes(data)
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    with monkeypatch.context() as m:
+        m.setattr(np, "savez", full_disk)
+        with pytest.raises(OSError, match="No space"):
+            onnx_export.export_onnx(r, tmp_path / "g.onnx", parallel=False,
+                                    inputs=(tmp_path / "me_inputs.npz", {"a": np.ones(3)}))
+    assert traced == [True, False]
+    assert {p: p.read_bytes() for p in tmp_path.iterdir()} == old  # no temporary left
+    res = onnx_export.export_onnx(r, tmp_path / "g.onnx", parallel=False,
+                                  inputs=(tmp_path / "me_inputs.npz", {"a": np.ones(3)}))
+    assert res["files"] == [str(p) for p in old]
+    assert (tmp_path / "g_bald.onnx").read_bytes() == b"new graph"
+    with np.load(tmp_path / "me_inputs.npz") as got:
+        np.testing.assert_array_equal(got["a"], np.ones(3))
+    long = tmp_path / ("x" * 248 + ".onnx")  # fits, but its _bald graph's name does not
+    with pytest.raises(BadInputError, match="at most 255 bytes"):
+        onnx_export.export_onnx(r, long, parallel=False)
+    assert len(traced) == 4 and not long.exists()
 
 
 def test_inspect_tells_what_an_exported_graph_takes(run_cli, exported):
