@@ -291,7 +291,9 @@ def _grid(tiles: list[np.ndarray], cols: int) -> np.ndarray:
 def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 160,
                    identities: int = 8, split: str = "train") -> list[str]:
     """Contact sheets: identities x views; all 52 expressions of one identity; all 30
-    hairstyles on one identity. Returns the PNG paths written."""
+    hairstyles on one identity. The three are written as one set once all are rendered
+    (an interrupted run leaves an earlier run's sheets as they were). Returns the PNG
+    paths written."""
     import torch
 
     from head360cli.geometry.cameras import (
@@ -300,7 +302,7 @@ def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 16
         camera_on_sphere,
         intrinsics_from_fov,
     )
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_paths
     from head360cli.mesh.arkit52 import ARKIT52
     from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES, build_hair, hair_texture
     from head360cli.synth.scene import make_head, render_head
@@ -308,13 +310,10 @@ def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 16
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     k = intrinsics_from_fov(RIG_FOV_DEG, size, size)
-    written = []
+    sheets: dict[str, np.ndarray] = {}
 
     def save(sheet: np.ndarray, name: str) -> None:
-        path = out / name
-        with atomic_path(path) as tmp:
-            _png(sheet, tmp)
-        written.append(str(path))
+        sheets[name] = sheet
 
     # Identities x views.
     yaws = [0.0, 45.0, 90.0, 135.0, 180.0, 270.0]
@@ -353,4 +352,8 @@ def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 16
         r = render_head(head, np.zeros(52), three_q, k, size, samples=4)
         tiles.append(_label(_to_u8(r.rgb[0].permute(1, 2, 0)), f"{sid} {style.name}"))
     save(_grid(tiles, 10), "preview_hairstyles.png")
-    return written
+    paths = [out / name for name in sheets]
+    with atomic_paths(*paths) as tmps:
+        for tmp, sheet in zip(tmps, sheets.values(), strict=True):
+            _png(sheet, tmp)
+    return [str(p) for p in paths]

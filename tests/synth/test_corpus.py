@@ -125,3 +125,24 @@ def test_contact_sheets(tmp_path):
                      "preview_hairstyles.png": (10 * 32, 3 * 32)}
     sheet = np.asarray(Image.open(paths[2]))
     assert sheet.std() > 10  # heads were drawn, not a blank sheet
+
+
+def test_contact_sheets_are_one_set(tmp_path, monkeypatch):
+    """A run that fails (or is stopped) at the last sheet leaves an earlier run's three
+    sheets as they were; before, the first two were already replaced by new ones."""
+    import head360cli.synth.hair as hair
+    import head360cli.synth.scene  # noqa: F401  (binds the real build_hair for the heads)
+    from head360cli.synth.corpus import write_previews
+
+    names = ("preview_identities.png", "preview_expressions.png", "preview_hairstyles.png")
+    for name in names:
+        (tmp_path / name).write_bytes(b"earlier sheet")
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(hair, "build_hair", stopped)  # the hairstyle sheet's first step
+    with pytest.raises(KeyboardInterrupt):
+        write_previews(tmp_path, size=32, identities=1)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == \
+        dict.fromkeys(names, b"earlier sheet")
