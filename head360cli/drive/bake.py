@@ -217,13 +217,15 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
         ``{"files": [...], "vertices": V, "faces": F, "morph_targets": 52 or 0}``.
     """
     from head360cli.io.atomic import check_file_target
-    from head360cli.io.mesh import write_glb, write_obj
+    from head360cli.io.mesh import obj_companions, write_glb, write_obj
 
     out = Path(out)
     kind = out.suffix.lower()
     if kind not in (".glb", ".obj"):
         raise BadInputError(f"expected a .glb or .obj output, found {out.name!r}")
-    check_file_target(out)
+    # an OBJ's material and texture are named after it: their names too, before the bake
+    for target in [out] + (obj_companions(out, ["head"]) if kind == ".obj" else []):
+        check_file_target(target)
     texture, hair_colours = bake_head(renderer, texture_size, progress=progress)
     if not hair:
         hair_colours = None

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["MeshPart", "split_seams", "vertex_normals", "write_glb", "write_obj"]
+__all__ = ["MeshPart", "obj_companions", "split_seams", "vertex_normals", "write_glb",
+           "write_obj"]
 
 
 @dataclasses.dataclass
@@ -85,6 +86,17 @@ def _png(image: np.ndarray) -> bytes:
 # --------------------------------------------------------------------------- OBJ
 
 
+def obj_companions(path: str | os.PathLike[str], textured: list[str],
+                   material: str | None = None) -> list[Path]:
+    """The files :func:`write_obj` writes beside the OBJ at ``path`` for parts named
+    ``textured`` (those with a texture and UVs): ``<material>.mtl``, then
+    ``<material>_<part>.png`` for each (``material`` defaults to the OBJ's stem)."""
+    path = Path(path)
+    stem = material or path.stem
+    return [path.with_name(f"{stem}.mtl"),
+            *(path.with_name(f"{stem}_{name}.png") for name in textured)]
+
+
 def write_obj(path: str | os.PathLike[str], parts: list[MeshPart],
               material: str | None = None, write_material: bool = True,
               comment: str = "") -> list[Path]:
@@ -135,7 +147,7 @@ def write_obj(path: str | os.PathLike[str], parts: list[MeshPart],
         else:
             lines += [f"f {a} {b} {c}" for a, b, c in f]
         if part.texture is not None and part.uv is not None:
-            png = path.with_name(f"{stem}_{part.name}.png")
+            png = obj_companions(path, [part.name], material)[1]
             mtl_lines.append(f"map_Kd {png.name}")
             if write_material:
                 textures.append((png, part.texture))
@@ -143,7 +155,7 @@ def write_obj(path: str | os.PathLike[str], parts: list[MeshPart],
     # All are renamed into place only once every one is complete, so a full disk leaves
     # neither a texture without its OBJ nor an earlier export's files mixed with these.
     if textured and write_material:
-        written = [path.with_name(f"{stem}.mtl"), *(png for png, _ in textures)]
+        written = obj_companions(path, [], material) + [png for png, _ in textures]
     with atomic_paths(*written, path) as tmps:
         if textured and write_material:
             tmps[0].write_text("\n".join(mtl_lines) + "\n")

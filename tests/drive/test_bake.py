@@ -70,3 +70,25 @@ def test_baking_from_no_views_is_refused_before_any_work():
 
     with pytest.raises(ValueError, match=r"at least one \(yaw, pitch\) view"):
         bake_head(None, size=32, views=[])
+
+
+def test_an_obj_whose_texture_name_is_too_long_is_refused_before_the_bake(
+        head_file, tmp_path, monkeypatch):
+    """``-o <247 characters>.obj`` fits the file system, its ``_head.png`` texture's name
+    does not: it was refused only after the texture was baked (10 s at the defaults)."""
+    import os
+
+    import head360cli.drive.bake as bake
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.io.mesh import obj_companions
+
+    baked = []
+    monkeypatch.setattr(bake, "bake_head", lambda *a, **k: baked.append(1) or 1 / 0)
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    out = tmp_path / ("m" * (limit - 8) + ".obj")  # 4 bytes under the limit
+    assert [p.name[-9:] for p in obj_companions(out, ["head"])] == ["mmmmm.mtl", "_head.png"]
+    r = load_head_renderer(head_file, samples=2, size=32)
+    with pytest.raises(BadInputError, match=f"at most {limit} bytes"):
+        bake.export_head(r, out)
+    assert baked == [] and list(tmp_path.iterdir()) == []
