@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from head360cli.interrupts import catch_interrupts, restore_handlers
 from head360cli.io.jsontext import dumps
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.generator import Generator
@@ -261,7 +262,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     # Ctrl-C or SIGTERM (one process): finish the step, log and checkpoint it, then stop as
     # the signal asks; a second one stops at once (the last checkpoint stays).
     interrupted: list[int] = []
-    previous = _catch_interrupts(interrupted) if world == 1 else {}
+    previous = catch_interrupts(interrupted) if world == 1 else {}
     try:
         for step in bar:
             batch = views.sample(rng, cfg.batch, bald_share, cfg.group,
@@ -308,7 +309,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
             if stop:
                 break
     finally:
-        _restore_handlers(previous)
+        restore_handlers(previous)
     if interrupted:
         import signal
 
@@ -343,48 +344,6 @@ def _trim_log(path: Path, step: int) -> None:
 
     with atomic_path(path) as tmp:
         tmp.write_text("".join(f"{line}\n" for line in kept))
-
-
-def _catch_interrupts(caught: list[int]) -> dict[int, Any]:
-    """Make SIGINT, SIGTERM and SIGHUP append their number to ``caught`` instead of stopping
-    the process at once (main thread only, and not where one is ignored); a second one
-    calls the handler it replaced.
-
-    Returns:
-        The replaced handlers, for :func:`_restore_handlers`.
-    """
-    import contextlib
-    import signal
-    import sys
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-
-    def on_signal(signum, frame) -> None:
-        if caught:  # asked twice: stop now
-            handler = previous[signum]
-            if callable(handler):
-                handler(signum, frame)
-            raise KeyboardInterrupt
-        caught.append(signum)
-        with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
-            sys.stderr.write("\nhead360: interrupted: stopping after this step with a "
-                             "checkpoint (again to stop at once)\n")
-
-    # a signal ignored already stays so (a background job's SIGINT, as the shell set it)
-    wanted = [signal.SIGINT, signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP")
-                                               else [])]
-    previous = {sig: signal.signal(sig, on_signal) for sig in wanted
-                if signal.getsignal(sig) is not signal.SIG_IGN}
-    return previous
-
-
-def _restore_handlers(previous: dict[int, Any]) -> None:
-    import signal
-
-    for sig, handler in previous.items():
-        signal.signal(sig, handler)
 
 
 def _checkpoint(out, model, opt, cfg, gen_cfg, step, rng, world, rank) -> None:
