@@ -488,6 +488,7 @@ def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
     assert r.code == 0, r.err
     summary = json.loads(r.out)
     assert summary["steps"] == 2 and summary["crops"] == 2 and summary["out"] == str(out)
+    assert "resumed_from" not in summary and list(tmp_path.iterdir()) == [out]  # no .resume.pt
     prior = load_hair_prior(out)
     assert prior.net.cfg.width == 4 and prior.meta["train_config"]["heads"] == 2
     assert prior.meta["train_config"]["frame_share"] == 0.5
@@ -509,6 +510,20 @@ def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
     assert run_cli("train-hair-prior", "--steps", "0", "-o", tmp_path / "x.pt").code == 3
     assert run_cli("train-hair-prior", "-o", tmp_path / "no" / "x.pt").code == 3
     assert not (tmp_path / "x.pt").exists()
+    # a run stopped after step 1 (as Ctrl-C stops it) is resumed by the same command, which
+    # removes its checkpoint once the prior is written
+    from head360cli.fitting.hair_prior import HairPriorConfig
+    from head360cli.fitting.hair_prior_train import HairPriorTrainConfig, train_hair_prior
+
+    cfg = HairPriorTrainConfig(heads=2, views=1, steps=2, batch=2, frame_share=0.5)
+    train_hair_prior(cfg, HairPriorConfig(width=4), progress=False, stop_at=1,
+                     checkpoint=tmp_path / "again.resume.pt")
+    r = run_cli("--json", "train-hair-prior", "--heads", "2", "--views", "1", "--steps", "2",
+                "--batch", "2", "--width", "4", "--frame-share", "0.5", "-o",
+                tmp_path / "again.pt")
+    assert r.code == 0, r.err
+    assert json.loads(r.out)["resumed_from"] == 1 and "resuming from step 1 of 2" in r.err
+    assert (tmp_path / "again.pt").is_file() and not (tmp_path / "again.resume.pt").exists()
 
 
 @pytest.mark.parametrize("command", [

@@ -9,7 +9,11 @@ backdrop, and real photos do, so each batch composites the head over a random ba
 and jitters colour, geometry, lighting, blur and noise: what the network has to learn is
 the shape of hair around a face, not the corpus's backdrop or palette.
 
-``head360 train-hair-prior`` runs :func:`train_hair_prior`.
+``head360 train-hair-prior`` runs :func:`train_hair_prior`. Given a ``checkpoint`` path
+(the command's is :func:`resume_path`, ``<out stem>.resume.pt``), training saves its
+state there every :data:`CHECKPOINT_EVERY` steps and when stopped by Ctrl-C, SIGTERM or
+SIGHUP, and a later run with the same settings resumes from it (rendering the same crops
+again: they are drawn from the seed).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,8 +36,16 @@ from head360cli.fitting.hair_prior import (
     align_matrix,
 )
 
-__all__ = ["BACKDROPS", "Augmenter", "HairPriorTrainConfig", "canonical_landmarks",
-           "draw_hat", "render_crops", "train_hair_prior"]
+__all__ = ["BACKDROPS", "CHECKPOINT_EVERY", "RUN_FORMAT", "Augmenter", "HairPriorTrainConfig",
+           "canonical_landmarks", "draw_hat", "render_crops", "resume_path",
+           "train_hair_prior"]
+
+RUN_FORMAT = "head360-hair-prior-run/1"
+"""The ``format`` of a resumable training checkpoint (not a prior: ``fit`` cannot use it)."""
+CHECKPOINT_EVERY = 100
+"""Steps between resumable checkpoints (about 50 s of training at the defaults)."""
+RESUMABLE = ("steps", "minutes")
+"""The settings a resumed run may change; any other must be the interrupted run's."""
 
 BACKDROPS = ("brick", "chelsea", "coffee", "coins", "grass", "gravel", "rocket", "page",
              "text", "moon", "colorwheel", "logo", "clock", "horse", "hubble_deep_field",
@@ -324,6 +337,10 @@ class Augmenter:
         self.eyes = None if canon is None else np.asarray(canon, np.float32)[eyes]
         self.backdrops = _load_backdrops()
 
+    def generators(self) -> tuple[torch.Generator, ...]:
+        """Every random generator the batches draw from (a checkpoint saves their states)."""
+        return self.gen, self.frame_gen, self.hat_gen
+
     def _rand(self, *shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=self.gen)
 
@@ -459,9 +476,17 @@ def hair_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return F.binary_cross_entropy_with_logits(logits, target) + 1 - dice.mean()
 
 
+def resume_path(out: str | Path) -> Path:
+    """Where ``head360 train-hair-prior -o out`` keeps its resumable checkpoint:
+    ``<out stem>.resume.pt`` beside ``out``."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.resume.pt")
+
+
 def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
                      log: Callable[[str], None] | None = None, progress: bool = True,
                      data: tuple[np.ndarray, dict[str, np.ndarray]] | None = None,
+                     checkpoint: str | Path | None = None, stop_at: int | None = None,
                      ) -> tuple[HairPrior, dict[str, Any]]:
     """Render the training crops and train a hair prior on them (CPU or one device).
 
@@ -472,11 +497,25 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
         log: Called with a line of text now and then.
         progress: Show progress bars.
         data: ``render_crops``'s result, to skip rendering (tests).
+        checkpoint: Where to keep a resumable checkpoint (every :data:`CHECKPOINT_EVERY`
+            steps, and after the step it is on when Ctrl-C, SIGTERM or SIGHUP arrives:
+            the signal then takes effect). One there already is resumed from; the caller
+            removes it once the prior is saved. ``None``: no checkpoint, and signals act
+            at once.
+        stop_at: End after this step with a checkpoint, as an interruption would (the
+            learning rate still decays towards ``cfg.steps``; tests).
 
     Returns:
         ``(prior, summary)``: the trained prior and what training did (steps, seconds,
-        final loss, configs), which is also stored in the checkpoint.
+        final loss, configs, the step it resumed from), which is also stored in the
+        prior's file.
+
+    Raises:
+        BadInputError: The checkpoint is another run's: settings other than
+            :data:`RESUMABLE` differ, named with both values.
+        FileFormatError: The checkpoint or ``cfg.init`` cannot be read as one.
     """
+    from head360cli.interrupts import catch_interrupts, restore_handlers
     from head360cli.progress import progress_bar
 
     say = log or (lambda _: None)
@@ -486,6 +525,12 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
         from head360cli.fitting.hair_prior import load_hair_prior
 
         start = load_hair_prior(cfg.init)
+        net_cfg = start.net.cfg
+    state = None
+    if checkpoint is not None and Path(checkpoint).is_file():  # before the rendering too
+        state = _read_run(Path(checkpoint), cfg, net_cfg)
+        say(f"resuming from step {state['step']} of {cfg.steps} ({checkpoint}); "
+            f"the crops are rendered again")
     t0 = time.perf_counter()
     if data is None:
         bar = iter(progress_bar(range(cfg.heads), total=cfg.heads, desc="render",
@@ -513,31 +558,108 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
     else:
         net = HairPriorNet(net_cfg).train()
     opt = torch.optim.AdamW(net.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
-    t1 = time.perf_counter()
     losses: list[float] = []
-    step = 0
-    for step in progress_bar(range(1, cfg.steps + 1), total=cfg.steps, desc="train",
-                             enabled=progress):
-        elapsed = time.perf_counter() - t1
-        if cfg.minutes and elapsed > cfg.minutes * 60:
-            step -= 1
-            break
-        done = (step - 1) / cfg.steps
-        if cfg.minutes:
-            done = max(done, elapsed / (cfg.minutes * 60))
-        for group in opt.param_groups:
-            group["lr"] = cfg.lr * max(0.05, 1 - done)
-        img, target = aug.batch(cfg.batch)
-        loss = hair_loss(net(img), target)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(loss.item())
-        if step % 100 == 0:
-            say(f"step {step}: loss {np.mean(losses[-100:]):.4f} "
-                f"({time.perf_counter() - t1:.0f} s)")
+    first = trained_s = 0.0
+    if state is not None:
+        net.load_state_dict(state["net"])
+        opt.load_state_dict(state["optimizer"])
+        for gen, saved in zip(aug.generators(), state["generators"], strict=True):
+            gen.set_state(saved)
+        torch.set_rng_state(state["torch_rng"])
+        losses = list(state["losses"])
+        first, trained_s = state["step"], state["train_seconds"]
+    t1 = time.perf_counter() - trained_s  # a resumed run's minutes count the earlier ones
+    step = first = int(first)
+    interrupted: list[int] = []
+    previous = catch_interrupts(interrupted) if checkpoint is not None else {}
+    try:
+        for step in progress_bar(range(first + 1, cfg.steps + 1), total=cfg.steps - first,
+                                 desc="train", enabled=progress):
+            elapsed = time.perf_counter() - t1
+            if cfg.minutes and elapsed > cfg.minutes * 60:
+                step -= 1
+                break
+            done = (step - 1) / cfg.steps
+            if cfg.minutes:
+                done = max(done, elapsed / (cfg.minutes * 60))
+            for group in opt.param_groups:
+                group["lr"] = cfg.lr * max(0.05, 1 - done)
+            img, target = aug.batch(cfg.batch)
+            loss = hair_loss(net(img), target)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses = [*losses[-99:], loss.item()]  # the last 100: the logged mean's
+            if step % 100 == 0:
+                say(f"step {step}: loss {np.mean(losses):.4f} "
+                    f"({time.perf_counter() - t1:.0f} s)")
+            stop = bool(interrupted) or step == stop_at
+            if checkpoint is not None and (stop or (step % CHECKPOINT_EVERY == 0
+                                                    and step < cfg.steps)):
+                _write_run(Path(checkpoint), cfg, net, opt, aug, step, losses,
+                           time.perf_counter() - t1)
+            if stop:
+                break
+    finally:
+        restore_handlers(previous)
+    if interrupted:
+        import signal
+
+        say(f"stopped after step {step}: run the same command to resume from it")
+        signal.raise_signal(interrupted[0])  # handled as it would have been, now saved
     summary = {"steps": step, "render_seconds": round(render_s, 1),
                "train_seconds": round(time.perf_counter() - t1, 1),
-               "final_loss": round(float(np.mean(losses[-100:])), 4) if losses else None,
+               "final_loss": round(float(np.mean(losses)), 4) if losses else None,
                "crops": len(arrays["rgb"]), "train_config": dataclasses.asdict(cfg)}
+    if state is not None:
+        summary["resumed_from"] = first
     return HairPrior(net.eval(), canon, summary), summary
+
+
+def _write_run(path: Path, cfg: HairPriorTrainConfig, net: HairPriorNet, opt: Any,
+               aug: Augmenter, step: int, losses: list[float], seconds: float) -> None:
+    """Write a resumable checkpoint of the run (atomically: a kill mid-write keeps the
+    previous one)."""
+    from head360cli.io.atomic import atomic_path
+
+    blob = {"format": RUN_FORMAT, "train_config": dataclasses.asdict(cfg),
+            "net_config": dataclasses.asdict(net.cfg), "step": step,
+            "net": net.state_dict(), "optimizer": opt.state_dict(),
+            "generators": [g.get_state() for g in aug.generators()],
+            "torch_rng": torch.get_rng_state(), "losses": list(losses),
+            "train_seconds": seconds}
+    with atomic_path(path) as tmp:
+        torch.save(blob, tmp)
+
+
+def _read_run(path: Path, cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig
+              ) -> dict[str, Any]:
+    """Read a checkpoint :func:`_write_run` wrote, as data only, and check that it is this
+    run's: the same settings but for :data:`RESUMABLE`, the same network shape."""
+    from head360cli.errors import BadInputError, FileFormatError
+    from head360cli.io.torchfile import load_data
+
+    blob = load_data(path, f"a {RUN_FORMAT} checkpoint")
+    if not isinstance(blob, dict) or blob.get("format") != RUN_FORMAT:
+        raise FileFormatError(f"{path}: expected a {RUN_FORMAT} checkpoint, found "
+                              f"{blob.get('format') if isinstance(blob, dict) else 'none'}")
+    ours = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in RESUMABLE}
+    theirs = {k: v for k, v in blob["train_config"].items() if k not in RESUMABLE}
+    ours["network"], theirs["network"] = dataclasses.asdict(net_cfg), blob["net_config"]
+    differ = [k for k in sorted(ours.keys() | theirs.keys())
+              if _plain(ours.get(k)) != _plain(theirs.get(k))]
+    if differ:
+        k = differ[0]
+        raise BadInputError(f"expected the settings of the interrupted run in {path} to "
+                            f"resume it, found {k} {ours.get(k)!r} where it has "
+                            f"{theirs.get(k)!r}: give its settings, or delete the file "
+                            f"to start anew")
+    if blob["step"] > cfg.steps:
+        raise BadInputError(f"expected at least the {blob['step']} steps the interrupted "
+                            f"run in {path} has done, found --steps {cfg.steps}")
+    return blob
+
+
+def _plain(value: Any) -> Any:
+    """A config value compared as saved and as given (tuples and lists alike)."""
+    return list(value) if isinstance(value, tuple | list) else value

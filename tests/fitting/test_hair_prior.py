@@ -3,6 +3,8 @@ augmentation on tiny configurations, and the shipped weights on held-out corpus 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -255,6 +257,83 @@ def test_training_can_start_from_a_checkpoint(tmp_path):
     # other model files (it was BadInputError, exit 3)
     with pytest.raises(FileFormatError, match=r"junk\.pt: expected a head360-hair-prior/1"):
         train_hair_prior(junk, TINY, progress=False)
+
+
+def test_ctrl_c_checkpoints_the_step_and_resuming_ends_as_one_run(tmp_path, monkeypatch):
+    """Ctrl-C lost the whole run (render and training, 23 min at the defaults); now it
+    ends after the step it is on with a checkpoint, and the same run resumes from it to
+    the weights of a run never stopped. Hats and photo frames are on, so all three of the
+    augmenter's generators are restored."""
+    import signal
+
+    import head360cli.fitting.hair_prior_train as hpt
+
+    cfg = HairPriorTrainConfig(steps=6, batch=3, lr=5e-3, seed=0, frame_share=0.5,
+                               hat_share=0.5)
+    canon = np.tile(np.array([[16.0, 14.0]], np.float32), (41, 1))
+    canon[:, 0] += np.linspace(-6, 6, 41)
+    data = (canon, _disc_data())
+    ckpt = tmp_path / "p.resume.pt"
+    real, calls = hpt.hair_loss, []
+
+    def interrupted_in_the_third_step(logits, target):
+        calls.append(1)
+        if len(calls) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(logits, target)
+
+    monkeypatch.setattr(hpt, "hair_loss", interrupted_in_the_third_step)
+    with pytest.raises(KeyboardInterrupt):
+        train_hair_prior(cfg, TINY, progress=False, data=data, checkpoint=ckpt)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    assert torch.load(ckpt, weights_only=True)["step"] == 3
+    monkeypatch.setattr(hpt, "hair_loss", real)
+    lines = []
+    resumed, summary = train_hair_prior(cfg, TINY, progress=False, data=data,
+                                        checkpoint=ckpt, log=lines.append)
+    assert summary["steps"] == 6 and summary["resumed_from"] == 3
+    assert "resuming from step 3 of 6" in lines[0]
+    whole, whole_summary = train_hair_prior(cfg, TINY, progress=False, data=data)
+    assert summary["final_loss"] == pytest.approx(whole_summary["final_loss"], abs=1e-4)
+    for name, value in whole.net.state_dict().items():
+        torch.testing.assert_close(resumed.net.state_dict()[name], value, atol=1e-6,
+                                   rtol=0)
+    # a run stopped at its last step saves it too, and resumes to a prior with no step left
+    done = tmp_path / "done.resume.pt"
+    train_hair_prior(cfg, TINY, progress=False, data=data, checkpoint=done, stop_at=6)
+    again, summary = train_hair_prior(cfg, TINY, progress=False, data=data, checkpoint=done)
+    assert (summary["steps"], summary["resumed_from"]) == (6, 6)
+    for name, value in whole.net.state_dict().items():
+        torch.testing.assert_close(again.net.state_dict()[name], value, atol=1e-6, rtol=0)
+
+
+def test_a_checkpoint_is_resumed_by_its_own_run_only(tmp_path):
+    """Settings that change what is trained are refused, naming the setting and both
+    values, before any rendering; the step count and time limit may change."""
+    import dataclasses
+
+    from head360cli.errors import FileFormatError
+    from head360cli.fitting.hair_prior_train import RUN_FORMAT
+
+    cfg = HairPriorTrainConfig(steps=4, batch=2, seed=0)
+    data = (np.zeros((41, 2), np.float32), _disc_data())
+    ckpt = tmp_path / "p.resume.pt"
+    train_hair_prior(cfg, TINY, progress=False, data=data, checkpoint=ckpt, stop_at=2)
+    with pytest.raises(BadInputError, match=r"found lr 0\.01 where it has 0\.002"):
+        train_hair_prior(dataclasses.replace(cfg, lr=1e-2), TINY, progress=False,
+                         checkpoint=ckpt)  # no data: it would render, were it not refused
+    wider = HairPriorConfig(width=8, levels=2, crop=32)
+    with pytest.raises(BadInputError, match=r"found network .*'width': 8"):
+        train_hair_prior(cfg, wider, progress=False, checkpoint=ckpt)
+    with pytest.raises(BadInputError, match="at least the 2 steps"):
+        train_hair_prior(dataclasses.replace(cfg, steps=1), TINY, progress=False,
+                         checkpoint=ckpt)
+    _, summary = train_hair_prior(dataclasses.replace(cfg, steps=3, minutes=5.0), TINY,
+                                  progress=False, data=data, checkpoint=ckpt)
+    assert (summary["steps"], summary["resumed_from"]) == (3, 2)
+    save_hair_prior(_tiny_prior(), tmp_path / "prior.pt")  # a prior is no run
+    with pytest.raises(FileFormatError, match=RUN_FORMAT):
+        train_hair_prior(cfg, TINY, progress=False, checkpoint=tmp_path / "prior.pt")
 
 
 def test_hair_loss_prefers_the_right_mask():
