@@ -18,7 +18,16 @@ from pathlib import Path
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
            "check_folder_name", "check_name_length", "check_writable", "commit_dir",
            "current_umask", "remove_leftovers", "short_name", "temp_dir_beside",
-           "temp_name_beside"]
+           "temp_name_beside", "write_target"]
+
+
+def write_target(target: str | os.PathLike[str]) -> Path:
+    """Where a write to ``target`` goes: where a symbolic link at ``target`` leads
+    (followed to the end, as a shell's ``>`` follows it; it need not exist yet), else
+    ``target`` itself. Renaming a new file onto the link would replace the link and leave
+    the file it leads to as it was."""
+    target = Path(target)
+    return Path(os.path.realpath(target)) if target.is_symlink() else target
 
 
 def current_umask() -> int:
@@ -124,7 +133,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     Yields:
         The temporary path to write to. It does not exist yet.
     """
-    target = Path(target)
+    target = write_target(target)
     _check_file_name(target)  # no probe: making the temporary name below is one
     try:
         tmp = temp_name_beside(target)
@@ -310,7 +319,7 @@ def atomic_dir(target: str | os.PathLike[str], overwrite: bool = False) -> Itera
     Yields:
         The temporary folder to write into (it exists and is empty).
     """
-    target = Path(target)
+    target = write_target(target)
     check_dir_target(target, overwrite)
     tmp = temp_dir_beside(target)
     try:

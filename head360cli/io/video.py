@@ -30,6 +30,7 @@ from head360cli.io.atomic import (
     commit_dir,
     temp_dir_beside,
     temp_name_beside,
+    write_target,
 )
 
 __all__ = ["GIF_MAX_FPS", "VIDEO_SUFFIXES", "VideoWriter", "check_gif_rate",
@@ -144,6 +145,7 @@ class VideoWriter:
         self._size: tuple[int, int] | None = None  # (W, H) of the first frame
         self._encoder: _Encoder | None = None
         self._tmp: Path | None = None
+        self._dest = self.path  # where the output goes (a link's file: __enter__)
         parent = self.path.parent
         if not parent.is_dir():
             raise BadInputError(f"output folder {str(parent)!r} does not exist")
@@ -152,11 +154,12 @@ class VideoWriter:
 
     # -- context management
     def __enter__(self) -> VideoWriter:
+        self._dest = write_target(self.path)  # a symbolic link's file, not the link
         if self.kind == "png":
-            check_dir_target(self.path, self.overwrite)
-            self._tmp = temp_dir_beside(self.path)
+            check_dir_target(self._dest, self.overwrite)
+            self._tmp = temp_dir_beside(self._dest)
         else:
-            self._tmp = temp_name_beside(self.path)
+            self._tmp = temp_name_beside(self._dest)
         return self
 
     def __exit__(
@@ -176,9 +179,9 @@ class VideoWriter:
                 raise BadInputError(f"no frames were given for {str(self.path)!r}")
             if not failed and self._tmp is not None:
                 if self.kind == "png":
-                    commit_dir(self._tmp, self.path)
+                    commit_dir(self._tmp, self._dest)
                 else:
-                    os.replace(self._tmp, self.path)
+                    os.replace(self._tmp, self._dest)
         finally:
             # Whatever is left under the temporary name is a failed attempt.
             if self._tmp is not None and self._tmp.is_dir():

@@ -246,6 +246,38 @@ def test_atomic_path_and_dir(tmp_path):
     assert (tmp_path / "d" / "x").read_text() == "1"
 
 
+@pytest.mark.skipif(not hasattr(os, "symlink") or os.name != "posix",
+                    reason="symbolic links are POSIX's here")
+def test_an_output_that_is_a_symbolic_link_is_written_where_it_leads(tmp_path):
+    """``-o latest.mp4`` where latest.mp4 links to a file elsewhere: the new output was
+    renamed onto the link, which became a plain file, and the file it led to kept the old
+    output. A shell's ``>`` and ffmpeg write through the link; so does head360 now, for
+    files, videos, frame folders and links to a file not made yet."""
+    real, links = tmp_path / "real", tmp_path / "links"
+    real.mkdir()
+    links.mkdir()
+    (real / "a.txt").write_text("old")
+    (links / "a.txt").symlink_to(real / "a.txt")
+    with atomic_path(links / "a.txt") as tmp:
+        assert tmp.parent == real  # a rename within the file system of the file
+        tmp.write_text("new")
+    (links / "new.txt").symlink_to("../real/new.txt")  # relative, to no file yet
+    with atomic_path(links / "new.txt") as tmp:
+        tmp.write_text("made")
+    (links / "v.mp4").symlink_to(real / "v.mp4")
+    write_video(frames(3), links / "v.mp4", fps=10)
+    (real / "frames").mkdir()
+    (links / "frames").symlink_to(real / "frames", target_is_directory=True)
+    write_video(frames(2), links / "frames", fps=10, overwrite=True)
+    with atomic_dir(links / "frames", overwrite=True) as d:
+        (d / "x").write_text("1")
+    assert all(p.is_symlink() for p in links.iterdir())
+    assert (real / "a.txt").read_text() == "new" and (real / "new.txt").read_text() == "made"
+    assert read_back(real / "v.mp4")[1] == 3
+    assert [p.name for p in (real / "frames").iterdir()] == ["x"]
+    assert sorted(p.name for p in real.iterdir()) == ["a.txt", "frames", "new.txt", "v.mp4"]
+
+
 def test_atomic_paths_renames_a_set_only_when_every_file_is_written(tmp_path):
     from head360cli.io.atomic import atomic_paths
 
