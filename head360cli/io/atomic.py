@@ -27,7 +27,11 @@ def write_target(target: str | os.PathLike[str]) -> Path:
     ``target`` itself. Renaming a new file onto the link would replace the link and leave
     the file it leads to as it was."""
     target = Path(target)
-    return Path(os.path.realpath(target)) if target.is_symlink() else target
+    try:
+        link = target.is_symlink()
+    except OSError:  # a name too long to look up: the checks that follow say so
+        return target
+    return Path(os.path.realpath(target)) if link else target
 
 
 def current_umask() -> int:
