@@ -11,13 +11,15 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
            "check_folder_name", "check_name_length", "check_writable", "commit_dir",
-           "current_umask", "remove_leftovers", "short_name", "temp_dir_beside",
+           "current_umask", "remove_leftovers", "replace_keeping_mode", "short_name",
+           "temp_dir_beside",
            "temp_name_beside", "write_target"]
 
 
@@ -107,6 +109,19 @@ def remove_leftovers(folder: Path, prefix: str, suffix: str) -> list[Path]:
     return removed
 
 
+def replace_keeping_mode(tmp: Path, target: Path) -> None:
+    """Rename ``tmp`` onto ``target``; where ``target`` exists, ``tmp`` takes its
+    permission bits first, as a write into the file itself would keep them (a head file
+    made private with ``chmod 600`` stayed private, not readable by all under umask 022)."""
+    try:
+        mode = target.stat().st_mode
+    except OSError:  # none there yet: the mode the temporary one was made with
+        pass
+    else:
+        os.chmod(tmp, stat.S_IMODE(mode))
+    os.replace(tmp, target)
+
+
 def temp_name_beside(target: Path) -> Path:
     """A fresh temporary file name in ``target``'s folder, keeping its suffix; the file
     does not exist, so whatever writes it creates it with the usual permissions (a
@@ -147,7 +162,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         yield tmp
         if not tmp.exists():
             raise RuntimeError(f"nothing was written to the temporary file for {target}")
-        os.replace(tmp, target)
+        replace_keeping_mode(tmp, target)
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
@@ -304,6 +319,7 @@ def commit_dir(tmp: Path, target: Path) -> None:
     """Move a complete temporary folder onto ``target``, replacing an old one last."""
     if target.exists():
         old = temp_dir_beside(target)
+        os.chmod(tmp, stat.S_IMODE(target.stat().st_mode))  # as the folder it replaces
         os.replace(target, old / "old")
         os.replace(tmp, target)
         shutil.rmtree(old, ignore_errors=True)

@@ -28,6 +28,7 @@ from head360cli.io.atomic import (
     check_name_length,
     check_writable,
     commit_dir,
+    replace_keeping_mode,
     temp_dir_beside,
     temp_name_beside,
     write_target,
@@ -181,7 +182,7 @@ class VideoWriter:
                 if self.kind == "png":
                     commit_dir(self._tmp, self._dest)
                 else:
-                    os.replace(self._tmp, self._dest)
+                    replace_keeping_mode(self._tmp, self._dest)
         finally:
             # Whatever is left under the temporary name is a failed attempt.
             if self._tmp is not None and self._tmp.is_dir():

@@ -376,3 +376,30 @@ def test_outputs_get_the_usual_permissions(tmp_path, umask_027, name):
     with atomic_path(tmp_path / "a.txt") as tmp:
         tmp.write_text("done")
     assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o640
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+@pytest.mark.parametrize("mode", [0o600, 0o664])
+def test_a_replaced_output_keeps_its_permissions(tmp_path, mode):
+    """``chmod 600 me.h360`` then ``swap-hair me.h360 -o me.h360``: the new file was made
+    anew with the umask's mode, readable by all (0o644); a write into the file keeps its
+    mode, and so does head360's rename now, for files, sets, videos and frame folders."""
+    from head360cli.io.atomic import atomic_paths
+
+    names = ("a.txt", "b.txt", "c.txt", "v.mp4", "frames")
+    for name in names[:4]:
+        (tmp_path / name).write_text("old")
+    (tmp_path / "frames").mkdir()
+    for name in names:
+        os.chmod(tmp_path / name, mode | (0o111 if name == "frames" else 0))
+    with atomic_path(tmp_path / "a.txt") as tmp:
+        tmp.write_text("new")
+    with atomic_paths(tmp_path / "b.txt", tmp_path / "c.txt") as tmps:
+        for tmp in tmps:
+            tmp.write_text("new")
+    write_video(frames(2), tmp_path / "v.mp4", fps=10)
+    write_video(frames(2), tmp_path / "frames", fps=10, overwrite=True)
+    for name in names:
+        want = mode | (0o111 if name == "frames" else 0)
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == want, name
+    assert (tmp_path / "c.txt").read_text() == "new" and read_back(tmp_path / "v.mp4")[1] == 2
