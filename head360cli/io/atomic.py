@@ -17,10 +17,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
-           "check_folder_name", "check_name_length", "check_writable", "commit_dir",
-           "current_umask", "remove_leftovers", "replace_keeping_mode", "short_name",
-           "temp_dir_beside",
-           "temp_name_beside", "write_target"]
+           "check_folder_name", "check_name_length", "check_not_special", "check_writable",
+           "commit_dir", "current_umask", "remove_leftovers", "replace_keeping_mode",
+           "short_name", "temp_dir_beside", "temp_name_beside", "write_target"]
 
 
 def write_target(target: str | os.PathLike[str]) -> Path:
@@ -213,7 +212,8 @@ def _unwritable(folder: Path, exc: OSError) -> Exception:
 
 
 def _check_file_name(target: Path) -> None:
-    """Refuse a file target whose folder does not exist, or which is a folder."""
+    """Refuse a file target whose folder does not exist, or which is a folder, a named
+    pipe, a device or a socket (:func:`check_not_special`)."""
     from head360cli.errors import BadInputError
 
     check_name_length(target)
@@ -221,6 +221,31 @@ def _check_file_name(target: Path) -> None:
         raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
     if target.is_dir():
         raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
+    check_not_special(target)
+
+
+def check_not_special(target: Path) -> None:
+    """Refuse an output that exists as something other than a file or folder: a named
+    pipe (``mkfifo``), a device or a socket. Outputs are written whole under a temporary
+    name and renamed, which would put a plain file in its place, and a reader waiting on
+    the pipe would wait for ever.
+
+    Raises:
+        BadInputError: Naming what is there.
+    """
+    from head360cli.errors import BadInputError
+
+    try:
+        mode = target.stat().st_mode
+    except OSError:  # nothing there (or nothing that can be looked at): a new file
+        return
+    kind = ("named pipe" if stat.S_ISFIFO(mode) else "device"
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "socket"
+            if stat.S_ISSOCK(mode) else None)
+    if kind is not None:
+        raise BadInputError(f"expected a file name for {str(target)!r}, found a {kind}: "
+                            f"outputs are written whole and renamed into place, which "
+                            f"would replace it; give a file name")
 
 
 def check_name_length(target: Path) -> None:

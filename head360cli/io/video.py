@@ -26,6 +26,7 @@ from head360cli.errors import BadInputError
 from head360cli.io.atomic import (
     check_dir_target,
     check_name_length,
+    check_not_special,
     check_writable,
     commit_dir,
     replace_keeping_mode,
@@ -152,6 +153,8 @@ class VideoWriter:
             raise BadInputError(f"output folder {str(parent)!r} does not exist")
         if self.kind != "png" and self.path.is_dir():
             raise BadInputError(f"expected a file name for {str(self.path)!r}, found a folder")
+        if self.kind != "png":
+            check_not_special(self.path)
 
     # -- context management
     def __enter__(self) -> VideoWriter:

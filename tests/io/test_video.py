@@ -403,3 +403,20 @@ def test_a_replaced_output_keeps_its_permissions(tmp_path, mode):
         want = mode | (0o111 if name == "frames" else 0)
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == want, name
     assert (tmp_path / "c.txt").read_text() == "new" and read_back(tmp_path / "v.mp4")[1] == 2
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes")
+def test_a_named_pipe_as_output_is_refused_and_left_as_it_is(tmp_path):
+    """``mkfifo view.png; viewer view.png & head360 render -o view.png``: the render was
+    renamed over the pipe, which became a plain file, and the reader waited for ever."""
+    from head360cli.io.atomic import check_file_target
+
+    for name in ("view.png", "turn.mp4"):
+        os.mkfifo(tmp_path / name)
+    for make in (lambda: atomic_path(tmp_path / "view.png").__enter__(),
+                 lambda: check_file_target(tmp_path / "view.png"),
+                 lambda: VideoWriter(tmp_path / "turn.mp4")):
+        with pytest.raises(BadInputError, match="found a named pipe"):
+            make()
+    assert all(stat.S_ISFIFO(p.lstat().st_mode) for p in tmp_path.iterdir())
+    assert len(list(tmp_path.iterdir())) == 2
