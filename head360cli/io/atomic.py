@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
-           "check_folder_name", "check_name_length", "check_not_special", "check_writable",
+           "check_folder_name", "check_name_length", "check_replaceable", "check_writable",
            "commit_dir", "current_umask", "remove_leftovers", "replace_keeping_mode",
            "short_name", "temp_dir_beside", "temp_name_beside", "write_target"]
 
@@ -213,7 +213,7 @@ def _unwritable(folder: Path, exc: OSError) -> Exception:
 
 def _check_file_name(target: Path) -> None:
     """Refuse a file target whose folder does not exist, or which is a folder, a named
-    pipe, a device or a socket (:func:`check_not_special`)."""
+    pipe, a device, a socket or read-only (:func:`check_replaceable`)."""
     from head360cli.errors import BadInputError
 
     check_name_length(target)
@@ -221,14 +221,15 @@ def _check_file_name(target: Path) -> None:
         raise BadInputError(f"output folder {str(target.parent)!r} does not exist")
     if target.is_dir():
         raise BadInputError(f"expected a file name for {str(target)!r}, found a folder")
-    check_not_special(target)
+    check_replaceable(target)
 
 
-def check_not_special(target: Path) -> None:
+def check_replaceable(target: Path) -> None:
     """Refuse an output that exists as something other than a file or folder: a named
     pipe (``mkfifo``), a device or a socket. Outputs are written whole under a temporary
     name and renamed, which would put a plain file in its place, and a reader waiting on
-    the pipe would wait for ever.
+    the pipe would wait for ever. Refuse a file this process may not write, too (made
+    read-only to keep it; root may write any, as a shell's ``>`` lets it).
 
     Raises:
         BadInputError: Naming what is there.
@@ -246,6 +247,12 @@ def check_not_special(target: Path) -> None:
         raise BadInputError(f"expected a file name for {str(target)!r}, found a {kind}: "
                             f"outputs are written whole and renamed into place, which "
                             f"would replace it; give a file name")
+    if stat.S_ISREG(mode) and not os.access(target, os.W_OK):
+        # the rename needs only the folder's permission: without this, a file made
+        # read-only to keep it (chmod a-w) was replaced where a shell's > refuses
+        raise BadInputError(f"expected an output that may be replaced, found "
+                            f"{str(target)!r} read-only: give another name, or make it "
+                            f"writable (chmod u+w) to replace it")
 
 
 def check_name_length(target: Path) -> None:

@@ -26,7 +26,7 @@ from head360cli.errors import BadInputError
 from head360cli.io.atomic import (
     check_dir_target,
     check_name_length,
-    check_not_special,
+    check_replaceable,
     check_writable,
     commit_dir,
     replace_keeping_mode,
@@ -154,7 +154,7 @@ class VideoWriter:
         if self.kind != "png" and self.path.is_dir():
             raise BadInputError(f"expected a file name for {str(self.path)!r}, found a folder")
         if self.kind != "png":
-            check_not_special(self.path)
+            check_replaceable(self.path)
 
     # -- context management
     def __enter__(self) -> VideoWriter:

@@ -420,3 +420,30 @@ def test_a_named_pipe_as_output_is_refused_and_left_as_it_is(tmp_path):
             make()
     assert all(stat.S_ISFIFO(p.lstat().st_mode) for p in tmp_path.iterdir())
     assert len(list(tmp_path.iterdir())) == 2
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+def test_a_read_only_output_is_refused_and_kept(tmp_path, monkeypatch):
+    """A file made read-only to keep it (``chmod a-w final.mp4``) was replaced: the
+    rename needs only the folder's permission, where a shell's ``>`` refuses. Root may
+    write any file (``os.access`` says so), so as root the test asks as another user
+    would, from the permission bits."""
+    import head360cli.io.atomic as atomic
+
+    for name in ("final.png", "final.mp4"):
+        (tmp_path / name).write_text("mine")
+        os.chmod(tmp_path / name, 0o444)
+    if os.geteuid() == 0:
+        monkeypatch.setattr(atomic.os, "access", lambda path, mode: bool(
+            os.stat(path).st_mode & 0o200) or mode != os.W_OK)
+    for make in (lambda: atomic_path(tmp_path / "final.png").__enter__(),
+                 lambda: atomic.check_file_target(tmp_path / "final.png"),
+                 lambda: VideoWriter(tmp_path / "final.mp4")):
+        with pytest.raises(BadInputError, match="read-only: give another name, or make"):
+            make()
+    assert {p.name: p.read_text() for p in tmp_path.iterdir()} == {
+        "final.png": "mine", "final.mp4": "mine"}
+    os.chmod(tmp_path / "final.png", 0o644)  # writable again: replaced
+    with atomic_path(tmp_path / "final.png") as tmp:
+        tmp.write_text("new")
+    assert (tmp_path / "final.png").read_text() == "new"
