@@ -63,6 +63,33 @@ def _set(field: str) -> Callable[[click.Context, click.Parameter, Any], Any]:
     return callback
 
 
+class InputPath(click.Path):
+    """A file or folder head360 reads. click's own check refused one it may not read as a
+    usage error (exit 2, three lines, where a missing file is one line, exit 3); this
+    type refuses it as :class:`BadInputError` does. Whether it exists is left to the
+    command, which says so in its own words."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(readable=False, **kwargs)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
+                ) -> Any:
+        value = super().convert(value, param, ctx)
+        if value != "-" and os.path.exists(value) and not os.access(value, os.R_OK):
+            name = (param.opts[0] if isinstance(param, click.Option) else
+                    param.human_readable_name if param is not None else "input")
+            raise BadInputError(f"cannot read {str(value)!r} ({name}): permission denied")
+        return value
+
+
+class OutputPath(click.Path):
+    """A file or folder head360 writes (or makes): click's readability check, which
+    refused an existing write-only one as a usage error, is left out."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(readable=False, **kwargs)
+
+
 def _stdin_path(what: str) -> Callable[[click.Context, click.Parameter, Any], Any]:
     """A click callback that reads an input argument of ``-`` (``what``: "a photo") from
     standard input, through ``/dev/stdin`` as any pipe is read (outputs named after it
@@ -82,7 +109,7 @@ def _stdin_path(what: str) -> Callable[[click.Context, click.Parameter, Any], An
     return callback
 
 
-PHOTO = click.argument("photo", type=click.Path(dir_okay=False),
+PHOTO = click.argument("photo", type=InputPath(dir_okay=False),
                        callback=_stdin_path("a photo"))
 """The photo argument of fit, parse-hair and classify-hair: a file, a pipe or ``-``."""
 
@@ -304,11 +331,11 @@ def _format_mesh(r: dict[str, Any]) -> str:
 
 
 @cli.command()
-@click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
+@click.argument("file", type=InputPath(dir_okay=False, allow_dash=True))
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="error",
               show_default=True, help="ARKit streams: what to do with NaN, empty or "
               "non-numeric cells and malformed rows.")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", type=OutputPath(dir_okay=False), default=None,
               help="ARKit streams: also draw the most active blendshapes and the head "
               "rotation over time into this PNG.")
 @common_options
@@ -351,7 +378,7 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
 
 
 @cli.command()
-@click.argument("outdir", type=click.Path(file_okay=False))
+@click.argument("outdir", type=OutputPath(file_okay=False))
 @click.option("--identities", "-n", default=100, show_default=True,
               help="Identities to write.")
 @click.option("--expressions", "-e", default=4, show_default=True,
@@ -452,7 +479,7 @@ def _progress_printer():
 @click.option("--stage", type=click.Choice(["all", "shape"]), default="all", show_default=True,
               help="How far to go. all: every stage, writing a head file; shape: landmarks, "
               "pose, identity and expression of the parametric head only.")
-@click.option("-o", "--out", default=None, type=click.Path(),
+@click.option("-o", "--out", default=None, type=OutputPath(),
               help="The head file (default <photo stem>.h360); with --stage shape, the "
               "output folder (default head360-out).")
 @click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
@@ -553,7 +580,7 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 @cli.command("parse-hair")
 @PHOTO
 @click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
-              type=click.Path(file_okay=False), help="Output folder.")
+              type=OutputPath(file_okay=False), help="Output folder.")
 @click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
               help="Which face (0 = the largest).")
 @click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
@@ -642,7 +669,7 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
 
 @cli.command()
 @click.option("-o", "--out", "out_dir", default="head360-demo", show_default=True,
-              type=click.Path(file_okay=False), help="Output folder.")
+              type=OutputPath(file_okay=False), help="Output folder.")
 @click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
               show_default=True, help="Texture inversion effort.")
 @click.option("--frames", default=48, show_default=True, help="Turntable frames.")
@@ -675,7 +702,7 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
 @cli.command("build-model")
 @click.option("--corpus", type=click.Choice(["synthead-p", "ict", "synthead100"]),
               default="synthead-p", show_default=True, help="Where the meshes come from.")
-@click.option("--path", type=click.Path(exists=True), default=None,
+@click.option("--path", type=InputPath(exists=True), default=None,
               help="ICT-FaceKit npz/folder or SynHead100-style folder.")
 @click.option("--identities", "-n", default=100, show_default=True,
               help="Training identities.")
@@ -684,10 +711,10 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
               help="SynHead-P seed.")
 @click.option("--held-out", default=20, show_default=True,
               help="Identities kept out of the model to measure it.")
-@click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
+@click.option("-o", "--out", default=None, type=OutputPath(dir_okay=False),
               help="Output .npz (default: models/bilinear.npz for SynHead-P; required for "
               "external corpora, which are never shipped).")
-@click.option("--calibrate", type=click.Path(exists=True, file_okay=False), default=None,
+@click.option("--calibrate", type=InputPath(exists=True, file_okay=False), default=None,
               help="Folder of dlib landmark XML files: learn where the 68 landmarks sit on "
               "the template from those faces.")
 @common_options
@@ -734,7 +761,7 @@ PRESETS = {
 
 
 @cli.command()
-@click.argument("run_dir", type=click.Path(file_okay=False))
+@click.argument("run_dir", type=OutputPath(file_okay=False))
 @click.option("--preset", type=click.Choice(list(PRESETS)), default="cpu", show_default=True,
               help="Generator size: cpu (trains in about an hour on 2 cores), gpu, or tiny "
                    "(tests).")
@@ -760,9 +787,9 @@ PRESETS = {
 @click.option("--featured-share", default=0.25, show_default=True,
               help="Share of expressions with a blink or jawOpen at 0.7-1 on top (random "
                    "expressions rarely close the eyes).")
-@click.option("--export", "export", type=click.Path(dir_okay=False), default=None,
+@click.option("--export", "export", type=OutputPath(dir_okay=False), default=None,
               help="Also write the shippable weights here (e.g. models/generator.pt).")
-@click.option("--init", "init", type=click.Path(dir_okay=False, exists=True), default=None,
+@click.option("--init", "init", type=InputPath(dir_okay=False, exists=True), default=None,
               help="Start a new run from these generator weights (their configuration "
                    "replaces --preset and the ablation flags).")
 @common_options
@@ -832,7 +859,7 @@ def _check_rate_and_minutes(lr: float, minutes: float) -> None:
 
 
 @cli.command("train-hair-prior")
-@click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
+@click.option("-o", "--out", default=None, type=OutputPath(dir_okay=False),
               help="Output weights (default: models/hair_prior.pt).")
 @click.option("--heads", default=600, show_default=True, help="Corpus heads rendered.")
 @click.option("--views", default=5, show_default=True, help="Random views per head.")
@@ -849,7 +876,7 @@ def _check_rate_and_minutes(lr: float, minutes: float) -> None:
                    "it, as a photo's edge is in the crop of a face that fills the photo.")
 @click.option("--hat-share", default=0.0, show_default=True,
               help="Share of crops with a hat drawn over the head, not hair in the target.")
-@click.option("--init", "init", default=None, type=click.Path(dir_okay=False),
+@click.option("--init", "init", default=None, type=InputPath(dir_okay=False),
               help="Start from this hair prior's weights (fine-tuning) instead of random "
                    "ones.")
 @click.option("--lr", default=2e-3, show_default=True,
@@ -933,7 +960,7 @@ def bench() -> None:
 @click.option("--identities", "-n", default=100, show_default=True,
               help="Identities in the timed corpus subset.")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_synth_cmd(identities: int, out_dir: str) -> None:
     """Corpus renderer: ms per 256x256 view by antialiasing samples and batch size, and
@@ -955,7 +982,7 @@ def bench_synth_cmd(identities: int, out_dir: str) -> None:
 @click.option("--trials", default=200, show_default=True,
               help="Synthetic faces (random identity, expression and pose).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
     """Landmark shape fit: vertex and pose error on synthetic faces by yaw, NME of dlib's
@@ -983,7 +1010,7 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
               help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
                    "for development).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
                   stability: int, corpus_seed: int, out_dir: str) -> None:
@@ -1019,7 +1046,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
 
 
 @bench.command("generator")
-@click.option("--weights", "weights", multiple=True, type=click.Path(dir_okay=False),
+@click.option("--weights", "weights", multiple=True, type=InputPath(dir_okay=False),
               help="Generator weights; repeat to compare (labelled by file name). "
                    "Default: models/generator.pt.")
 @click.option("--train-ids", default=6, show_default=True,
@@ -1032,7 +1059,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
               help="Held-out cameras per head (of 24 around it).")
 @click.option("--no-speed", is_flag=True, help="Skip the timing and the speed sweep.")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @click.option("--name", default="generator", show_default=True,
               help="File name of the results (<name>.json, <name>.md).")
 @common_options
@@ -1196,9 +1223,14 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
             shown = f": {short_name(name)}" if name else ""
             return _failed("BadInputError", f"file name too long{shown}: use a shorter name",
                            EXIT_CODES["BadInputError"], debug, as_json)
+        named = exc.filename2 or exc.filename  # a rename's target, not its temporary file
+        where = f" ({named})" if named else ""
+        if exc.errno in (errno.EACCES, errno.EPERM):  # one no check before the work caught
+            return _failed("BadInputError", f"{exc.strerror or exc}{where}: check the "
+                           f"file's and its folder's permissions",
+                           EXIT_CODES["BadInputError"], debug, as_json)
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG):
             return _internal(exc, debug, as_json)
-        where = f" ({exc.filename})" if exc.filename else ""
         todo = {errno.EROFS: "write elsewhere",
                 errno.EFBIG: "past the file system's or the shell's file-size limit (ulimit "
                              "-f): write elsewhere"}.get(exc.errno,

@@ -13,6 +13,8 @@ from pathlib import Path
 import click
 
 from head360cli.cli import (
+    InputPath,
+    OutputPath,
     _cpu_only,
     _emit,
     _progress_printer,
@@ -28,7 +30,7 @@ from head360cli.errors import BadInputError
 
 __all__: list[str] = []
 
-_HEAD = click.Path(dir_okay=False)
+_HEAD = InputPath(dir_okay=False)
 
 
 ANIMATE_SAMPLES = 8
@@ -72,7 +74,7 @@ def _quality_options(f):
 
 def _backend_options(f):
     f = click.option("--onnx", "onnx_path", default="generator.onnx", show_default=True,
-                     type=click.Path(dir_okay=False),
+                     type=InputPath(dir_okay=False),
                      help="With --backend onnx: the graph from head360 export-onnx (its "
                      "samples per ray and size are used).")(f)
     return click.option("--backend", type=click.Choice(["torch", "onnx"]), default="torch",
@@ -114,7 +116,7 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
 
 @cli.command()
 @click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
-@click.option("-o", "--out", required=True, type=click.Path(),
+@click.option("-o", "--out", required=True, type=OutputPath(),
               help="Output: .png (or .jpg) for a view or a grid; .mp4, .gif or a folder "
               "for --turntable.")
 @click.option("--turntable", is_flag=True, help="A video turning once around the head.")
@@ -209,13 +211,13 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @cli.command()
 @click.argument("head", type=_HEAD, required=False,
                 callback=_stdin_path("a head file"))
-@click.option("--arkit", required=True,
+@click.option("--arkit", required=True, type=InputPath(allow_dash=True),
               help="ARKit-52 CSV stream (Live Link Face, MediaPipe names, generic), or - "
               "for standard input.")
-@click.option("-o", "--out", default=None, type=click.Path(),
+@click.option("-o", "--out", default=None, type=OutputPath(),
               help="Video: .mp4, .gif, or a folder for PNG frames (default, without "
               "--mesh-sequence: <stream stem>.mp4, never over an existing file).")
-@click.option("--mesh-sequence", "mesh_dir", default=None, type=click.Path(),
+@click.option("--mesh-sequence", "mesh_dir", default=None, type=OutputPath(),
               help="Also write one OBJ per frame into this new folder.")
 @click.option("--head-pose", is_flag=True, help="Apply the stream's head rotation.")
 @click.option("--fps", type=float, default=None,
@@ -370,7 +372,7 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
 @click.option("--color", "--colour", "colour", default=None,
               help="Hair colour: a name (black, 'dark brown', blonde...), #rrggbb, or "
               "linear R,G,B in [0, 1].")
-@click.option("-o", "--out", default=None, type=click.Path(),
+@click.option("-o", "--out", default=None, type=OutputPath(),
               help="The new head file (with HEAD), or the contact sheet PNG (with --list).")
 @click.option("--list", "list_", is_flag=True,
               help="List the 30 hairstyles; with -o, also render a contact sheet of them "
@@ -455,7 +457,7 @@ def _mean_head_renderer(device: str | None = None):
               help="Spread around the mean head (0 = the mean head, 1 = the prior's).")
 @click.option("--bald", is_flag=True, help="No hair.")
 @click.option("-o", "--out", "out_dir", default="samples", show_default=True,
-              type=click.Path(),
+              type=OutputPath(),
               help="Folder for the heads (sample_000.h360...) and samples.png, or one "
                    "NAME.h360 file (its picture beside it as NAME.png).")
 @click.option("--no-lid-fit", is_flag=True,
@@ -548,7 +550,7 @@ def _sampled_before(head: Path) -> bool:
 
 @cli.command("export-mesh")
 @click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
-@click.option("-o", "--out", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--out", required=True, type=OutputPath(dir_okay=False),
               help=".glb (52 ARKit morph targets, baked texture) or .obj (+ .mtl, .png).")
 @click.option("--texture-size", default=512, show_default=True,
               help="Baked texture width and height.")
@@ -583,7 +585,7 @@ def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
 
 @cli.command("export-onnx")
 @click.option("-o", "--out", default="generator.onnx", show_default=True,
-              type=click.Path(dir_okay=False),
+              type=OutputPath(dir_okay=False),
               help="The graph with hair; the bald graph goes beside it (NAME_bald.onnx).")
 @click.option("--head", "head", default=None, type=_HEAD,
               help="Trace with this head and write its per-head inputs "
@@ -644,18 +646,18 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
 @click.option("--fidelity-size", type=int, default=None,
               help="Image size of the expression-fidelity frames (default: the "
                    "generator's, as head360 animate renders them).")
-@click.option("--stream", "stream_path", type=click.Path(exists=True, dir_okay=False),
+@click.option("--stream", "stream_path", type=InputPath(exists=True, dir_okay=False),
               default=None, help="ARKit CSV to drive the heads with (default: the longest "
                                  "Live Link Face capture in ../shared/data).")
 @click.option("--no-memory", is_flag=True,
               help="Skip the whole-capture peak-memory run (minutes).")
-@click.option("--head", "head_path", type=click.Path(exists=True, dir_okay=False),
+@click.option("--head", "head_path", type=InputPath(exists=True, dir_okay=False),
               default=None, help="Measure this head file instead of fitting the astronaut "
                                  "photo (no fit, so no dlib unless fidelity is measured).")
 @click.option("--no-fidelity", is_flag=True,
               help="Skip the expression-fidelity parts (dlib landmarks on frames).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
                       stream_path: str | None, no_memory: bool, head_path: str | None,
@@ -725,11 +727,11 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
               help="Timed frames per block.")
 @click.option("--rounds", default=3, show_default=True,
               help="Timed blocks per row, the backends taking turns.")
-@click.option("--onnx", "graph", default=None, type=click.Path(dir_okay=False),
+@click.option("--onnx", "graph", default=None, type=InputPath(dir_okay=False),
               help="Use this exported graph (default: export one, about 80 seconds on "
                    "2 CPU cores).")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where the JSON and Markdown go.")
+              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: int,
                    graph: str | None, out_dir: str) -> None:
@@ -762,8 +764,8 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
 
 
 @bench.command("summary")
-@click.argument("folder", default="bench-results", type=click.Path(file_okay=False))
-@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+@click.argument("folder", default="bench-results", type=InputPath(file_okay=False))
+@click.option("--out", "out_dir", default=None, type=OutputPath(file_okay=False),
               help="Where bench.json, bench.md and bench.png go (default: FOLDER).")
 @common_options
 def bench_summary_cmd(folder: str, out_dir: str | None) -> None:
@@ -784,7 +786,7 @@ def bench_summary_cmd(folder: str, out_dir: str | None) -> None:
 
 @bench.command("all")
 @click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=click.Path(file_okay=False), help="Where every result goes.")
+              type=OutputPath(file_okay=False), help="Where every result goes.")
 @click.option("--quick", is_flag=True,
               help="Small versions of each stage (minutes, not an hour); noisier numbers.")
 @click.option("--skip", multiple=True,

@@ -229,7 +229,8 @@ def check_replaceable(target: Path) -> None:
     pipe (``mkfifo``), a device or a socket. Outputs are written whole under a temporary
     name and renamed, which would put a plain file in its place, and a reader waiting on
     the pipe would wait for ever. Refuse a file this process may not write, too (made
-    read-only to keep it; root may write any, as a shell's ``>`` lets it).
+    read-only to keep it; root may write any, as a shell's ``>`` lets it), or may not
+    rename onto (another user's in a sticky folder such as ``/tmp``).
 
     Raises:
         BadInputError: Naming what is there.
@@ -247,6 +248,14 @@ def check_replaceable(target: Path) -> None:
         raise BadInputError(f"expected a file name for {str(target)!r}, found a {kind}: "
                             f"outputs are written whole and renamed into place, which "
                             f"would replace it; give a file name")
+    if hasattr(os, "geteuid") and os.geteuid() != 0:
+        folder = target.parent.stat()
+        if folder.st_mode & stat.S_ISVTX and os.geteuid() not in (folder.st_uid,
+                                                                  target.stat().st_uid):
+            raise BadInputError(f"expected an output that may be replaced, found "
+                                f"{str(target)!r} another user's, in a folder where only "
+                                f"a file's owner may replace it (sticky, as /tmp is): "
+                                f"give another name")
     if stat.S_ISREG(mode) and not os.access(target, os.W_OK):
         # the rename needs only the folder's permission: without this, a file made
         # read-only to keep it (chmod a-w) was replaced where a shell's > refuses

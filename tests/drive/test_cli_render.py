@@ -250,3 +250,59 @@ def test_a_head_on_standard_input_is_given_as_dash(head_file, tmp_path):
                          capture_output=True, text=False, timeout=300)
     assert run.returncode == 3 and b"found both the head and --arkit" in run.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.png"]
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
+def test_inputs_and_outputs_without_permission_are_one_line_exit_3(run_cli, head_file,
+                                                                   tmp_path, monkeypatch):
+    """An input without read permission was click's usage error (exit 2, three lines),
+    where a missing one is one line, exit 3; a stream's was exit 5. Another user's output
+    in a sticky folder (/tmp) failed at the rename after the work: an internal error
+    naming the temporary file. As root every file is readable and the folder's owner
+    rule does not apply, so as root the test asks as another user would (uid 12345,
+    reading the permission bits)."""
+    import errno
+    import shutil
+
+    import head360cli.io.atomic as atomic
+
+    head = tmp_path / "h.h360"
+    shutil.copy(head_file, head)
+    stream = tmp_path / "s.csv"
+    stream.write_text("Timecode,BlendShapeCount,JawOpen\n00:00:00:00.000,52,0.5\n")
+    for path in (head, stream):
+        os.chmod(path, 0)
+    if os.geteuid() == 0:
+        monkeypatch.setattr(os, "access", lambda path, mode: bool(
+            os.stat(path).st_mode & (0o400 if mode == os.R_OK else 0o200)))
+        monkeypatch.setattr(os, "geteuid", lambda: 12345)
+    for args, path, name in ((("render", head, "-o", tmp_path / "v.png"), head, "(HEAD)"),
+                             (("inspect", head), head, "(FILE)"),
+                             (("animate", tmp_path / "x.h360", "--arkit", stream), stream,
+                              "(--arkit)")):
+        r = run_cli(*args)
+        assert r.code == 3 and r.err.strip().splitlines() == [
+            f"head360: error: cannot read {str(path)!r} {name}: permission denied"], r.err
+    os.chmod(head, 0o644)
+    sticky = tmp_path / "shared"
+    sticky.mkdir()
+    (sticky / "v.png").write_text("someone's")
+    os.chmod(sticky, 0o1777)
+    if os.geteuid() != 12345:  # not root: the files are this user's; ask as another
+        monkeypatch.setattr(os, "geteuid", lambda: os.getuid() + 1)
+    r = run_cli("render", head, "--size", "32", "-o", sticky / "v.png")
+    assert r.code == 3 and "another user's, in a folder where only a file's owner" in r.err
+    assert (sticky / "v.png").read_text() == "someone's"
+    # a permission error no check before the work caught names the output, not the
+    # temporary file the rename was from
+    monkeypatch.undo()
+
+    def refused(src, dst):
+        raise PermissionError(errno.EPERM, "Operation not permitted", str(src), None,
+                              str(dst))
+
+    monkeypatch.setattr(atomic.os, "replace", refused)
+    r = run_cli("render", head, "--size", "32", "-o", tmp_path / "w.png")
+    assert r.code == 3 and r.err.strip().splitlines() == [
+        f"head360: error: Operation not permitted ({tmp_path / 'w.png'}): check the file's "
+        f"and its folder's permissions"], r.err
