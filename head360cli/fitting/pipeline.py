@@ -649,7 +649,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     out = Path(out)
     if out.suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
-    check_file_target(out)
+    for target in fit_outputs(out).values():  # the preview and summary too: before the fit
+        check_file_target(target)
     if not own_folder:
         check_fit_outputs(photo, out)
     if hair_style is not None and not 0 <= hair_style < len(HAIRSTYLES):

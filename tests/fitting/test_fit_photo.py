@@ -581,3 +581,26 @@ def test_the_shape_fit_refuses_a_face_that_is_no_number_from_python(astronaut, t
         with pytest.raises(BadInputError, match=f"face number >= 0 or 'all', found {found}"):
             fit_shape_photo(astronaut, tmp_path / "out", face=face)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_preview_or_summary_that_cannot_be_replaced_is_refused_before_the_fit(
+        tmp_path, monkeypatch):
+    """A read-only ``me_preview.png`` (or a named pipe for ``me.json``) was found only
+    when the three files were renamed, after the whole fit; the photo here is never
+    opened (it does not exist)."""
+    import os
+
+    from head360cli.fitting.pipeline import fit_photo
+
+    (tmp_path / "me_preview.png").write_bytes(b"kept")
+    os.chmod(tmp_path / "me_preview.png", 0o444)
+    if os.geteuid() == 0:  # root may write any file: ask as another user would
+        monkeypatch.setattr(os, "access", lambda path, mode: bool(
+            os.stat(path).st_mode & 0o200) or mode != os.W_OK)
+    with pytest.raises(BadInputError, match=r"me_preview\.png' read-only"):
+        fit_photo(tmp_path / "no-such-photo.jpg", tmp_path / "me.h360")
+    os.chmod(tmp_path / "me_preview.png", 0o644)
+    os.mkfifo(tmp_path / "me.json")
+    with pytest.raises(BadInputError, match=r"me\.json', found a named pipe"):
+        fit_photo(tmp_path / "no-such-photo.jpg", tmp_path / "me.h360")
+    assert (tmp_path / "me_preview.png").read_bytes() == b"kept"
