@@ -312,10 +312,18 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     from PIL import Image
 
     from head360cli.fitting.hair_parse import MIN_SIDE, parse_hair
-    from head360cli.io.atomic import atomic_paths
+    from head360cli.io.atomic import atomic_paths, check_file_target, check_name_length
     from head360cli.io.images import MAX_SIDE, load_image
 
     check_folder_name(out_dir)
+    out, stem = Path(out_dir), input_stem(photo)
+    paths = {"hair_mask": out / f"{stem}_hair.png", "face_mask": out / f"{stem}_face.png",
+             "overlay": out / f"{stem}_parse.png"}
+    for target in paths.values():  # names too long, read-only files, pipes: before the work
+        if out.is_dir():
+            check_file_target(target)
+        else:
+            check_name_length(target)
     t0 = time.perf_counter()
     img = load_image(photo)
     if min(img.pixels.shape[:2]) < MIN_SIDE and img.size != tuple(img.source_size):  # as on disk
@@ -328,11 +336,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     found_by = None if found is None else found.detector
     parse = parse_hair(img.pixels, landmarks, prior="learned" if learned_prior else None)
     w, h = img.source_size
-    out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stem = input_stem(photo)
-    paths = {"hair_mask": out / f"{stem}_hair.png", "face_mask": out / f"{stem}_face.png",
-             "overlay": out / f"{stem}_parse.png"}
     overlay = img.pixels.astype(np.float32)
     overlay[parse.hair] = 0.45 * overlay[parse.hair] + 0.55 * np.array([235, 40, 40])
     overlay[parse.face] = 0.6 * overlay[parse.face] + 0.4 * np.array([40, 90, 235])

@@ -604,3 +604,23 @@ def test_a_preview_or_summary_that_cannot_be_replaced_is_refused_before_the_fit(
     with pytest.raises(BadInputError, match=r"me\.json', found a named pipe"):
         fit_photo(tmp_path / "no-such-photo.jpg", tmp_path / "me.h360")
     assert (tmp_path / "me_preview.png").read_bytes() == b"kept"
+
+
+def test_parse_hair_checks_its_three_names_before_the_parse(tmp_path, monkeypatch):
+    """A photo whose name is 250 characters long fits the file system, its
+    ``<stem>_parse.png`` overlay does not; and an existing mask may be a named pipe. Both
+    were found when the masks were renamed, after the parse; the photo is never opened
+    here (it does not exist)."""
+    import os
+
+    from head360cli.fitting.pipeline import parse_photo
+
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    photo = tmp_path / ("p" * (limit - 5) + ".jpg")  # name fits; "_parse.png" does not
+    for out in (tmp_path / "new", tmp_path):  # a folder to be made, one that exists
+        with pytest.raises(BadInputError, match=f"at most {limit} bytes"):
+            parse_photo(photo, out)
+    os.mkfifo(tmp_path / "me_face.png")
+    with pytest.raises(BadInputError, match="found a named pipe"):
+        parse_photo(tmp_path / "me.jpg", tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["me_face.png"]
