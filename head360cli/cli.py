@@ -132,13 +132,32 @@ def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def _emit(result: dict[str, Any], text: str) -> None:
-    """Print ``result`` as JSON under --json, else ``text``."""
+    """Print ``result`` as JSON under --json, else ``text``.
+
+    Raises:
+        BadInputError: Standard output cannot be written (``> result.json`` on a full
+            disk): said in one line, where it was a traceback under --json.
+    """
     if _settings().json:
         from head360cli.io.jsontext import dumps
 
-        click.echo(dumps(result))
-    else:
+        text = dumps(result)
+    try:
         click.echo(text.rstrip("\n"))
+    except BrokenPipeError:
+        raise  # a reader that has stopped reading (| head): not an error, see _run
+    except OSError as exc:
+        _drop_stdout()
+        raise BadInputError(f"cannot write the result to standard output: "
+                            f"{exc.strerror or exc}") from None
+
+
+def _drop_stdout() -> None:
+    """Send what is left for standard output nowhere, once writing it failed: the text
+    still buffered would fail again when Python flushes it at exit, printed as an
+    exception and exit 120."""
+    with contextlib.suppress(OSError, ValueError):
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (kept open until the exit)
 
 
 def _warn(message: str) -> None:
@@ -1121,15 +1140,20 @@ def _failed(kind: str, message: str, code: int, debug: bool, as_json: bool,
         import traceback
 
         traceback.print_exc()
-    click.echo(f"head360: {label}: {message}{hint}", err=True)
+    with contextlib.suppress(OSError):  # standard error full or closed: the code remains
+        click.echo(f"head360: {label}: {message}{hint}", err=True)
     if as_json:
         _error_json(kind, message, code)
     return code
 
 
 def _error_json(kind: str, message: str, code: int) -> None:
-    print(json.dumps({"ok": False, "error": {"type": kind, "message": message,
-                                             "exit_code": code}}))
+    """Print the error as JSON on standard output, if it can be written."""
+    try:
+        print(json.dumps({"ok": False, "error": {"type": kind, "message": message,
+                                                 "exit_code": code}}), flush=True)
+    except OSError:
+        _drop_stdout()
 
 
 class _Terminated(KeyboardInterrupt):

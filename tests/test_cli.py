@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 import subprocess
 import sys
 
@@ -601,3 +602,22 @@ def test_a_url_given_as_an_input_says_what_to_do(run_cli, tmp_path, monkeypatch,
     r = run_cli(*args)
     assert r.code == 3 and "found a URL" in r.err and "pipe it in as '-'" in r.err, r.err
     assert "://" in r.err and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+def test_a_full_standard_output_is_one_line_exit_3(head_file):
+    """``head360 --json fit ... > result.json`` on a full disk (the batch script's
+    redirect): the result's write failed with a traceback and exit 1 under --json, and
+    without it as 'nothing half-written was kept', which was not the trouble."""
+    for args in (["inspect", str(head_file)], ["--json", "inspect", str(head_file)],
+                 ["--json", "inspect", str(head_file) + ".missing"]):
+        with open("/dev/full", "w") as full:
+            run = subprocess.run([sys.executable, "-m", "head360cli", *args], stdout=full,
+                                 stderr=subprocess.PIPE, text=True, timeout=120)
+        lines = run.stderr.strip().splitlines()
+        assert run.returncode == 3 and len(lines) == 1, run.stderr
+        if args[-1].endswith(".missing"):  # its JSON error could not be written either
+            assert "no such file" in lines[0]
+        else:
+            assert lines == ["head360: error: cannot write the result to standard output: "
+                             "No space left on device"]
