@@ -1195,6 +1195,7 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     as_json = "--json" in args
+    _open_closed_outputs()
     for stream in (sys.stdout, sys.stderr):  # a name the terminal's encoding lacks
         if hasattr(stream, "reconfigure"):   # (an emoji, in Latin-1) is escaped, not
             with contextlib.suppress(Exception):  # an internal error after the work
@@ -1207,6 +1208,25 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _open_closed_outputs() -> None:
+    """Point a closed standard output or error (``2>&-``, a daemon's) at ``os.devnull``.
+    Python makes ``sys.stderr`` None then, and the first progress line was an internal
+    error that lost the work; the descriptor itself is opened too, so spawned processes
+    and ffmpeg inherit one that works."""
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        if getattr(sys, name) is not None:
+            continue
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: the lowest free descriptor, or this one by dup2
+            null = os.open(os.devnull, os.O_WRONLY)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+        with contextlib.suppress(OSError):
+            setattr(sys, name, open(fd, "w", closefd=False))  # noqa: SIM115 (for the run)
 
 
 def _run(args: list[str], debug: bool, as_json: bool) -> int:

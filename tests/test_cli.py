@@ -621,3 +621,33 @@ def test_a_full_standard_output_is_one_line_exit_3(head_file):
         else:
             assert lines == ["head360: error: cannot write the result to standard output: "
                              "No space left on device"]
+
+
+@pytest.mark.skipif(os.name != "posix", reason="closing descriptors with pass_fds")
+def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
+    """``head360 animate ... 2>&-`` (a cron job, a daemon): Python sets sys.stderr to None
+    and the first progress line was an internal error (exit 1) that lost the animation;
+    a closed standard input for '-' was called a terminal."""
+    stream = tmp_path / "s.csv"
+    stream.write_text("Timecode,BlendShapeCount,JawOpen\n" + "".join(
+        f"00:00:00:{i:02d}.000,52,{i / 10}\n" for i in range(4)))
+    code = ("import os, sys; os.close(int(sys.argv[1]));"
+            "from head360cli.cli import main; sys.exit(main(sys.argv[2:]))")
+
+    def run(fd, *args):
+        return subprocess.run([sys.executable, "-c", code, str(fd), *map(str, args)],
+                              capture_output=fd != 2, timeout=300,
+                              stderr=subprocess.DEVNULL if fd == 2 else None)
+
+    # the descriptor is closed before Python starts in the shell's case; closing it in the
+    # interpreter leaves sys.stderr set, so the test empties it as the shell's case does
+    code = code.replace("os.close(int(sys.argv[1]));",
+                        "os.close(int(sys.argv[1])); setattr(sys, "
+                        "['stdin', 'stdout', 'stderr'][int(sys.argv[1])], None);")
+    for fd in (1, 2):
+        out = tmp_path / f"a{fd}.mp4"
+        r = run(fd, "animate", head_file, "--arkit", stream, "--size", "32", "-o", out)
+        assert r.returncode == 0 and out.is_file(), (fd, r.returncode)
+    r = run(0, "fit", "-", "-o", tmp_path / "x.h360")
+    assert r.returncode == 3
+    assert b"on standard input ('-'), found it closed" in r.stderr, r.stderr

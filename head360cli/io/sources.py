@@ -46,7 +46,8 @@ def check_stdin(what: str) -> None:
 
     stdin = sys.stdin
     if stdin is None or (hasattr(stdin, "isatty") and stdin.isatty()):
-        raise BadInputError(f"expected {what} on standard input ('-'), found a terminal: "
+        found = "it closed" if stdin is None else "a terminal"
+        raise BadInputError(f"expected {what} on standard input ('-'), found {found}: "
                             "pipe one in (... | head360 ... -) or give a file")
 
 
