@@ -559,7 +559,7 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
         net = HairPriorNet(net_cfg).train()
     opt = torch.optim.AdamW(net.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
     losses: list[float] = []
-    first = trained_s = 0.0
+    first, trained_s = 0, 0.0  # the step to go on from, and the seconds trained before
     if state is not None:
         net.load_state_dict(state["net"])
         opt.load_state_dict(state["optimizer"])
@@ -567,9 +567,9 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
             gen.set_state(saved)
         torch.set_rng_state(state["torch_rng"])
         losses = list(state["losses"])
-        first, trained_s = state["step"], state["train_seconds"]
+        first, trained_s = int(state["step"]), float(state["train_seconds"])
     t1 = time.perf_counter() - trained_s  # a resumed run's minutes count the earlier ones
-    step = first = int(first)
+    step = first
     interrupted: list[int] = []
     previous = catch_interrupts(interrupted) if checkpoint is not None else {}
     try:
