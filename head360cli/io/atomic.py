@@ -292,8 +292,8 @@ def short_name(name: str) -> str:
 def check_file_target(target: str | os.PathLike[str]) -> None:
     """Refuse a file target whose folder does not exist or cannot be written, or which is
     a folder (as :func:`atomic_path` does when it is asked to write; callers with long
-    work before the write check first)."""
-    target = Path(target)
+    work before the write check first). A symbolic link is checked where it leads."""
+    target = write_target(target)
     _check_file_name(target)
     check_writable(target.parent)
 

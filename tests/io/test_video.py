@@ -271,6 +271,11 @@ def test_an_output_that_is_a_symbolic_link_is_written_where_it_leads(tmp_path):
     write_video(frames(2), links / "frames", fps=10, overwrite=True)
     with atomic_dir(links / "frames", overwrite=True) as d:
         (d / "x").write_text("1")
+    from head360cli.io.atomic import check_file_target
+
+    (links / "lost.png").symlink_to(real / "gone" / "x.png")  # checked where it leads
+    with pytest.raises(BadInputError, match=r"gone' does not exist"):
+        check_file_target(links / "lost.png")
     assert all(p.is_symlink() for p in links.iterdir())
     assert (real / "a.txt").read_text() == "new" and (real / "new.txt").read_text() == "made"
     assert read_back(real / "v.mp4")[1] == 3
