@@ -64,22 +64,31 @@ def _set(field: str) -> Callable[[click.Context, click.Parameter, Any], Any]:
 
 
 class InputPath(click.Path):
-    """A file or folder head360 reads. click's own check refused one it may not read as a
-    usage error (exit 2, three lines, where a missing file is one line, exit 3); this
-    type refuses it as :class:`BadInputError` does. Whether it exists is left to the
-    command, which says so in its own words."""
+    """A file or folder head360 reads. click's own checks refused one that is missing
+    (where ``exists``), of the wrong kind or unreadable as a usage error (exit 2, three
+    lines), where the commands' own checks say a missing file in one line, exit 3; this
+    type refuses each as :class:`BadInputError` does. Without ``exists``, a missing
+    input is left to the command, which says so in its own words."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(readable=False, **kwargs)
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
                 ) -> Any:
-        value = super().convert(value, param, ctx)
-        if value != "-" and os.path.exists(value) and not os.access(value, os.R_OK):
+        if value != "-" or not self.allow_dash:
             name = (param.opts[0] if isinstance(param, click.Option) else
                     param.human_readable_name if param is not None else "input")
-            raise BadInputError(f"cannot read {str(value)!r} ({name}): permission denied")
-        return value
+            text = repr(os.fspath(value))
+            if not os.path.exists(value):
+                if self.exists:
+                    raise BadInputError(f"{text} ({name}) does not exist")
+            elif os.path.isdir(value) and not self.dir_okay:
+                raise BadInputError(f"expected a file for {name}, found a folder: {text}")
+            elif not os.path.isdir(value) and not self.file_okay:
+                raise BadInputError(f"expected a folder for {name}, found a file: {text}")
+            elif not os.access(value, os.R_OK):
+                raise BadInputError(f"cannot read {text} ({name}): permission denied")
+        return super().convert(value, param, ctx)
 
 
 class OutputPath(click.Path):

@@ -651,3 +651,22 @@ def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
     r = run(0, "fit", "-", "-o", tmp_path / "x.h360")
     assert r.returncode == 3
     assert b"on standard input ('-'), found it closed" in r.stderr, r.stderr
+
+
+def test_an_input_of_the_wrong_kind_or_missing_is_one_line_exit_3(run_cli, head_file,
+                                                                  tmp_path):
+    """A folder given as a head, a file as --calibrate's folder and a missing --head for
+    a bench were click's usage errors (exit 2, three lines), where the commands' own
+    checks give a missing or wrong input in one line, exit 3 (--arkit's folder was)."""
+    folder = tmp_path / "d"
+    folder.mkdir()
+    for args, said in (
+            (("render", folder, "-o", tmp_path / "v.png"),
+             f"expected a file for HEAD, found a folder: {str(folder)!r}"),
+            (("build-model", "--calibrate", head_file, "-o", tmp_path / "m.npz"),
+             f"expected a folder for --calibrate, found a file: {str(head_file)!r}"),
+            (("bench", "animate", "--head", tmp_path / "no.h360", "--out", tmp_path / "b"),
+             f"{str(tmp_path / 'no.h360')!r} (--head) does not exist")):
+        r = run_cli(*args)
+        assert r.code == 3 and r.err.strip().splitlines() == [f"head360: error: {said}"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
