@@ -76,27 +76,53 @@ class InputPath(click.Path):
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
                 ) -> Any:
         if value != "-" or not self.allow_dash:
-            name = (param.opts[0] if isinstance(param, click.Option) else
-                    param.human_readable_name if param is not None else "input")
-            text = repr(os.fspath(value))
+            name, text = _param_name(param), repr(os.fspath(value))
             if not os.path.exists(value):
                 if self.exists:
                     raise BadInputError(f"{text} ({name}) does not exist")
-            elif os.path.isdir(value) and not self.dir_okay:
-                raise BadInputError(f"expected a file for {name}, found a folder: {text}")
-            elif not os.path.isdir(value) and not self.file_okay:
-                raise BadInputError(f"expected a folder for {name}, found a file: {text}")
-            elif not os.access(value, os.R_OK):
-                raise BadInputError(f"cannot read {text} ({name}): permission denied")
+            else:
+                error = _kind_error(self, value, name, text)
+                if error is not None:
+                    raise error
+                if not os.access(value, os.R_OK):
+                    raise BadInputError(f"cannot read {text} ({name}): permission denied")
         return super().convert(value, param, ctx)
 
 
 class OutputPath(click.Path):
-    """A file or folder head360 writes (or makes): click's readability check, which
-    refused an existing write-only one as a usage error, is left out."""
+    """A file or folder head360 writes (or makes). click refused an existing one of the
+    wrong kind (a folder for a file) as a usage error, and an existing write-only one as
+    unreadable; this type says the first as :class:`BadInputError` does and leaves the
+    second to the writers' own checks."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(readable=False, **kwargs)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
+                ) -> Any:
+        if os.path.exists(value):
+            error = _kind_error(self, value, _param_name(param), repr(os.fspath(value)))
+            if error is not None:
+                raise error
+        return super().convert(value, param, ctx)
+
+
+def _param_name(param: click.Parameter | None) -> str:
+    """How an error names ``param``: ``--arkit`` for an option, ``HEAD`` for an argument."""
+    if isinstance(param, click.Option):
+        return param.opts[0]
+    return param.human_readable_name if param is not None else "input"
+
+
+def _kind_error(path_type: click.Path, value: Any, name: str, text: str
+                ) -> BadInputError | None:
+    """The error for an existing ``value`` that is a folder where ``path_type`` takes
+    files only, or a file where it takes folders only; ``None`` if it is the right kind."""
+    if os.path.isdir(value) and not path_type.dir_okay:
+        return BadInputError(f"expected a file for {name}, found a folder: {text}")
+    if not os.path.isdir(value) and not path_type.file_okay:
+        return BadInputError(f"expected a folder for {name}, found a file: {text}")
+    return None
 
 
 def _stdin_path(what: str) -> Callable[[click.Context, click.Parameter, Any], Any]:

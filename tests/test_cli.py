@@ -655,9 +655,10 @@ def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
 
 def test_an_input_of_the_wrong_kind_or_missing_is_one_line_exit_3(run_cli, head_file,
                                                                   tmp_path):
-    """A folder given as a head, a file as --calibrate's folder and a missing --head for
-    a bench were click's usage errors (exit 2, three lines), where the commands' own
-    checks give a missing or wrong input in one line, exit 3 (--arkit's folder was)."""
+    """A folder given as a head, a file as --calibrate's folder, a missing --head for a
+    bench and a folder as export-mesh's output file were click's usage errors (exit 2,
+    three lines), where the commands' own checks give a missing or wrong input in one
+    line, exit 3 (--arkit's folder was)."""
     folder = tmp_path / "d"
     folder.mkdir()
     for args, said in (
@@ -666,7 +667,11 @@ def test_an_input_of_the_wrong_kind_or_missing_is_one_line_exit_3(run_cli, head_
             (("build-model", "--calibrate", head_file, "-o", tmp_path / "m.npz"),
              f"expected a folder for --calibrate, found a file: {str(head_file)!r}"),
             (("bench", "animate", "--head", tmp_path / "no.h360", "--out", tmp_path / "b"),
-             f"{str(tmp_path / 'no.h360')!r} (--head) does not exist")):
+             f"{str(tmp_path / 'no.h360')!r} (--head) does not exist"),
+            (("export-mesh", head_file, "-o", folder),  # an output of the wrong kind too
+             f"expected a file for -o, found a folder: {str(folder)!r}"),
+            (("parse-hair", head_file, "-o", head_file),
+             f"expected a folder for -o, found a file: {str(head_file)!r}")):
         r = run_cli(*args)
         assert r.code == 3 and r.err.strip().splitlines() == [f"head360: error: {said}"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
