@@ -400,6 +400,9 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
         if out is not None:
             if Path(out).suffix.lower() != ".png":
                 raise BadInputError(f"expected a .png contact sheet, found {out!r}")
+            from head360cli.io.atomic import check_file_target
+
+            check_file_target(out)  # before the head is loaded
             r = _mean_head_renderer() if head is None else _renderer(head, None, None)
             style_sheet(r, out, progress=_progress_printer())
             result["sheet"] = out

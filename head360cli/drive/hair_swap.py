@@ -124,8 +124,9 @@ def style_sheet(renderer, out: str | Path, yaw: float = 30.0, size: int = 128,
     from PIL import Image
 
     from head360cli.drive.views import grid_image, view_cameras, view_intrinsics
-    from head360cli.io.atomic import atomic_path
+    from head360cli.io.atomic import atomic_path, check_file_target
 
+    check_file_target(out)  # a missing folder or a read-only file: before 30 renders
     styles = list_styles()
     cam = view_cameras(yaw, 0.0)
     k = view_intrinsics(renderer.size)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -132,6 +133,25 @@ def test_contact_sheet_shows_the_30_styles(head_file, tmp_path):
     # bald (0) and an afro (9) differ; every tile shows a head on white
     assert np.abs(tiles[0] - tiles[9]).mean() > 3
     assert all(t.min() < 200 for t in tiles)
+
+
+def test_a_contact_sheet_that_cannot_be_written_is_refused_before_the_renders(
+        run_cli, head_file, tmp_path, monkeypatch):
+    """swap-hair --list -o nodir/sheet.png rendered the 30 styles (54 s on 2 cores) before
+    saying that the folder did not exist."""
+    import head360cli.drive.hair_swap as hair_swap
+    import head360cli.drive.views as views
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    rendered = []  # the sheet's camera is made before its renders
+    monkeypatch.setattr(views, "view_cameras", lambda *a: rendered.append(1) or 1 / 0)
+    r = run_cli("swap-hair", "--list", head_file, "-o", tmp_path / "no" / "sheet.png")
+    assert r.code == 3 and "'" + str(tmp_path / "no") + "' does not exist" in r.err
+    os.mkfifo(tmp_path / "sheet.png")
+    with pytest.raises(BadInputError, match="found a named pipe"):
+        hair_swap.style_sheet(load_head_renderer(head_file, samples=2, size=32),
+                              tmp_path / "sheet.png")
+    assert rendered == []
 
 
 @pytest.mark.slow
