@@ -246,6 +246,11 @@ def load_hair_prior(path: str | os.PathLike[str], device: str = "cpu") -> HairPr
         first = " ".join(str(exc).split())[:160]
         raise FileFormatError(f"{str(path)!r}: a {FORMAT} checkpoint whose contents do not "
                               f"fit together ({type(exc).__name__}: {first})") from None
+    bad = [name for name, value in net.state_dict().items()
+           if value.is_floating_point() and not torch.isfinite(value).all()]
+    if bad or not np.isfinite(canon).all():  # a run that diverged: its masks are noise
+        raise FileFormatError(f"{str(path)!r}: a {FORMAT} checkpoint with non-finite "
+                              f"values ({', '.join(bad[:3]) or 'canon'}): retrain it")
     return HairPrior(net.to(device), canon, blob.get("meta", {}))
 
 

@@ -586,6 +586,14 @@ def train_hair_prior(cfg: HairPriorTrainConfig, net_cfg: HairPriorConfig,
                 group["lr"] = cfg.lr * max(0.05, 1 - done)
             img, target = aug.batch(cfg.batch)
             loss = hair_loss(net(img), target)
+            if not torch.isfinite(loss):  # diverged: every later step is NaN too
+                from head360cli.errors import BadInputError
+
+                anew = (f" and delete {checkpoint} to start anew" if checkpoint is not None
+                        and Path(checkpoint).is_file() else "")
+                raise BadInputError(f"expected the training loss to stay finite, found "
+                                    f"{loss.item()} at step {step} (the weights diverged): "
+                                    f"lower --lr (now {cfg.lr:g}){anew}")
             opt.zero_grad()
             loss.backward()
             opt.step()

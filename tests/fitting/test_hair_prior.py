@@ -410,3 +410,21 @@ def test_train_config_refuses_settings_no_run_trains_with(field, value, expected
     with pytest.raises(BadInputError, match=re.escape(
             f"expected HairPriorTrainConfig.{field} {expected}, found {value!r}")):
         HairPriorTrainConfig(**{field: value})
+
+
+def test_a_run_that_diverges_stops_and_a_prior_with_nan_is_refused(tmp_path):
+    """train-hair-prior --lr 1e6 wrote a prior of NaN weights, exit 0 ("final_loss":
+    null), which parse-hair and fit would then have used."""
+    cfg = HairPriorTrainConfig(steps=40, batch=2, lr=1e6, seed=0)
+    data = (np.zeros((41, 2), np.float32), _disc_data())
+    with pytest.raises(BadInputError, match=r"loss to stay finite, found (nan|inf) at step \d+ "
+                                            r"\(the weights diverged\): lower --lr"):
+        train_hair_prior(cfg, TINY, progress=False, data=data)
+    from head360cli.errors import FileFormatError
+
+    prior = _tiny_prior()
+    with torch.no_grad():
+        next(prior.net.parameters())[0] = float("nan")
+    save_hair_prior(prior, tmp_path / "nan.pt")
+    with pytest.raises(FileFormatError, match="non-finite values"):
+        load_hair_prior(tmp_path / "nan.pt")
