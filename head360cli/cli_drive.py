@@ -332,9 +332,9 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         head = str(_mean_head_file(Path(scratch.name)))
 
     def load():
+        default = None if backend == "onnx" else ANIMATE_SAMPLES  # the graph's own
         r = _backend_renderer(head, backend, onnx_path,
-                              samples or (None if backend == "onnx" else ANIMATE_SAMPLES),
-                              size, precision)
+                              default if samples is None else samples, size, precision)
         if exact:
             r.reuse = None
         return r

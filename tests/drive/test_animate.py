@@ -302,7 +302,10 @@ def test_cli_animate_errors(run_cli, head_file, tmp_path):
     for args, says in ((("--pitch", "95"), "pitch within +-90 degrees, found 0.0, 95.0"),
                        (("--yaw", "nan"), "finite yaw"),
                        (("--start", "-1"), "--start in seconds from the stream's start"),
-                       (("--end", "nan"), "--end in seconds")):
+                       (("--end", "nan"), "--end in seconds"),
+                       # 0 was taken for "not given" and rendered at 8 samples, where
+                       # render refuses it
+                       (("--samples", "0"), "--samples between 1 and 64, found 0")):
         r = run_cli("animate", head_file, "--arkit", good, "-o", tmp_path / "a.mp4", *args)
         assert r.code == 3 and says in r.err, (args, r.err)
         assert not (tmp_path / "a.mp4").exists()
