@@ -86,8 +86,8 @@ def _figaro_classes(data: Path) -> dict[str, Any]:
     label, on the Figaro photos where a face is found (classification needs the fitted
     head)."""
     from head360cli.errors import NoFaceError
-    from head360cli.fitting.hair_class import figaro_class
     from head360cli.fitting.pipeline import classify_photo
+    from head360cli.synth.hair import figaro_class
 
     folder = data / "hair" / "figaro"
     labels = dict(line.split() for line in (folder / "classes.txt").read_text().splitlines()

@@ -64,8 +64,7 @@ def parse_colour(text) -> tuple[str, np.ndarray]:
 
 def list_styles() -> list[dict[str, Any]]:
     """The 30 SynHead-P hairstyles: ``{"id", "name", "figaro"}`` each."""
-    from head360cli.fitting.hair_class import figaro_class
-    from head360cli.synth.hair import HAIRSTYLES
+    from head360cli.synth.hair import HAIRSTYLES, figaro_class
 
     return [{"id": i, "name": s.name, "figaro": figaro_class(i)}
             for i, s in enumerate(HAIRSTYLES)]

@@ -489,24 +489,3 @@ def nearest_colour_name(colour: np.ndarray) -> str:
     return nearest_colour_names(colour, 1)[0]
 
 
-FIGARO_CLASSES: dict[str, tuple[str, ...]] = {
-    "straight": ("bob", "lob", "bangs", "shoulder straight", "long straight",
-                 "ponytail high", "ponytail low", "bun", "top knot", "middle part long"),
-    "wavy": ("shoulder wavy", "long wavy"),
-    "curly": ("curly short", "long curly"),
-    "kinky": ("afro",),
-    "braids": ("braid", "twin tails"),
-    "dreadlocks": ("dreadlocks",),
-    "short-men": ("bald", "buzz", "crew", "side part", "slicked back", "pompadour",
-                  "undercut", "mohawk", "pixie", "mullet", "receding", "side swept"),
-}
-"""Figaro-1k's 7 coarse classes, each as the SynHead-P styles that belong to it (every
-style in exactly one class; tied-back long hair counts as straight)."""
-
-
-def figaro_class(style: int) -> str:
-    """The Figaro-1k class of a SynHead-P style id."""
-    from head360cli.synth.hair import HAIRSTYLES
-
-    name = HAIRSTYLES[style].name
-    return next(k for k, names in FIGARO_CLASSES.items() if name in names)

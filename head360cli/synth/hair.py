@@ -21,8 +21,9 @@ import numpy as np
 
 from head360cli.synth.sculpt import HeadFrame, _column_angles, topology
 
-__all__ = ["HAIRSTYLES", "HAIR_COLOURS", "HairMesh", "HairStyle", "build_hair", "fit_hair",
-           "fit_hairs", "head_normals", "style_index"]
+__all__ = ["FIGARO_CLASSES", "HAIRSTYLES", "HAIR_COLOURS", "HairMesh", "HairStyle",
+           "build_hair", "figaro_class", "fit_hair", "fit_hairs", "head_normals",
+           "style_index"]
 
 INNER_GAP = 0.0015
 """Distance between the scalp and the hair shell's inner surface, metres."""
@@ -158,6 +159,27 @@ def style_index(name_or_id: str | int) -> int:
     names = ", ".join(s.name for s in HAIRSTYLES)
     raise BadInputError(f"unknown hairstyle {name_or_id!r}; expected an id "
                         f"0..{len(HAIRSTYLES) - 1} or one of: {names}")
+
+
+FIGARO_CLASSES: dict[str, tuple[str, ...]] = {
+    "straight": ("bob", "lob", "bangs", "shoulder straight", "long straight",
+                 "ponytail high", "ponytail low", "bun", "top knot", "middle part long"),
+    "wavy": ("shoulder wavy", "long wavy"),
+    "curly": ("curly short", "long curly"),
+    "kinky": ("afro",),
+    "braids": ("braid", "twin tails"),
+    "dreadlocks": ("dreadlocks",),
+    "short-men": ("bald", "buzz", "crew", "side part", "slicked back", "pompadour",
+                  "undercut", "mohawk", "pixie", "mullet", "receding", "side swept"),
+}
+"""Figaro-1k's 7 coarse classes, each as the SynHead-P styles that belong to it (every
+style in exactly one class; tied-back long hair counts as straight)."""
+
+
+def figaro_class(style: int) -> str:
+    """The Figaro-1k class of a SynHead-P style id."""
+    name = HAIRSTYLES[style].name
+    return next(k for k, names in FIGARO_CLASSES.items() if name in names)
 
 
 @dataclasses.dataclass

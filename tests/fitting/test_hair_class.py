@@ -220,16 +220,6 @@ def test_hair_colour_linearises_the_median_and_names_it():
     assert hair_colour(rgb, np.zeros((4, 4), bool)).shape == (3,)  # fallback
 
 
-def test_figaro_mapping_covers_every_style_once():
-    from head360cli.fitting.hair_class import FIGARO_CLASSES, figaro_class
-    from head360cli.synth.hair import HAIRSTYLES
-
-    names = [n for group in FIGARO_CLASSES.values() for n in group]
-    assert sorted(names) == sorted(s.name for s in HAIRSTYLES)
-    assert len(FIGARO_CLASSES) == 7
-    assert figaro_class(9) == "kinky" and figaro_class(29) == "dreadlocks"
-
-
 def test_pixels_beyond_the_photo_are_not_scored():
     hair = np.zeros((10, 10), bool)
     hair[:5] = True  # replicated hair above the photo's top edge would look like this

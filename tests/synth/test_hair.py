@@ -104,3 +104,12 @@ def test_fit_hairs_gives_fit_hairs_meshes_once_per_style():
         np.testing.assert_array_equal(mesh.faces, one.faces)
         np.testing.assert_array_equal(mesh.uv, one.uv)
     assert len(meshes[0].faces) == 0 and len(meshes[17].faces) > 1000
+
+
+def test_figaro_mapping_covers_every_style_once():
+    from head360cli.synth.hair import FIGARO_CLASSES, HAIRSTYLES, figaro_class
+
+    names = [n for group in FIGARO_CLASSES.values() for n in group]
+    assert sorted(names) == sorted(s.name for s in HAIRSTYLES)
+    assert len(FIGARO_CLASSES) == 7
+    assert figaro_class(9) == "kinky" and figaro_class(29) == "dreadlocks"
