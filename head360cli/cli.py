@@ -315,9 +315,21 @@ def _format_image(r: dict[str, Any]) -> str:
         f"  orientation  {r['orientation']} ({r['orientation_name']}); shown as "
         f"{r['display_size'][0]}x{r['display_size'][1]}",
         f"  frames       {r['frames']}",
+        f"  colours      {_colours(r.get('colour_profile'), r.get('converted'))}",
         f"  file size    {r['bytes']} bytes",
         f"  pixels       {r.get('problem') or 'decoded without error'}",
     ])
+
+
+def _colours(profile: str | None, converted: bool | None) -> str:
+    """How ``inspect`` names an image's colour profile, and what loading does with it."""
+    if profile is None:
+        return "sRGB (no colour profile)"
+    if profile == "unreadable":
+        return "a colour profile that cannot be read (taken as sRGB)"
+    if not converted:
+        return f"profile {profile!r} (sRGB's: read as it is)"
+    return f"profile {profile!r} (converted to sRGB on load)"
 
 
 def _format_head(r: dict[str, Any]) -> str:

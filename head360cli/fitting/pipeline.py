@@ -218,7 +218,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     t0 = time.perf_counter()
     img = load_image(photo)
     check_focal(focal, *img.source_size)
-    warnings += first_frame(img)
+    warnings += photo_warnings(img)
     model = load_bilinear()
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -254,12 +254,17 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     return img, found, fit, model
 
 
-def first_frame(img) -> list[str]:
-    """The warning for a photo file of several frames or pages (an animated GIF, a TIFF
-    stack), of which only the first is read, else none."""
-    if img.frames <= 1:
-        return []
-    return [f"{Path(img.path).name} holds {img.frames} frames; the first is used"]
+def photo_warnings(img) -> list[str]:
+    """The warnings for a loaded photo: a file of several frames or pages (an animated
+    GIF, a TIFF stack), of which only the first is read; a colour profile that could not
+    be used, so that its values are taken as sRGB's."""
+    warnings = []
+    if img.frames > 1:
+        warnings.append(f"{Path(img.path).name} holds {img.frames} frames; the first is used")
+    if img.colour_profile == "unreadable":
+        warnings.append(f"{Path(img.path).name} has a colour profile that cannot be read; "
+                        f"its colours are taken as sRGB")
+    return warnings
 
 
 def prior_missing(learned_prior: bool) -> list[str]:
@@ -349,7 +354,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
             Image.fromarray(full).save(tmp)
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmps[2])
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
-            "warnings": first_frame(img) + prior_missing(learned_prior),
+            "warnings": photo_warnings(img) + prior_missing(learned_prior),
             "face_turn_degrees": None if found is None else found.turn,
             "profile_face": parse.profile, "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),

@@ -8,11 +8,18 @@ Policy for large images (documented in the README):
 - Images whose longer side exceeds ``max_side`` (default 4096) are downscaled on load;
   :attr:`LoadedImage.scale` records the factor so that results can be mapped back to the
   pixels of the image as given on disk. JPEGs are decoded at reduced size directly.
+
+Colours: head360 works in sRGB and writes sRGB. A photo with an embedded colour profile
+other than sRGB's (an iPhone's Display P3, a camera's Adobe RGB, a print's CMYK) is
+converted to sRGB on load, as a colour-managed viewer shows it; without that its values
+were read as sRGB ones, duller than the photo looks (:func:`_to_srgb`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import io
 import os
 from typing import TYPE_CHECKING
 
@@ -61,6 +68,9 @@ class LoadedImage:
         path: Where it was read from.
         focal_35mm: EXIF ``FocalLengthIn35mmFilm`` in millimetres, ``None`` when absent.
         frames: Frames (or pages) in the file; the first is the one loaded.
+        colour_profile: The embedded colour profile's description when the pixels were
+            converted from it to sRGB; ``"unreadable"`` when a profile could not be used
+            (its values are then taken as sRGB); ``None`` without one, or for sRGB's.
     """
 
     pixels: np.ndarray
@@ -72,6 +82,7 @@ class LoadedImage:
     path: str
     focal_35mm: float | None = None
     frames: int = 1
+    colour_profile: str | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -186,9 +197,11 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
 
     Returns:
         ``format``, ``mode``, ``width`` and ``height`` as stored, ``orientation`` (code and
-        name), upright ``display_size``, ``frames``, ``bytes``, ``megapixels``, and
-        ``problem``: why the commands would refuse the pixels (over ``max_pixels``,
-        truncated or corrupted), or ``None``.
+        name), upright ``display_size``, ``frames``, ``bytes``, ``megapixels``,
+        ``colour_profile`` (the embedded ICC profile's description, ``"unreadable"``, or
+        ``None`` without one), ``converted`` (whether loading converts the pixels to
+        sRGB: a profile other than sRGB's), and ``problem``: why the commands would
+        refuse the pixels (over ``max_pixels``, truncated or corrupted), or ``None``.
     """
     from head360cli.io.sources import NamedBytes
 
@@ -199,6 +212,13 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
         orient = _orientation(img)
         upright = (h, w) if orient in (5, 6, 7, 8) else (w, h)
         fmt, mode, frames = img.format, img.mode, int(getattr(img, "n_frames", 1))
+        icc = img.info.get("icc_profile")
+        profile, converted = _profile_name(icc), False
+        if profile not in (None, "unreadable") and mode in ("RGB", "RGBA", "CMYK"):
+            try:  # as load_image decides
+                converted = _srgb_transform(bytes(icc), mode)[0] is not None
+            except Exception:  # a profile of another colour space: not used
+                profile = "unreadable"
         problem = _decode_problem(img, max_pixels)  # after the header: draft changes mode
         return {
             "kind": "image",
@@ -213,6 +233,8 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
             "frames": frames,
             "bytes": size,
             "megapixels": round(w * h / 1e6, 3),
+            "colour_profile": profile,
+            "converted": converted,
             "problem": problem,
         }
 
@@ -234,6 +256,62 @@ def _eight_bit(img):  # PIL.Image -> PIL.Image in an 8-bit mode
     elif mode not in ("RGB", "RGBA", "L", "LA", "P", "PA", "1"):
         img = img.convert("RGBA" if "A" in mode else "RGB")  # CMYK, YCbCr, LAB...
     return img
+
+
+def _profile_name(icc: bytes | None) -> str | None:
+    """The description of an embedded ICC profile, ``"unreadable"``, or ``None``."""
+    if not icc:
+        return None
+    from PIL import ImageCms
+
+    try:
+        source = ImageCms.ImageCmsProfile(io.BytesIO(icc))
+        return (ImageCms.getProfileDescription(source) or "").strip() or "unnamed"
+    except Exception:  # littlecms's PyCMSError
+        return "unreadable"
+
+
+def _to_srgb(img):  # PIL.Image -> (PIL.Image, str | None)
+    """``img`` converted to sRGB from its embedded ICC profile, and the profile's
+    description (see :attr:`LoadedImage.colour_profile`). RGB, RGBA and CMYK images are
+    converted; an image without a profile, one whose profile is sRGB's (the conversion
+    changes no 8-bit value) or one of another mode is returned as it is, with ``None``."""
+    icc = img.info.get("icc_profile")
+    if not icc or img.mode not in ("RGB", "RGBA", "CMYK"):
+        return img, None
+    try:
+        transform, description = _srgb_transform(bytes(icc), img.mode)
+    except Exception:  # littlecms's PyCMSError, or a profile for another colour space
+        return img, "unreadable"
+    if transform is None:
+        return img, None
+    out = transform.apply(img)
+    out.info = {k: v for k, v in img.info.items() if k != "icc_profile"}
+    return out, description
+
+
+@functools.lru_cache(maxsize=8)
+def _srgb_transform(icc: bytes, mode: str):  # -> (ImageCmsTransform | None, str)
+    """A transform from the profile ``icc`` to sRGB for images of ``mode`` (to RGB for
+    CMYK), and the profile's description; ``None`` for a profile that is sRGB's: one
+    that changes no 8-bit value of a grid of colours by more than 1."""
+    from PIL import Image, ImageCms
+
+    source = ImageCms.ImageCmsProfile(io.BytesIO(icc))
+    srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
+    out_mode = "RGB" if mode == "CMYK" else mode
+    transform = ImageCms.buildTransform(source, srgb, mode, out_mode)
+    description = _profile_name(icc)
+    if mode != "CMYK":
+        levels = np.linspace(0, 255, 9).round().astype(np.uint8)
+        grid = np.stack(np.meshgrid(levels, levels, levels), -1).reshape(1, -1, 3)
+        if mode == "RGBA":
+            grid = np.concatenate([grid, np.full((*grid.shape[:2], 1), 255, np.uint8)], -1)
+        probe = Image.fromarray(grid, mode)
+        moved = np.asarray(transform.apply(probe), np.int16) - grid
+        if np.abs(moved).max() <= 1:
+            return None, description
+    return transform, description
 
 
 def _has_alpha(img) -> bool:
@@ -310,6 +388,9 @@ def load_image(
                 f"image {str(path)!r} is truncated or corrupted: {exc}"
             ) from exc
         full_w, full_h = (h, w) if orient in (5, 6, 7, 8) else (w, h)
+        # CMYK first (the 8-bit step would convert it naively); RGB after the downscale,
+        # on fewer pixels
+        upright, profile = _to_srgb(upright) if upright.mode == "CMYK" else (upright, None)
         upright = _eight_bit(upright)
         if max_side is not None and max(upright.size) > max_side:
             f = max_side / max(upright.size)
@@ -317,6 +398,8 @@ def load_image(
             if upright.mode not in ("RGB", "RGBA", "L", "LA"):
                 upright = upright.convert("RGBA" if _has_alpha(upright) else "RGB")
             upright = upright.resize(new, Image.Resampling.LANCZOS)
+        if profile is None:
+            upright, profile = _to_srgb(upright)
         pixels = _to_rgb_array(upright, keep_alpha, background)
         scale = pixels.shape[1] / full_w
     return LoadedImage(
@@ -329,6 +412,7 @@ def load_image(
         path=str(path),
         focal_35mm=focal_35mm,
         frames=frames,
+        colour_profile=profile,
     )
 
 
