@@ -226,8 +226,13 @@ class VideoWriter:
     def _open_encoder(self, width: int, height: int) -> _Encoder:
         assert self._tmp is not None
         if self.kind == "mp4":
+            # ffmpeg's RGB to yuv420p conversion uses BT.601's matrix and limited range;
+            # the stream says so, and that the pixels are sRGB, so that players do not
+            # guess (many take an untagged HD video for BT.709, shifting its colours).
+            # Through x264's own parameters: ffmpeg 9.0 left -color_primaries unwritten.
             args = ["-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", str(self.quality),
-                    "-movflags", "+faststart"]
+                    "-x264-params", "colorprim=bt709:transfer=iec61966-2-1:"
+                    "colormatrix=smpte170m:fullrange=off", "-movflags", "+faststart"]
             level = "warning"
         else:
             args = ["-vcodec", "gif", "-pix_fmt", "pal8", "-filter_complex",

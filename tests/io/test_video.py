@@ -64,6 +64,30 @@ def test_mp4_content_survives_encoding(tmp_path):
     np.testing.assert_allclose(got, [40, 120, 200], atol=3)
 
 
+def test_mp4_says_how_its_colours_are_encoded(tmp_path):
+    """The stream was untagged, so a player guessed its matrix (many take an HD video for
+    BT.709, the encoding was BT.601's); it says BT.601's matrix, limited range, sRGB's
+    primaries and transfer, and saturated colours come back through a decoder that reads
+    the tags."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    colours = np.array([[230, 40, 40], [40, 200, 60], [30, 60, 220], [220, 180, 140]],
+                       np.uint8)
+    frame = np.repeat(np.repeat(colours[None], 32, 0), 32, 1)  # four 32-pixel blocks
+    out = tmp_path / "colours.mp4"
+    write_video([frame] * 3, out, fps=10, quality=10)
+    probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(out)],
+                           capture_output=True, text=True)
+    assert "yuv420p(tv, smpte170m/bt709/iec61966-2-1" in probe.stderr, probe.stderr
+    reader = imageio_ffmpeg.read_frames(str(out))
+    next(reader)
+    got = np.frombuffer(next(reader), np.uint8).reshape(32, 128, 3)
+    centres = got[16, 16::32].astype(int)
+    assert np.abs(centres - colours).max() <= 6, centres
+
+
 def test_gif_streams_with_exact_flat_colours(tmp_path):
     import imageio.v3 as iio
 
