@@ -262,7 +262,7 @@ def photo_warnings(img) -> list[str]:
     if img.frames > 1:
         warnings.append(f"{Path(img.path).name} holds {img.frames} frames; the first is used")
     if img.colour_profile == "unreadable":
-        warnings.append(f"{Path(img.path).name} has a colour profile that cannot be read; "
+        warnings.append(f"{Path(img.path).name} has a colour profile head360 cannot use; "
                         f"its colours are taken as sRGB")
     return warnings
 

@@ -212,11 +212,15 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
         orient = _orientation(img)
         upright = (h, w) if orient in (5, 6, 7, 8) else (w, h)
         fmt, mode, frames = img.format, img.mode, int(getattr(img, "n_frames", 1))
-        icc = img.info.get("icc_profile")
-        profile, converted = _profile_name(icc), False
-        if profile not in (None, "unreadable") and mode in ("RGB", "RGBA", "CMYK"):
+        try:
+            icc = _profile_of(img)
+            profile = _profile_name(icc)
+        except ValueError:  # nclx code points head360 does not convert
+            icc, profile = None, "unreadable"
+        converted = False
+        if icc is not None and profile != "unreadable" and mode in ("RGB", "RGBA", "CMYK"):
             try:  # as load_image decides
-                converted = _srgb_transform(bytes(icc), mode)[0] is not None
+                converted = _srgb_transform(icc, mode)[0] is not None
             except Exception:  # a profile of another colour space: not used
                 profile = "unreadable"
         problem = _decode_problem(img, max_pixels)  # after the header: draft changes mode
@@ -271,16 +275,44 @@ def _profile_name(icc: bytes | None) -> str | None:
         return "unreadable"
 
 
-def _to_srgb(img):  # PIL.Image -> (PIL.Image, str | None)
-    """``img`` converted to sRGB from its embedded ICC profile, and the profile's
-    description (see :attr:`LoadedImage.colour_profile`). RGB, RGBA and CMYK images are
-    converted; an image without a profile, one whose profile is sRGB's (the conversion
-    changes no 8-bit value) or one of another mode is returned as it is, with ``None``."""
+def _profile_of(img) -> bytes | None:
+    """The ICC profile an image's colours are in: its embedded one, else one made from a
+    HEIF's nclx code points (:func:`~head360cli.io.colour.nclx_profile`), else ``None``.
+
+    Raises:
+        ValueError: nclx code points head360 does not convert (HDR curves) or that are
+            incomplete.
+    """
     icc = img.info.get("icc_profile")
-    if not icc or img.mode not in ("RGB", "RGBA", "CMYK"):
+    if icc:
+        return bytes(icc)
+    nclx = img.info.get("nclx_profile")
+    if not nclx:
+        return None
+    from head360cli.io.colour import nclx_profile
+
+    try:
+        return nclx_profile(nclx)
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"incomplete nclx code points: {exc}") from None
+
+
+def _to_srgb(img):  # PIL.Image -> (PIL.Image, str | None)
+    """``img`` converted to sRGB from its embedded ICC profile (or a HEIF's nclx code
+    points, :func:`~head360cli.io.colour.nclx_profile`), and the profile's description
+    (see :attr:`LoadedImage.colour_profile`). RGB, RGBA and CMYK images are converted; an
+    image without a profile, one whose profile is sRGB's (the conversion changes no 8-bit
+    value) or one of another mode is returned as it is, with ``None``."""
+    if img.mode not in ("RGB", "RGBA", "CMYK"):
         return img, None
     try:
-        transform, description = _srgb_transform(bytes(icc), img.mode)
+        icc = _profile_of(img)
+    except ValueError:
+        return img, "unreadable"
+    if icc is None:
+        return img, None
+    try:
+        transform, description = _srgb_transform(icc, img.mode)
     except Exception:  # littlecms's PyCMSError, or a profile for another colour space
         return img, "unreadable"
     if transform is None:

@@ -213,59 +213,24 @@ def test_real_photos_load(shared_data):
     assert ppm.size == (150, 225)
 
 
-def _matrix_profile(primaries, gamma: float, name: str) -> bytes:
-    """An ICC v2 display profile (matrix and gamma curves) for RGB primaries given as
-    ``((xr, yr), (xg, yg), (xb, yb))`` with a D65 white, built here from the ICC.1
-    layout, as no such profile ships with Pillow: colorants adapted to the D50 PCS by
-    Bradford's matrix."""
-    d65, d50 = np.array([0.95047, 1.0, 1.08883]), np.array([0.9642, 1.0, 0.8249])
-    xyz = np.array([[x / y, 1.0, (1 - x - y) / y] for x, y in primaries]).T
-    rgb_to_xyz = xyz * np.linalg.solve(xyz, d65)  # columns: the primaries at full
-    bradford = np.array([[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367],
-                         [0.0389, -0.0685, 1.0296]])
-    adapt = np.linalg.inv(bradford) @ np.diag((bradford @ d50) / (bradford @ d65)) @ bradford
-    colorants = adapt @ rgb_to_xyz
-
-    def s15(v):
-        return b"".join(struct.pack(">i", round(float(c) * 65536)) for c in v)
-
-    def xyz_tag(v):
-        return b"XYZ " + bytes(4) + s15(v)
-
-    text = name.encode("ascii") + b"\0"
-    tags = {b"desc": b"desc" + bytes(4) + struct.pack(">I", len(text)) + text
-            + bytes(4 + 4 + 2 + 1 + 67),
-            b"wtpt": xyz_tag(d50), b"rXYZ": xyz_tag(colorants[:, 0]),
-            b"gXYZ": xyz_tag(colorants[:, 1]), b"bXYZ": xyz_tag(colorants[:, 2]),
-            b"cprt": b"text" + bytes(4) + b"none\0"}
-    curve = b"curv" + bytes(4) + struct.pack(">IH", 1, round(gamma * 256)) + bytes(2)
-    tags.update({b"rTRC": curve, b"gTRC": curve, b"bTRC": curve})
-    offset = 128 + 4 + 12 * len(tags)
-    table, data = b"", b""
-    for sig, body in tags.items():
-        body += bytes(-len(body) % 4)
-        table += sig + struct.pack(">II", offset + len(data), len(body))
-        data += body
-    size = offset + len(data)
-    header = (struct.pack(">I", size) + bytes(4) + struct.pack(">I", 0x02100000)
-              + b"mntrRGB XYZ " + struct.pack(">6H", 2026, 12, 5, 0, 0, 0) + b"acsp"
-              + bytes(24) + struct.pack(">I", 0) + s15(d50) + bytes(4 + 16 + 28))
-    assert len(header) == 128
-    return header + struct.pack(">I", len(tags)) + table + data
-
-
 ADOBE_RGB = ((0.64, 0.33), (0.21, 0.71), (0.15, 0.06))
 """Adobe RGB (1998)'s primaries (its gamma is 563/256)."""
+D65 = (0.3127, 0.329)
+"""The D65 white's CIE xy."""
 
 
 def test_a_photo_with_another_colour_profile_is_converted_to_srgb(tmp_path):
     """A photo encoded in a wide-gamut space (a camera's Adobe RGB; an iPhone's Display P3
     is the same kind of profile) was read as if its values were sRGB's: duller than it
     looks in a colour-managed viewer. It is converted on load; an sRGB-tagged photo keeps
-    its values exactly, and an unreadable profile leaves them as they are."""
+    its values exactly, and an unreadable profile leaves them as they are. The profile
+    comes from head360's own builder (none ships with Pillow), which this also tests:
+    the colours come back."""
     from PIL import ImageCms
 
-    wide = _matrix_profile(ADOBE_RGB, 563 / 256, "head360 test Adobe RGB")
+    from head360cli.io.colour import matrix_profile
+
+    wide = matrix_profile(ADOBE_RGB, D65, 563 / 256, "head360 test Adobe RGB")
     srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
     colours = np.array([[[200, 150, 120], [90, 160, 60], [230, 40, 40], [128, 128, 128],
                          [20, 40, 200], [250, 220, 180]]], np.uint8).repeat(16, 0).repeat(
