@@ -38,6 +38,7 @@ __all__ = [
     "HEAD_ARRAYS",
     "KNOWN_ARRAYS",
     "LID_FULL_AT",
+    "MAX_ARRAY_BYTES",
     "HeadFile",
     "driven_weights",
     "lid_amounts",
@@ -50,6 +51,11 @@ __all__ = [
 FORMAT_NAME = "head360"
 FORMAT_VERSION = 1
 META_KEY = "__meta__"
+
+MAX_ARRAY_BYTES = 256 * 2**20
+"""The most a head file's arrays may take once decompressed (a fitted head's take about
+5 MB). A zip's entries can be decompressed to far more than the file holds: a 6.5 MB
+file of 2 GiB of zeros took 2.6 GB of memory and 11 s to inspect."""
 
 KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "shape": (1, "f"),  # (S,) identity code of the bilinear model
@@ -298,6 +304,17 @@ def read_head(
     if magic != b"PK\x03\x04":
         found = "an empty file" if not magic else f"bytes {magic!r}"
         raise FileFormatError(f"{where}: expected a head360 .h360 (zip) file, found {found}")
+    try:
+        with zipfile.ZipFile(source) as zf:  # the sizes its entries say, before any is read
+            unpacked = sum(info.file_size for info in zf.infolist())
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise FileFormatError(f"{where}: truncated or corrupted ({exc})") from exc
+    if unpacked > MAX_ARRAY_BYTES:
+        raise FileFormatError(f"{where}: expected at most {MAX_ARRAY_BYTES >> 20} MiB of "
+                              f"arrays, found {unpacked / 2**20:.0f} MiB once decompressed "
+                              f"(not a head360 head)")
+    if not isinstance(source, Path):
+        source.seek(0)
     try:
         with np.load(source, allow_pickle=False) as npz:
             names = list(npz.files)

@@ -267,3 +267,34 @@ def test_renderers_refuse_a_head_whose_arrays_do_not_fit_the_model(run_cli, head
         assert r.code == 5, r.err
         assert f"expected {name} of shape" in r.err and "for the installed model" in r.err
     assert not (tmp_path / "v.png").exists() and not (tmp_path / "m.glb").exists()
+
+
+def test_a_head_that_decompresses_to_too_much_is_refused_unread(head_file, tmp_path,
+                                                                monkeypatch):
+    """A zip's entries can decompress to far more than the file holds: a 6.5 MB head file
+    with 2 GiB of zeros beside its arrays took 2.6 GB of memory and 11 s to inspect. The
+    sizes the entries say are summed first; here the limit is lowered to 2 MiB, below this
+    head's 4 MiB texture, and no array may be read."""
+    bomb = tmp_path / "bomb.h360"
+    with zipfile.ZipFile(head_file) as src, zipfile.ZipFile(bomb, "w",
+                                                            zipfile.ZIP_DEFLATED) as out:
+        for info in src.infolist():
+            out.writestr(info, src.read(info.filename))
+    assert read_head(bomb).arrays["texture"].nbytes > 2 << 20  # a head, read as one
+    monkeypatch.setattr(headfile, "MAX_ARRAY_BYTES", 2 << 20)
+
+    def no_read(*args, **kwargs):
+        raise AssertionError("an array was read")
+
+    monkeypatch.setattr(headfile.np, "load", no_read)
+    for source in (bomb, headfile_bytes(bomb)):
+        with pytest.raises(FileFormatError, match=r"expected at most 2 MiB of arrays, found "
+                                                  r"\d+ MiB once decompressed"):
+            read_head(source)
+
+
+def headfile_bytes(path):
+    """A head file's bytes as a pipe's are held (:class:`~head360cli.io.sources.NamedBytes`)."""
+    from head360cli.io.sources import NamedBytes
+
+    return NamedBytes(path.read_bytes(), "pipe")
