@@ -318,7 +318,7 @@ def _to_srgb(img):  # PIL.Image -> (PIL.Image, str | None)
     if transform is None:
         return img, None
     out = transform.apply(img)
-    out.info = {k: v for k, v in img.info.items() if k != "icc_profile"}
+    out.info = {k: v for k, v in img.info.items() if k not in ("icc_profile", "nclx_profile")}
     return out, description
 
 
