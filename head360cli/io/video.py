@@ -154,7 +154,7 @@ class VideoWriter:
         if self.kind != "png" and self.path.is_dir():
             raise BadInputError(f"expected a file name for {str(self.path)!r}, found a folder")
         if self.kind != "png":
-            check_replaceable(self.path)
+            check_replaceable(write_target(self.path))  # where a link leads
 
     # -- context management
     def __enter__(self) -> VideoWriter:
