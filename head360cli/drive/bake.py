@@ -32,6 +32,10 @@ BAKE_VIEWS: tuple[tuple[float, float], ...] = (
 VISIBLE_TOLERANCE = 0.004
 """Metres a texel may lie behind the rendered surface and still count as seen."""
 
+TEXTURED_PART = "head"
+"""The exported part that carries the baked texture (an OBJ writes it as
+``<stem>_head.png``; the hair part has vertex colours)."""
+
 
 def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """Fill pixels of zero weight from their nearest known neighbours: ring after ring,
@@ -198,7 +202,7 @@ def _parts(renderer, texture: np.ndarray | None, hair_colours: np.ndarray | None
 
     gen = renderer.gen
     verts = renderer.vertices(expression).cpu().numpy().astype(np.float64)
-    parts = [MeshPart("head", verts, gen.faces.cpu().numpy(), gen.uv.cpu().numpy(),
+    parts = [MeshPart(TEXTURED_PART, verts, gen.faces.cpu().numpy(), gen.uv.cpu().numpy(),
                       gen.faces_uv.cpu().numpy(), texture,
                       targets=renderer.driven_deltas() if targets else None,
                       target_names=list(ARKIT52) if targets else None)]
@@ -224,7 +228,7 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
     if kind not in (".glb", ".obj"):
         raise BadInputError(f"expected a .glb or .obj output, found {out.name!r}")
     # an OBJ's material and texture are named after it: their names too, before the bake
-    for target in [out] + (obj_companions(out, ["head"]) if kind == ".obj" else []):
+    for target in [out] + (obj_companions(out, [TEXTURED_PART]) if kind == ".obj" else []):
         check_file_target(target)
     texture, hair_colours = bake_head(renderer, texture_size, progress=progress)
     if not hair:
