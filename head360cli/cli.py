@@ -239,6 +239,19 @@ def cli() -> None:
       head360 inspect take.csv --json   the same as one JSON object
     """
     _settings()
+    _check_working_folder()
+
+
+def _check_working_folder() -> None:
+    """Refuse a current folder that was deleted (a batch script's ``rm -rf`` of the
+    folder it runs in). torch cannot be imported there: oneMKL stopped the process with
+    "FATAL ERROR: Cannot load libtorch_cpu.so", exit 2, as if the install were broken;
+    and no relative name can be read or written there anyway."""
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        raise BadInputError("expected a current folder that exists, found it deleted: "
+                            "cd to an existing folder and run again") from None
 
 
 @cli.command()

@@ -653,6 +653,29 @@ def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
     assert b"on standard input ('-'), found it closed" in r.stderr, r.stderr
 
 
+@pytest.mark.skipif(os.name != "posix", reason="removing the current folder")
+def test_a_deleted_current_folder_is_one_line_exit_3(head_file, tmp_path):
+    """A batch script that removed the folder it runs in: importing torch there stopped
+    the process in oneMKL ("Cannot load libtorch_cpu.so", exit 2), as if the install
+    were broken."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    out = tmp_path / "view.png"
+    code = ("import os, sys; os.chdir(sys.argv[1]); os.rmdir(sys.argv[1]);"
+            "from head360cli.cli import main; sys.exit(main(sys.argv[2:]))")
+    r = subprocess.run([sys.executable, "-c", code, str(gone), "render", str(head_file),
+                        "--size", "32", "-o", str(out)], capture_output=True, timeout=300)
+    assert r.returncode == 3, r.stderr
+    assert r.stderr.decode().splitlines() == [
+        "head360: error: expected a current folder that exists, found it deleted: cd to "
+        "an existing folder and run again"]
+    assert not out.exists()
+    gone.mkdir()
+    r = subprocess.run([sys.executable, "-c", code, str(gone), "--help"],
+                       capture_output=True, timeout=300)
+    assert r.returncode == 0 and b"Usage: head360" in r.stdout  # help needs no folder
+
+
 def test_an_input_of_the_wrong_kind_or_missing_is_one_line_exit_3(run_cli, head_file,
                                                                   tmp_path):
     """A folder given as a head, a file as --calibrate's folder, a missing --head for a
