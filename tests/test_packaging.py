@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import re
+import subprocess
+import sys
+
+import pytest
 
 from tests.conftest import REPO
 
@@ -93,3 +98,29 @@ def test_readme_links_resolve():
                 assert anchor in slugs, f"{page.name}: no heading for #{anchor} in {dest.name}"
             checked += 1
     assert checked >= 20  # the README's pictures alone are more
+
+
+def test_onnxruntime_keeps_no_telemetry_in_the_users_home(tmp_path):
+    """onnxruntime 1.32 wrote a device identifier and a SQLite queue of usage events to
+    ~/.cache/Microsoft on its first import, to upload when online, each time head360
+    ran ``info``, ``inspect`` of a graph or ``--backend onnx``. Importing head360 first
+    turns that off; a user who sets ORT_DISABLE_TELEMETRY keeps their own choice."""
+    pytest.importorskip("onnxruntime")
+
+    def home_after(code: str, **extra: str):
+        home = tmp_path / f"home{len(list(tmp_path.iterdir()))}"
+        home.mkdir()
+        env = {k: v for k, v in os.environ.items() if k not in {
+            "ORT_DISABLE_TELEMETRY", "XDG_CACHE_HOME", "GITHUB_ACTIONS", "GITLAB_CI",
+            "TF_BUILD"}}
+        env.update(HOME=str(home), **extra)
+        subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=120,
+                       capture_output=True)
+        return home / ".cache" / "Microsoft"
+
+    if not home_after("import onnxruntime").exists():
+        pytest.skip("this onnxruntime keeps no telemetry folder to check against")
+    assert not home_after("import head360cli, onnxruntime").exists()
+    assert not home_after("from head360cli.cli import main; main(['info'])").exists()
+    assert home_after("import head360cli, onnxruntime",
+                      ORT_DISABLE_TELEMETRY="0").exists()
