@@ -443,7 +443,16 @@ def _read_weights(path: str | Path) -> tuple[dict, GeneratorConfig]:
         raise FileFormatError(f"{path}: expected head360 generator weights, found no "
                               f"{sorted(missing)}")
     try:
-        return w, GeneratorConfig.from_dict(w["generator_config"])
+        cfg = GeneratorConfig.from_dict(w["generator_config"])
     except (KeyError, TypeError, ValueError) as exc:
         raise FileFormatError(f"{path}: expected head360 generator weights ({exc!r})"
                               ) from exc
+    tensors = {**w["generator"], "codes": w["codes"]} if isinstance(w["generator"], dict) \
+        else {}
+    bad = [name for name, value in tensors.items() if isinstance(value, torch.Tensor)
+           and value.is_floating_point() and not bool(torch.isfinite(value).all())]
+    if bad:  # a run that diverged: every render would be NaN, shown as black
+        raise FileFormatError(f"{path}: expected finite generator weights, found NaN or "
+                              f"infinity in {', '.join(bad[:3])}"
+                              f"{f' and {len(bad) - 3} more' if len(bad) > 3 else ''}")
+    return w, cfg

@@ -287,3 +287,27 @@ def test_a_resumed_run_logs_each_step_once(tmp_path):
         f.write('{"step": 3, "l1": 0.5}\n{"step": 4, "l1"')
     train(tmp_path / "r", cfg, TINY, progress=False)
     assert _log_steps(tmp_path / "r") == [1, 2, 3, 4]
+
+
+def test_generator_weights_with_nan_are_refused_on_load_and_as_init(tmp_path):
+    """Weights from a run that diverged loaded and rendered every frame as NaN (black
+    images, exit 0), and ``train --init`` trained on from them."""
+    import dataclasses
+
+    train(tmp_path / "run", CFG, TINY, progress=False)
+    save_generator(tmp_path / "run" / CHECKPOINT, tmp_path / "g.pt")
+    weights = torch.load(tmp_path / "g.pt", weights_only=True)
+    name = next(k for k, v in weights["generator"].items() if v.is_floating_point())
+    weights["generator"][name].view(-1)[0] = float("nan")
+    torch.save(weights, tmp_path / "nan.pt")
+    with pytest.raises(FileFormatError, match=f"expected finite generator weights, found "
+                                              f"NaN or infinity in {re.escape(name)}$"):
+        load_generator(tmp_path / "nan.pt")
+    more = dataclasses.replace(CFG, init=str(tmp_path / "nan.pt"))
+    with pytest.raises(FileFormatError, match="expected finite generator weights"):
+        train(tmp_path / "more", more, TINY, progress=False, stop_at=1)
+    weights = torch.load(tmp_path / "g.pt", weights_only=True)
+    weights["codes"][0, 0] = float("inf")
+    torch.save(weights, tmp_path / "inf.pt")
+    with pytest.raises(FileFormatError, match=r"infinity in codes$"):
+        load_generator(tmp_path / "inf.pt")
