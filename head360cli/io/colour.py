@@ -66,14 +66,23 @@ def matrix_profile(primaries: Any, white: Any, trc: float | str, name: str) -> b
             b"cprt": b"text" + bytes(4) + b"none\0"}
     curve = _curve_tag(trc)
     tags.update({b"rTRC": curve, b"gTRC": curve, b"bTRC": curve})
+    return _assemble(tags, b"mntr", b"RGB ")
+
+
+def _assemble(tags: dict[bytes, bytes], device_class: bytes, colour_space: bytes) -> bytes:
+    """An ICC v2 profile's bytes from its tags (signature -> body): the 128-byte header
+    (XYZ connection space, D50 illuminant), the tag table, then the tags, each on a 4-byte
+    boundary. ``device_class`` is ``b"mntr"`` for a display, ``b"prtr"`` for a printer;
+    ``colour_space`` ``b"RGB "`` or ``b"CMYK"``."""
     start = 128 + 4 + 12 * len(tags)
     table, data = b"", b""
     for sig, body in tags.items():
-        body += bytes(-len(body) % 4)  # tags start on 4-byte boundaries
+        body += bytes(-len(body) % 4)
         table += sig + struct.pack(">II", start + len(data), len(body))
         data += body
     header = (struct.pack(">I", start + len(data)) + bytes(4) + struct.pack(">I", 0x02100000)
-              + b"mntrRGB XYZ " + struct.pack(">6H", 2026, 1, 1, 0, 0, 0) + b"acsp"
+              + device_class + colour_space + b"XYZ "
+              + struct.pack(">6H", 2026, 1, 1, 0, 0, 0) + b"acsp"
               + bytes(24) + struct.pack(">I", 0) + _s15(_D50) + bytes(4 + 16 + 28))
     return header + struct.pack(">I", len(tags)) + table + data
 

@@ -264,3 +264,60 @@ def test_a_photo_with_another_colour_profile_is_converted_to_srgb(tmp_path):
             tagged, junk) for d in [describe_image(p)]}
     assert said == {"wide.png": ("head360 test Adobe RGB", True),
                     "srgb.png": ("sRGB built-in", False), "junk.png": ("unreadable", False)}
+
+
+SRGB_D50 = np.array([[0.4360747, 0.3850649, 0.1430804], [0.2225045, 0.7168786, 0.0606169],
+                     [0.0139322, 0.0971045, 0.7141733]])
+"""sRGB's linear RGB to the D50 connection space's XYZ (IEC 61966-2-1, Bradford-adapted)."""
+
+
+def _ink_colour(cmyk: np.ndarray) -> np.ndarray:
+    """The test printer's colours: ``(..., 4)`` inks in [0, 1] to ``(..., 3)`` sRGB in [0,
+    1]. A plain subtractive model with the channels turned round (cyan ink prints yellow), so
+    that no converter could get the colours right without reading the profile."""
+    c, m, y, k = np.moveaxis(cmyk, -1, 0)
+    return np.stack([(1 - m) * (1 - k), (1 - y) * (1 - k), (1 - c) * (1 - k)], -1)
+
+
+def _cmyk_profile(points: int = 5) -> bytes:
+    """An ICC v2 printer profile of :func:`_ink_colour`: one lut16 (``mft2``) A2B0 tag, a
+    ``points``^4 grid of CMYK to XYZ, identity curves."""
+    from head360cli.io.colour import _D50, _assemble, _s15, _xyz_tag
+
+    axis = np.linspace(0.0, 1.0, points)
+    grid = np.stack(np.meshgrid(axis, axis, axis, axis, indexing="ij"), -1).reshape(-1, 4)
+    rgb = _ink_colour(grid)
+    xyz = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4) @ SRGB_D50.T
+    ramp = struct.pack(">2H", 0, 65535)
+    lut = (b"mft2" + bytes(4) + struct.pack(">4B", 4, 3, points, 0) + _s15(np.eye(3).ravel())
+           + struct.pack(">2H", 2, 2) + ramp * 4
+           + np.clip(np.round(xyz * 32768), 0, 65535).astype(">u2").tobytes() + ramp * 3)
+    text = b"head360 test CMYK\0"
+    desc = b"desc" + bytes(4) + struct.pack(">I", len(text)) + text + bytes(4 + 4 + 2 + 1 + 67)
+    return _assemble({b"desc": desc, b"wtpt": _xyz_tag(_D50), b"A2B0": lut,
+                      b"cprt": b"text" + bytes(4) + b"none\0"}, b"prtr", b"CMYK")
+
+
+def test_a_cmyk_photo_with_a_profile_is_converted_through_it(tmp_path):
+    """A CMYK photo (a print workflow's JPEG or TIFF) with its printer's profile is
+    converted to sRGB by the profile, not by Pillow's naive ink arithmetic, which gave
+    colours up to 255 levels off here. The profile is a lookup table built for the test
+    (none ships with Pillow) at whose grid points the colours are known exactly."""
+    rng = np.random.default_rng(0)
+    inks = rng.choice(np.array([0, 64, 128, 191, 255]), size=(1, 12, 4)).astype(np.uint8)
+    inks[0, 0] = [255, 0, 0, 0]  # cyan ink only: yellow on this printer, cyan to Pillow
+    want = np.round(_ink_colour(inks / 255.0) * 255).astype(int)
+    blocks = Image.fromarray(inks.repeat(16, 0).repeat(16, 1), "CMYK")
+    icc = _cmyk_profile()
+    for suffix in (".tiff", ".jpg"):
+        path = tmp_path / f"print{suffix}"
+        blocks.save(path, icc_profile=icc, **({"quality": 100} if suffix == ".jpg" else {}))
+        img = load_image(path)
+        assert img.colour_profile == "head360 test CMYK", suffix
+        assert img.pixels.shape == (16, 12 * 16, 3)
+        got = img.pixels[8::16, 8::16].astype(int)
+        assert np.abs(got - want).max() <= 2, (suffix, got - want)
+        assert got[0, 0].tolist() == [255, 255, 0]
+        naive = np.asarray(Image.open(path).convert("RGB"))[8::16, 8::16].astype(int)
+        assert np.abs(naive - want).max() >= 200  # what reading it without the profile gave
+        assert describe_image(path)["converted"] is True
