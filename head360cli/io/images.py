@@ -389,7 +389,8 @@ def load_image(
         The image and how it was transformed.
 
     Raises:
-        BadInputError: Missing file, or more than ``max_pixels`` pixels.
+        BadInputError: Missing file, more than ``max_pixels`` pixels, or (unless
+            ``keep_alpha``) transparent everywhere.
         FileFormatError: Empty, unreadable or truncated file.
     """
     from PIL import Image, ImageOps
@@ -432,6 +433,12 @@ def load_image(
             upright = upright.resize(new, Image.Resampling.LANCZOS)
         if profile is None:
             upright, profile = _to_srgb(upright)
+        if not keep_alpha and _has_alpha(upright) and \
+                upright.convert("RGBA").getextrema()[3][1] == 0:
+            # one colour once composited: the fit said "no face found" in a photo whose
+            # faces show in a viewer that ignores transparency
+            raise BadInputError(f"expected an image with visible pixels, found "
+                                f"{str(path)!r} fully transparent (alpha 0 everywhere)")
         pixels = _to_rgb_array(upright, keep_alpha, background)
         scale = pixels.shape[1] / full_w
     return LoadedImage(

@@ -115,6 +115,28 @@ def test_rgba_composited_or_kept(tmp_path):
     assert kept.pixels[0, 3, 3] == 0 and kept.pixels[0, 0, 3] == 255
 
 
+def test_a_fully_transparent_image_is_refused_unless_alpha_is_kept(tmp_path, run_cli):
+    """A PNG (or GIF) whose pixels all have alpha 0 composited to plain white, and the fit
+    said "no face found (try --detector cnn)" of a photo whose face a viewer that ignores
+    transparency shows. A cut-out with some pixels visible still loads."""
+    rgba = np.full((32, 32, 4), 200, np.uint8)
+    rgba[..., 3] = 0
+    Image.fromarray(rgba).save(tmp_path / "clear.png")
+    Image.fromarray(rgba).convert("P").save(tmp_path / "clear.gif", transparency=0)
+    for name in ("clear.png", "clear.gif"):
+        with pytest.raises(BadInputError, match=r"expected an image with visible pixels, "
+                                                r"found '.*clear\....' fully transparent"):
+            load_image(tmp_path / name)
+        assert load_image(tmp_path / name, keep_alpha=True).pixels[..., 3].max() == 0
+    rgba[0, 0, 3] = 255  # one visible pixel: composited as before
+    Image.fromarray(rgba).save(tmp_path / "cutout.png")
+    pixels = load_image(tmp_path / "cutout.png").pixels
+    assert tuple(pixels[0, 0]) == (200, 200, 200) and tuple(pixels[5, 5]) == (255, 255, 255)
+    r = run_cli("parse-hair", tmp_path / "clear.png", "-o", tmp_path / "out")
+    assert r.code == 3 and r.err.count("\n") == 1 and "fully transparent" in r.err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("orientation, expect_size", [(1, (40, 30)), (3, (40, 30)),
                                                        (6, (30, 40)), (8, (30, 40))])
 def test_exif_orientation_is_applied(tmp_path, orientation, expect_size):
