@@ -551,12 +551,15 @@ def check_fit_outputs(photo: Any, out: str | Path) -> None:
     """Refuse a fit whose outputs would replace its own photo, a ``<stem>_preview.png``
     head360 did not write, or a ``<stem>.json`` that an earlier fit did not write (a
     LabelMe annotation beside ``photo.jpg``, say): each would be lost without a word.
+    An empty file holds nothing to lose and is replaced (the shell's, for ``head360
+    --json fit photo.jpg -o me.h360 > me.json``).
 
     Raises:
         BadInputError: Either, naming the file and how to avoid it.
     """
     import os
 
+    from head360cli.io.atomic import empty_file
     from head360cli.io.images import check_companion_png
 
     paths = fit_outputs(out)
@@ -567,7 +570,7 @@ def check_fit_outputs(photo: Any, out: str | Path) -> None:
                                     f"{what} {str(path)!r} would replace it: give -o "
                                     f"another name")
     summary, found = paths["summary"], None
-    if summary.exists():
+    if summary.exists() and not empty_file(summary):  # empty: ``--json > me.json``'s
         try:
             found = json.loads(summary.read_text(encoding="utf-8"))
         except (OSError, ValueError):  # unreadable, not UTF-8 or not JSON

@@ -16,10 +16,26 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "atomic_paths", "check_dir_target", "check_file_target",
-           "check_folder_name", "check_name_length", "check_replaceable", "check_writable",
-           "commit_dir", "current_umask", "remove_leftovers", "replace_keeping_mode",
-           "short_name", "temp_dir_beside", "temp_name_beside", "write_target"]
+__all__ = [
+    "atomic_dir",
+    "atomic_path",
+    "atomic_paths",
+    "check_dir_target",
+    "check_file_target",
+    "check_folder_name",
+    "check_name_length",
+    "check_replaceable",
+    "check_writable",
+    "commit_dir",
+    "current_umask",
+    "empty_file",
+    "remove_leftovers",
+    "replace_keeping_mode",
+    "short_name",
+    "temp_dir_beside",
+    "temp_name_beside",
+    "write_target",
+]
 
 
 def write_target(target: str | os.PathLike[str]) -> Path:
@@ -106,6 +122,18 @@ def remove_leftovers(folder: Path, prefix: str, suffix: str) -> list[Path]:
             continue
         removed.append(entry)
     return removed
+
+
+def empty_file(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a plain file of no bytes (through a symbolic link): nothing is
+    lost by writing over it. The shell makes one for ``> me.json`` before the command
+    runs, so a result redirected to the name of a file the command writes itself is
+    found there empty. A named pipe, which also reads as size 0, is not one."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return False
+    return stat.S_ISREG(st.st_mode) and st.st_size == 0
 
 
 def replace_keeping_mode(tmp: Path, target: Path) -> None:

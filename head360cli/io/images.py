@@ -484,8 +484,11 @@ def check_companion_png(path: str | os.PathLike[str], what: str) -> None:
     ``NAME.h360``) over a file head360 did not write: it may be the user's photo.
 
     Raises:
-        BadInputError: ``path`` exists and is not a PNG marked by :func:`png_info`.
+        BadInputError: ``path`` exists and is not a PNG marked by :func:`png_info` or an
+            empty file (:func:`~head360cli.io.atomic.empty_file`).
     """
-    if os.path.lexists(path) and not written_by_head360(path):
+    from head360cli.io.atomic import empty_file
+
+    if os.path.lexists(path) and not written_by_head360(path) and not empty_file(path):
         raise BadInputError(f"expected to write the {what} as {str(path)!r}, found a file "
                             f"head360 did not write there: move it or give -o another name")

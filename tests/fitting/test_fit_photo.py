@@ -4,6 +4,7 @@ scikit-image's astronaut photo (ships with scikit-image, so these always run).""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -156,6 +157,18 @@ def test_a_fit_does_not_replace_its_photo_or_a_json_it_did_not_write(run_cli, as
     labelme.write_text(json.dumps({**dict.fromkeys(FIT_SUMMARY_KEYS, 0),
                                    "files": {"preview": str(preview)}}))
     check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
+    # empty files hold nothing to lose: ``head360 --json fit ... > astronaut.json`` was
+    # refused, the shell having made the file before head360 ran
+    labelme.write_text("")
+    preview.write_bytes(b"")
+    check_fit_outputs(astronaut, tmp_path / "astronaut.h360")
+    from head360cli.io.atomic import empty_file
+
+    assert empty_file(labelme) and empty_file(preview) and not empty_file(tmp_path)
+    assert not empty_file(tmp_path / "none.json")
+    if hasattr(os, "mkfifo"):  # a pipe also reads as size 0, and is refused elsewhere
+        os.mkfifo(tmp_path / "pipe.json")
+        assert not empty_file(tmp_path / "pipe.json")
 
 
 def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
