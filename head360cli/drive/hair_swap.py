@@ -17,8 +17,15 @@ from head360cli.errors import BadInputError
 __all__ = ["list_styles", "parse_colour", "style_sheet", "swap_hair"]
 
 
+_COLOUR_SPELLINGS = {"gray": "grey", "blond": "blonde", "darkbrown": "dark brown",
+                     "lightbrown": "light brown"}
+"""Other spellings of the colour names (the option is ``--color`` too), written without
+spaces, to the names of :data:`~head360cli.synth.hair.HAIR_COLOURS`."""
+
+
 def parse_colour(text) -> tuple[str, np.ndarray]:
-    """A hair colour from a SynHead-P colour name (``"dark brown"``), an sRGB hex code
+    """A hair colour from a SynHead-P colour name (``"dark brown"``; ``"gray"`` and
+    ``"blond"`` are taken for ``"grey"`` and ``"blonde"``), an sRGB hex code
     (``"#6b4423"`` or ``"#642"``) or three linear RGB numbers in [0, 1]
     (``"0.2,0.1,0.05"``, or from Python a sequence or array of three).
 
@@ -35,6 +42,7 @@ def parse_colour(text) -> tuple[str, np.ndarray]:
         values = np.asarray(text, dtype=object).reshape(-1)
         text = ",".join(str(v) for v in values) if len(values) == 3 else repr(text)
     name = " ".join(text.strip().lower().replace("_", " ").replace("-", " ").split())
+    name = _COLOUR_SPELLINGS.get(name.replace(" ", ""), name)
     if name in HAIR_COLOURS:
         return name, np.asarray(HAIR_COLOURS[name], np.float64)
     t = text.strip().lower()  # numbers keep their signs

@@ -24,6 +24,9 @@ def test_parse_colour_forms():
     _, rgb = parse_colour("#888")  # CSS's short form: #888888
     assert rgb == pytest.approx(parse_colour("#888888")[1])
     assert parse_colour("  dark   brown ")[0] == "dark brown"
+    # American spellings (the option is --color) and names run together were refused
+    assert [parse_colour(t)[0] for t in ("gray", "Blond", "darkbrown", "LightBrown")] == [
+        "grey", "blonde", "dark brown", "light brown"]
     for bad in ("purple", "#12345", "#gg0000", "1,2,3", "0.1,0.2", "#ggg"):
         with pytest.raises(BadInputError):
             parse_colour(bad)
