@@ -13,13 +13,15 @@ code  exception              meaning
 1     (any other)            an internal error: a bug, please report it
 2     (click usage error)    unknown option, missing argument, bad option value
 3     BadInputError          the input's content is invalid (NaN in a stream,
-                             image too large, missing or unreadable file, bad
-                             parameter value), or the output cannot be written
+                             image too large or transparent everywhere, missing
+                             or unreadable file, bad parameter value, a deleted
+                             current folder), or the output cannot be written
                              (no permission, a read-only file or disk, a full
                              disk, a file-size limit, a full standard output)
 4     NoFaceError            no face was found where one was needed
 5     FileFormatError        a file is unreadable, truncated, corrupted, of an
-                             unsupported version or unsafe (pickles)
+                             unsupported version or unsafe (pickles), or model
+                             weights hold NaN or infinity
 6     ModelMismatchError     a file was made with another model than the one
                              loaded, or a checkpoint's config does not fit
 7     ModelNotFoundError     a model file or an optional package the command
