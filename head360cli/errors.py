@@ -111,11 +111,19 @@ EXIT_CODES: dict[str, int] = {
 
 def is_out_of_memory(exc: BaseException) -> bool:
     """Whether ``exc`` says that memory ran out: Python's or numpy's ``MemoryError``,
-    torch's ``OutOfMemoryError`` (a GPU's), or torch's failed CPU allocation (a
-    ``RuntimeError`` that says "can't allocate memory"). torch is not imported here."""
+    torch's ``OutOfMemoryError`` (a GPU's), torch's failed CPU allocation (a
+    ``RuntimeError`` that says "can't allocate memory"), or a library that could not be
+    mapped into memory (an ``ImportError`` or ``OSError`` saying "failed to map segment",
+    or ``ENOMEM``: under ``ulimit -v``, importing torch or OpenCV was an internal
+    error). torch is not imported here."""
+    import errno
     import sys
 
     if isinstance(exc, MemoryError):
+        return True
+    if isinstance(exc, ImportError | OSError) and (
+            getattr(exc, "errno", None) == errno.ENOMEM
+            or "failed to map segment" in str(exc)):
         return True
     torch = sys.modules.get("torch")
     oom = getattr(torch, "OutOfMemoryError", None) if torch is not None else None

@@ -334,6 +334,9 @@ def test_internal_errors_and_debug(run_cli, monkeypatch):
                   "can't allocate memory: you tried to allocate 3221225472 bytes. Error "
                   "code 12 (Cannot allocate memory)"), "the CPU could not allocate 3.0 GiB"),
     ("torch", "CUDA out of memory. Tried to allocate 2.00 GiB"),
+    (ImportError("libtorch_cpu.so: failed to map segment from shared object"),
+     "libtorch_cpu.so: failed to map segment"),
+    (OSError(12, "Cannot allocate memory"), "Cannot allocate memory"),
 ])
 def test_out_of_memory_exits_8_with_a_hint(run_cli, monkeypatch, error, says):
     """Running out of memory is no bug to report: its own exit code, one line that says
@@ -651,6 +654,25 @@ def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
     r = run(0, "fit", "-", "-o", tmp_path / "x.h360")
     assert r.returncode == 3
     assert b"on standard input ('-'), found it closed" in r.stderr, r.stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RLIMIT_AS as on Linux")
+def test_a_library_that_does_not_fit_under_ulimit_v_is_out_of_memory(head_file, tmp_path):
+    """Under ``ulimit -v`` torch's library could not be mapped: "internal error:
+    ImportError: libtorch_cpu.so: failed to map segment from shared object ... please
+    report it", exit 1, where memory had run out (exit 8)."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (400 * 2**20, 400 * 2**20))
+
+    out = tmp_path / "v.png"
+    r = subprocess.run([sys.executable, "-m", "head360cli", "render", str(head_file),
+                        "--size", "32", "-o", str(out)], capture_output=True, timeout=300,
+                       preexec_fn=limit)
+    assert r.returncode == 8, r.stderr
+    assert r.stderr.decode().startswith("head360: error: out of memory (")
+    assert not out.exists()
 
 
 @pytest.mark.skipif(os.name != "posix", reason="removing the current folder")
