@@ -1176,6 +1176,18 @@ from head360cli import cli_drive  # noqa: E402,F401  (registers them on `cli`)
 # --------------------------------------------------------------------------- entry point
 
 
+def _address_space_limit() -> str:
+    """`` (at most N MiB: ulimit -v)`` where the process's address space is limited."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):  # no such limit on this system
+        return ""
+    return "" if soft == resource.RLIM_INFINITY else \
+        f" (at most {soft / 2**20:.0f} MiB: ulimit -v)"
+
+
 def _memory_shortfall(exc: BaseException) -> str:
     """What an out-of-memory error says, in a few words: a GPU's first two sentences
     ("CUDA out of memory. Tried to allocate 2.00 GiB"), the size a CPU allocation asked
@@ -1347,6 +1359,12 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
 
 def _internal(exc: Exception, debug: bool, as_json: bool) -> int:
     """Report an exception no head360 error class names: out of memory, else a bug."""
+    if is_out_of_memory(exc) and "failed to map segment" in str(exc):
+        # a library that could not be mapped: no option asks for less of that
+        message = (f"out of memory ({_memory_shortfall(exc)}): head360's libraries need "
+                   f"more memory than this process may have{_address_space_limit()}: "
+                   f"raise the limit or free memory")
+        return _failed("OutOfMemory", message, EXIT_CODES["out_of_memory"], debug, as_json)
     if is_out_of_memory(exc):  # not a bug: a resource the user can free or ask less of
         message = (f"out of memory ({_memory_shortfall(exc)}): ask for less at once (a "
                    f"smaller --size or --samples; animate: fewer frames a call, --batch), "
