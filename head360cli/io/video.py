@@ -274,17 +274,23 @@ class _Encoder:
         import imageio_ffmpeg
 
         self.shown = shown
+        self.sent = 0
+        self._log = tempfile.TemporaryFile()  # noqa: SIM115 (closed once ffmpeg is done)
+        # ffmpeg's count of the frames it encoded: it can exit 0 having encoded none
+        handle, progress = tempfile.mkstemp(prefix="head360-ffmpeg-", suffix=".txt")
+        os.close(handle)
+        self._progress = Path(progress)
         cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
                "-s", f"{width}x{height}", "-pix_fmt", "rgb24",
                "-r", str(Fraction(fps).limit_denominator()), "-i", "-", "-an", *args,
-               "-v", level, str(path)]
-        self._log = tempfile.TemporaryFile()  # noqa: SIM115 (closed once ffmpeg is done)
+               "-v", level, "-progress", str(self._progress), str(path)]
         try:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE,
                                           stdout=subprocess.DEVNULL, stderr=self._log,
                                           start_new_session=True)
         except BaseException:
             self._log.close()
+            self._progress.unlink(missing_ok=True)
             raise
 
     def send(self, frame: np.ndarray) -> None:
@@ -299,6 +305,7 @@ class _Encoder:
             self._proc.stdin.write(frame.data)
         except OSError:  # ffmpeg has stopped reading: it failed
             raise self._failure() from None
+        self.sent += 1
 
     def close(self) -> None:
         """Let ffmpeg finish the file and wait for it.
@@ -308,7 +315,7 @@ class _Encoder:
                 ffmpeg writes the file's end (a full disk at the mp4's index).
         """
         self._close_stdin()
-        if self._proc.wait() != 0:
+        if self._proc.wait() != 0 or self._encoded() < self.sent:
             raise self._failure()
         text = self._messages()
         if text:
@@ -323,6 +330,17 @@ class _Encoder:
         self._proc.wait()
         self._close_stdin()
         self._log.close()
+        self._progress.unlink(missing_ok=True)
+
+    def _encoded(self) -> int:
+        """The frames ffmpeg says it encoded (the last ``frame=`` of its progress
+        report; 0 without one)."""
+        try:
+            lines = self._progress.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return 0
+        counts = [line[6:] for line in lines.splitlines() if line.startswith("frame=")]
+        return int(counts[-1]) if counts and counts[-1].strip().isdigit() else 0
 
     def _close_stdin(self) -> None:
         with contextlib.suppress(OSError):  # a broken pipe: the exit status tells
@@ -333,6 +351,7 @@ class _Encoder:
         self._log.seek(0)
         text = self._log.read().decode("utf-8", "replace")
         self._log.close()
+        self._progress.unlink(missing_ok=True)
         return text
 
     def _failure(self) -> Exception:
@@ -343,6 +362,7 @@ class _Encoder:
 
         self._close_stdin()
         code = self._proc.wait()
+        encoded = self._encoded()
         text = self._messages()
         lower = text.lower()
         where = str(self.shown)
@@ -357,6 +377,11 @@ class _Encoder:
         if "permission denied" in lower or "read-only file system" in lower:
             return BadInputError(f"cannot write {where!r}: permission denied or a read-only "
                                  f"file system: write elsewhere {kept}")
+        if "resource temporarily unavailable" in lower:  # EAGAIN: threads refused
+            return BadInputError(f"cannot write {where!r}: ffmpeg could not start its "
+                                 f"threads (resource temporarily unavailable): the limit on "
+                                 f"processes and threads (ulimit -u, a container's pids "
+                                 f"limit) is reached; raise it or run fewer jobs {kept}")
         lines = [line.strip() for line in text.splitlines() if line.strip()]
         if lines:
             detail = lines[-1]
@@ -364,6 +389,9 @@ class _Encoder:
             detail = f"stopped by signal {signal.Signals(-code).name}"
         else:
             detail = "no message"
+        if code == 0:  # it exited as if all went well
+            return RuntimeError(f"ffmpeg encoded {encoded} of the {self.sent} "
+                                f"frames of {where!r}: {detail}")
         return RuntimeError(f"ffmpeg could not write {where!r} (exit status {code}): "
                             f"{detail}")
 

@@ -214,6 +214,51 @@ def test_an_ffmpeg_failure_is_one_line_with_its_message(tmp_path):
     assert "\n" not in str(info.value)
 
 
+_FAKE_FFMPEG = """#!{python}
+import sys
+args = sys.argv[1:]
+sys.stdin.buffer.read()
+with open(args[args.index("-progress") + 1], "w") as f:
+    f.write("frame={frames}\\nprogress=end\\n")
+with open(args[-1], "wb") as f:
+    f.write(b"a header and no frames")
+sys.stderr.write({message!r} + "\\n")
+sys.exit({code})
+"""
+
+
+@pytest.mark.skipif(os.name != "posix", reason="a fake ffmpeg as a script")
+@pytest.mark.parametrize("code, frames, message, error, says", [
+    (0, 0, "[out#0/mp4] Output file is empty, nothing was encoded", RuntimeError,
+     r"ffmpeg encoded 0 of the 3 frames of .*: \[out#0/mp4\] Output file is empty"),
+    (0, 2, "", RuntimeError, "ffmpeg encoded 2 of the 3 frames of .*: no message"),
+    (245, 0, "[vost#0:0/libx264] pthread_create() failed: Resource temporarily unavailable",
+     BadInputError, r"could not start its threads .*ulimit -u.*nothing half-written"),
+])
+def test_an_encoder_that_exits_0_without_every_frame_is_an_error(tmp_path, monkeypatch,
+                                                                  code, frames, message,
+                                                                  error, says):
+    """Under a limit on processes (``ulimit -u``, a container's pids limit) ffmpeg could
+    not start its scaler's threads, encoded no frame and exited 0: the animation was a
+    261-byte mp4 with no frames, exit 0. ffmpeg's own count of the frames it encoded is
+    now checked against those sent, and its refused threads say which limit to raise."""
+    import sys
+
+    import imageio_ffmpeg
+
+    fake = tmp_path / "ffmpeg"
+    fake.write_text(_FAKE_FFMPEG.format(python=sys.executable, frames=frames,
+                                        message=message, code=code))
+    fake.chmod(0o755)
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", lambda: str(fake))
+    out = tmp_path / "take.mp4"
+    out.write_bytes(b"the previous take")
+    with pytest.raises(error, match=says):
+        write_video((np.zeros((16, 16, 3), np.uint8) for _ in range(3)), out, fps=10)
+    assert out.read_bytes() == b"the previous take"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ffmpeg", "take.mp4"]
+
+
 def test_bad_arguments(tmp_path):
     with pytest.raises(BadInputError, match="does not exist"):
         VideoWriter(tmp_path / "nope" / "a.mp4")
