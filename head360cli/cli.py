@@ -1370,6 +1370,11 @@ def _internal(exc: Exception, debug: bool, as_json: bool) -> int:
                    f"smaller --size or --samples; animate: fewer frames a call, --batch), "
                    f"free memory, or use another --device")
         return _failed("OutOfMemory", message, EXIT_CODES["out_of_memory"], debug, as_json)
+    if isinstance(exc, RuntimeError) and "can't start new thread" in str(exc):
+        # Python's own thread refused (EAGAIN): a limit of the system, not a bug
+        message = ("cannot start a thread: the limit on processes and threads (ulimit -u, "
+                   "a container's pids limit) is reached; raise it or run fewer jobs")
+        return _failed("BadInputError", message, BadInputError.exit_code, debug, as_json)
     message = " ".join(f"{type(exc).__name__}: {exc}".split())
     return _failed("InternalError", message, EXIT_CODES["internal"], debug, as_json,
                    label="internal error",

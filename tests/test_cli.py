@@ -657,6 +657,22 @@ def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
     assert b"on standard input ('-'), found it closed" in r.stderr, r.stderr
 
 
+def test_a_thread_refused_by_the_process_limit_is_one_line_exit_3(run_cli, monkeypatch):
+    """``ulimit -u 4`` (another user; a container's pids limit): fit's parse thread could
+    not start, "internal error: RuntimeError: can't start new thread ... please report
+    it", exit 1."""
+    def refused(*args, **kwargs):
+        raise RuntimeError("can't start new thread")
+
+    monkeypatch.setattr("head360cli.report.inspect_file", refused)
+    r = run_cli("inspect", SAMPLE_STREAM)
+    assert r.code == 3 and r.err.strip().splitlines() == [
+        "head360: error: cannot start a thread: the limit on processes and threads (ulimit "
+        "-u, a container's pids limit) is reached; raise it or run fewer jobs"]
+    j = run_cli("inspect", SAMPLE_STREAM, "--json")
+    assert j.code == 3 and json.loads(j.out)["error"]["exit_code"] == 3
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RLIMIT_AS as on Linux")
 def test_a_library_that_does_not_fit_under_ulimit_v_is_out_of_memory(head_file, tmp_path):
     """Under ``ulimit -v`` torch's library could not be mapped: "internal error:
