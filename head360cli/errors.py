@@ -17,7 +17,8 @@ code  exception              meaning
                              or unreadable file, bad parameter value, a deleted
                              current folder), or the output cannot be written
                              (no permission, a read-only file or disk, a full
-                             disk, a file-size limit, a full standard output)
+                             disk, a file-size limit, a full standard output),
+                             or the process limit refused a thread
 4     NoFaceError            no face was found where one was needed
 5     FileFormatError        a file is unreadable, truncated, corrupted, of an
                              unsupported version or unsafe (pickles), or model
@@ -27,7 +28,8 @@ code  exception              meaning
 7     ModelNotFoundError     a model file or an optional package the command
                              needs is not installed
 8     (out of memory)        the CPU's or the GPU's memory ran out (MemoryError,
-                             torch's OutOfMemoryError or failed CPU allocation)
+                             torch's OutOfMemoryError or failed CPU allocation),
+                             or a library could not be mapped (``ulimit -v``)
 129   (SIGHUP)               the terminal or ssh session closed; as for 130
 130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
 143   (SIGTERM)              terminated (``kill``, ``timeout``); as for 130
