@@ -287,22 +287,20 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
     try:
         if pool is None:  # they import torch while this process renders
             pool = Workers(workers)
+        if pool.error is None:
+            try:
+                c2w = _send(pool, renderer, c2w, weights, intrinsics, hair, block, workers)
+                torch.set_num_threads(threads)
+            except RuntimeError as exc:
+                if "shared memory" not in str(exc):
+                    raise
+                # /dev/shm too small for the renderer's tensors (a container's 64 MB
+                # or less): an internal error, where one process can do the work
+                pool.error = (f"no room in shared memory for the head ({_shm_size()}): "
+                              f"{' '.join(str(exc).split())[:160]}")
+                pool.close()
         if pool.error is not None:
             failed = _failed(counts, pool.error)
-        else:
-            c2w = c2w.detach().cpu().contiguous().share_memory_()
-            weights = np.ascontiguousarray(weights, np.float32)
-            # the spawned processes get a copy of the renderer without its last run's
-            # reuse (which this process replaces as it renders) and without the
-            # bilinear model and float64 deltas it was made from, which frames do not
-            # read (74 MB pickled by value; 600 frames: peaks 663 -> 595 MiB here, 623
-            # -> 478 MiB in the spawned process); pickling it here moves its tensors
-            # into shared memory
-            shipped = copy.copy(renderer)
-            shipped.last_reuse = shipped.model = shipped.deltas = None
-            pool.send((shipped, c2w, weights, intrinsics, hair, block, workers,
-                       AHEAD * workers))
-            torch.set_num_threads(threads)
         for i in range(len(blocks)):
             while i not in done:
                 if failed is not None:  # render what is left here, with every core
@@ -336,6 +334,36 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
         torch.set_num_threads(own_threads)
         if pool is not None:
             pool.close()
+
+
+def _send(pool: Workers, renderer, c2w, weights: np.ndarray, intrinsics, hair: bool,
+          block: int, workers: int):
+    """Give the spawned processes the job; returns ``c2w`` in shared memory.
+
+    They get a copy of the renderer without its last run's reuse (which this process
+    replaces as it renders) and without the bilinear model and float64 deltas it was
+    made from, which frames do not read (74 MB pickled by value; 600 frames: peaks 663
+    -> 595 MiB here, 623 -> 478 MiB in the spawned process); pickling it here moves its
+    tensors into shared memory.
+
+    Raises:
+        RuntimeError: torch found no room in shared memory (``/dev/shm``).
+    """
+    c2w = c2w.detach().cpu().contiguous().share_memory_()
+    weights = np.ascontiguousarray(weights, np.float32)
+    shipped = copy.copy(renderer)
+    shipped.last_reuse = shipped.model = shipped.deltas = None
+    pool.send((shipped, c2w, weights, intrinsics, hair, block, workers, AHEAD * workers))
+    return c2w
+
+
+def _shm_size() -> str:
+    """``/dev/shm``'s size, in words (``"/dev/shm holds 16 MiB"``)."""
+    try:
+        st = os.statvfs("/dev/shm")
+    except OSError:
+        return "no /dev/shm"
+    return f"/dev/shm holds {st.f_blocks * st.f_frsize / 2**20:.0f} MiB"
 
 
 def _failed(counts: dict[str, Any] | None, why: str) -> str:

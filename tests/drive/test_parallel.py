@@ -184,6 +184,35 @@ def test_processes_that_cannot_start_leave_the_frames_to_this_one(renderer, monk
     assert np.abs(got.astype(int) - ref).max() <= 1
 
 
+def test_no_room_in_shared_memory_leaves_the_frames_to_this_one(renderer, monkeypatch):
+    """A container's small /dev/shm (16 MiB, measured by mounting one): pickling the head
+    for the spawned processes failed with torch's "unable to allocate shared memory",
+    and ``animate`` of a long take stopped as an internal error. It renders alone."""
+    from head360cli.drive import parallel
+
+    def full(*args, **kwargs):
+        raise RuntimeError("unable to allocate shared memory(shm) for file "
+                           "</torch_1_2_3>: No space left on device (28)")
+
+    monkeypatch.setattr(parallel.Workers, "send", full)
+    n = 6
+    w, k, cams, ref = _turning(renderer, n, 20.0, 0.0)
+    counts = {}
+    got = np.stack(list(parallel_frames(renderer, cams, w, k, workers=2, block=2,
+                                        counts=counts)))
+    assert np.abs(got.astype(int) - ref).max() <= 1
+    assert counts.get("spawned_blocks", 0) == 0
+    assert "no room in shared memory for the head (" in counts["warnings"][0]
+    assert "No space left on device" in counts["warnings"][0]
+
+    def other(*args, **kwargs):  # any other error is not taken for a full /dev/shm
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(parallel.Workers, "send", other)
+    with pytest.raises(RuntimeError, match="a bug"):
+        list(parallel_frames(renderer, cams, w, k, workers=2, block=2))
+
+
 def test_auto_workers():
     assert auto_workers(MIN_FRAMES - 1, "cpu", cpus=8) == 1  # too short to pay
     assert auto_workers(MIN_FRAMES, "cpu", cpus=2) == 2
