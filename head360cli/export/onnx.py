@@ -282,8 +282,9 @@ def _graph_worker(conn) -> None:
 def _export_pair(renderer, out: Path, bald: Path, cull: bool, meta: dict[str, Any],
                  progress: Any) -> bool:
     """Trace the hair graph here and the bald one in a spawned process at the same time.
-    If the process cannot be started or dies without an answer, the bald graph is traced
-    here afterwards; an error it reports is raised here. Returns whether it made the
+    If the process cannot be started, the head does not fit in shared memory (a
+    container's small ``/dev/shm``) or the process dies without an answer, the bald
+    graph is traced here afterwards; an error it reports is raised here. Returns whether it made the
     bald graph."""
     import copy
     import multiprocessing
@@ -303,7 +304,14 @@ def _export_pair(renderer, out: Path, bald: Path, cull: bool, meta: dict[str, An
         shipped.last_reuse = None  # a render's leftovers, not needed to trace
         here.send_bytes(bytes(ForkingPickler.dumps((shipped, False, bald, cull, meta))))
         spawned = True
-    except OSError:  # not started, or gone before it took the job
+    except Exception as exc:
+        if proc.pid is not None:  # it waits for a job that will not come
+            proc.terminate()
+            proc.join(timeout=10)
+        # not started, gone before it took the job, or no room in /dev/shm for the
+        # head's tensors (torch's RuntimeError): traced here instead
+        if not (isinstance(exc, OSError) or "shared memory" in str(exc)):
+            raise
         spawned = False
     try:
         _export_graph(renderer, True, out, cull, meta)

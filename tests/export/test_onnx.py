@@ -347,6 +347,41 @@ def test_export_writes_the_graphs_and_inputs_as_one_set(head_file, tmp_path, mon
     assert len(traced) == 4 and not long.exists()
 
 
+def test_no_room_in_shared_memory_traces_both_graphs_here(head_file, monkeypatch):
+    """A container's small /dev/shm (16 MiB): pickling the head for the process tracing
+    the bald graph failed with torch's "unable to allocate shared memory", and
+    ``export-onnx`` stopped as an internal error. Both graphs are traced here, and the
+    process waiting for the job is ended at once, not after the 30 s join."""
+    import time
+    from multiprocessing.reduction import ForkingPickler
+
+    import head360cli.export.onnx as onnx_export
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    traced = []
+    monkeypatch.setattr(onnx_export, "_export_graph",
+                        lambda renderer, hair, path, cull, meta: traced.append(hair))
+
+    def full(*args, **kwargs):
+        raise RuntimeError("unable to allocate shared memory(shm) for file "
+                           "</torch_1_2_3>: No space left on device (28)")
+
+    monkeypatch.setattr(ForkingPickler, "dumps", full)
+    r = load_head_renderer(head_file, samples=2, size=32)
+    start = time.perf_counter()
+    spawned = onnx_export._export_pair(r, Path("g.onnx"), Path("g_bald.onnx"), True, {},
+                                       None)
+    assert spawned is False and traced == [True, False]
+    assert time.perf_counter() - start < 20
+
+    def other(*args, **kwargs):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(ForkingPickler, "dumps", other)
+    with pytest.raises(RuntimeError, match="a bug"):
+        onnx_export._export_pair(r, Path("g.onnx"), Path("g_bald.onnx"), True, {}, None)
+
+
 def test_inspect_tells_what_an_exported_graph_takes(run_cli, exported):
     """``head360 inspect gen.onnx``: the graph's inputs and head360's export metadata, as
     the runner reads them."""
