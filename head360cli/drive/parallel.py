@@ -184,16 +184,22 @@ class Workers:
             raise ValueError(f"expected at least 2 workers, found {workers}")
         ctx = multiprocessing.get_context("spawn")
         self.workers = workers
-        self.counter = ctx.Value("i", 0)  # the next block not yet taken
-        self.written = ctx.Value("i", 0)  # blocks yielded so far
-        self.results = ctx.Queue()
-        self.jobs = ctx.Queue()
-        self.procs = [ctx.Process(target=_worker, daemon=True, args=(
-            self.jobs, self.counter, self.written, self.results, os.getpid()))
-            for _ in range(workers - 1)]
+        self.procs = []
         self.closed = False
         self.error: str | None = None
         """Why the processes could not be started (they were ended), or ``None``."""
+        try:
+            self.counter = ctx.Value("i", 0)  # the next block not yet taken
+            self.written = ctx.Value("i", 0)  # blocks yielded so far
+            self.results = ctx.Queue()
+            self.jobs = ctx.Queue()
+        except OSError as exc:  # no POSIX semaphores: /dev/shm read-only or missing
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.closed = True
+            return
+        self.procs = [ctx.Process(target=_worker, daemon=True, args=(
+            self.jobs, self.counter, self.written, self.results, os.getpid()))
+            for _ in range(workers - 1)]
         try:
             for p in self.procs:  # returns at once: the arguments are small
                 p.start()
@@ -329,7 +335,8 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
                 if len(got) > 4 and counts is not None:  # (pid, its peak memory)
                     counts.setdefault("peaks", {})[got[4][0]] = got[4][1]
             yield from done.pop(i)
-            pool.written.value = i + 1
+            if failed is None:
+                pool.written.value = i + 1
     finally:
         torch.set_num_threads(own_threads)
         if pool is not None:

@@ -213,6 +213,28 @@ def test_no_room_in_shared_memory_leaves_the_frames_to_this_one(renderer, monkey
         list(parallel_frames(renderer, cams, w, k, workers=2, block=2))
 
 
+def test_no_semaphores_leave_the_frames_to_this_one(renderer, monkeypatch):
+    """A read-only /dev/shm (measured by mounting one; AWS Lambda has none): the
+    processes' shared counter needs a POSIX semaphore there, and ``animate`` of a long
+    take stopped with "Read-only file system (/dev/shm/pym-...): write elsewhere", exit
+    3, as if the video could not be written. It renders alone."""
+    import multiprocessing.context
+
+    def no_semaphores(self, *args, **kwargs):
+        raise OSError(30, "Read-only file system", "/dev/shm/pym-1-x")
+
+    monkeypatch.setattr(multiprocessing.context.BaseContext, "Value", no_semaphores)
+    pool = Workers(2)
+    assert pool.closed and pool.procs == [] and "Read-only file system" in pool.error
+    n = 6
+    w, k, cams, ref = _turning(renderer, n, 20.0, 0.0)
+    counts = {}
+    got = np.stack(list(parallel_frames(renderer, cams, w, k, block=2, counts=counts,
+                                        pool=pool)))
+    assert np.abs(got.astype(int) - ref).max() <= 1
+    assert "Read-only file system" in counts["warnings"][0]
+
+
 def test_auto_workers():
     assert auto_workers(MIN_FRAMES - 1, "cpu", cpus=8) == 1  # too short to pay
     assert auto_workers(MIN_FRAMES, "cpu", cpus=2) == 2
