@@ -64,6 +64,38 @@ def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
     assert "o hair" not in (tmp_path / "p" / "frame_00000.obj").read_text()
 
 
+def test_a_mesh_sequence_the_disk_has_no_room_for_stops_after_its_first_frame(
+        head_file, tmp_path, monkeypatch):
+    """A 3046-frame take is about 3.9 GB of OBJs; on a disk with less it ran minutes
+    before the disk filled. The first OBJ's size tells: the rest are refused then."""
+    import shutil
+
+    from head360cli.drive.bake import write_mesh_sequence
+    from head360cli.errors import BadInputError
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    renderer = load_head_renderer(head_file, samples=2, size=32)
+    usage = shutil.disk_usage(tmp_path)
+    written = []
+
+    def progress(stage, done, total):
+        written.append(done)
+
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=10_000_000))
+    with pytest.raises(BadInputError, match=r"expected room for 40 OBJ frames of about "
+                                            r"1\.\d MB each \(\d\d MB\) for .*seq', "
+                                            r"found 10 MB free: write them elsewhere"):
+        write_mesh_sequence(renderer, np.zeros((40, 52), np.float32), tmp_path / "seq",
+                            texture_size=32, progress=progress)
+    assert written == [] and sorted(p.name for p in tmp_path.iterdir()) == []
+    # room for the rest (at 98 % of the first one's size each): written
+    room = 8 * 1_500_000
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=room))
+    write_mesh_sequence(renderer, np.zeros((9, 52), np.float32), tmp_path / "seq",
+                        texture_size=32, progress=progress)
+    assert len(list((tmp_path / "seq").glob("*.obj"))) == 9
+
+
 def test_baking_from_no_views_is_refused_before_any_work():
     """Before, an empty view list reached torch.cat's own message after the texel pass."""
     from head360cli.drive.bake import bake_head
