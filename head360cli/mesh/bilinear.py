@@ -257,14 +257,18 @@ def read_model_file(path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         raise FileFormatError(f"{path}: not a readable model file ({exc})") from exc
     try:
         meta = json.loads(str(data.pop("__meta__")))
-        assert meta.get("format") == "head360-bilinear"
-        assert int(meta.get("format_version", 0)) <= MODEL_FORMAT
+        # checked in words, not by assert: ``python -O`` drops asserts, and with them
+        # the refusal of another program's or a newer version's file
+        kind, version = meta.get("format"), int(meta.get("format_version", 0))
+        if kind != "head360-bilinear" or version > MODEL_FORMAT:
+            raise ValueError(f"format {kind!r} version {version}; head360 reads "
+                             f"'head360-bilinear' up to version {MODEL_FORMAT}")
         fields = {f.name for f in dataclasses.fields(BilinearModel)} - {"meta"}
         optional = {"landmark_tri", "landmark_bary"}  # added after format version 1
         missing = sorted(fields - optional - set(data))
         if missing:
             raise KeyError(", ".join(missing))
-    except (KeyError, AssertionError, ValueError, TypeError) as exc:
+    except (KeyError, ValueError, TypeError) as exc:
         raise FileFormatError(f"{path}: expected a head360 bilinear model ({exc!r})") from exc
     meta["sha256"] = content_hash(
         {k: v for k, v in data.items()}, {k: v for k, v in meta.items() if k != "sha256"})

@@ -125,6 +125,41 @@ def test_load_errors(tmp_path):
         load_bilinear(tmp_path / "other.npz")
 
 
+def test_another_format_or_a_newer_version_is_refused_even_under_python_O(corpus,
+                                                                          tmp_path):
+    """The format and version were checked with ``assert``, which ``python -O`` (and
+    PYTHONOPTIMIZE=1) drops: a newer version's model file then loaded as if it were
+    this one's, and without -O the message said only "AssertionError()"."""
+    import json
+    import subprocess
+    import sys
+
+    from head360cli.mesh.bilinear import MODEL_FORMAT
+
+    ids, topo = corpus
+    build_bilinear(ids, 3, topo).save(tmp_path / "m.npz")
+    with np.load(tmp_path / "m.npz") as npz:
+        data = {k: npz[k] for k in npz.files}
+    meta = json.loads(str(data["__meta__"]))
+    for name, change in (("newer", {"format_version": MODEL_FORMAT + 1}),
+                         ("other", {"format": "someone-else"})):
+        np.savez(tmp_path / f"{name}.npz", **{**data, "__meta__": np.array(json.dumps(
+            {**meta, **change}))})
+    with pytest.raises(FileFormatError, match=rf"version {MODEL_FORMAT + 1}; head360 "
+                                              rf"reads 'head360-bilinear' up to version "
+                                              rf"{MODEL_FORMAT}"):
+        load_bilinear(tmp_path / "newer.npz")
+    with pytest.raises(FileFormatError, match="format 'someone-else'"):
+        load_bilinear(tmp_path / "other.npz")
+    code = ("import sys; from head360cli.errors import FileFormatError;"
+            "from head360cli.mesh.bilinear import read_model_file\n"
+            "try:\n read_model_file(sys.argv[1])\nexcept FileFormatError as e:\n"
+            " print('refused:', e)")
+    r = subprocess.run([sys.executable, "-O", "-c", code, str(tmp_path / "newer.npz")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.stdout.startswith("refused:"), (r.stdout, r.stderr)
+
+
 def test_loads_of_one_file_share_read_only_arrays_until_it_changes(corpus, tmp_path):
     ids, topo = corpus
     path = tmp_path / "m.npz"
