@@ -315,7 +315,9 @@ class _Encoder:
                 ffmpeg writes the file's end (a full disk at the mp4's index).
         """
         self._close_stdin()
-        if self._proc.wait() != 0 or self._encoded() < self.sent:
+        code = self._proc.wait()
+        encoded = self._encoded()  # read once ffmpeg has ended
+        if code != 0 or (encoded is not None and encoded < self.sent):
             raise self._failure()
         text = self._messages()
         if text:
@@ -332,15 +334,17 @@ class _Encoder:
         self._log.close()
         self._progress.unlink(missing_ok=True)
 
-    def _encoded(self) -> int:
+    def _encoded(self) -> int | None:
         """The frames ffmpeg says it encoded (the last ``frame=`` of its progress
-        report; 0 without one)."""
+        report), or ``None`` without a report (a full temporary folder: then only the
+        exit status is checked)."""
         try:
             lines = self._progress.read_text(encoding="utf-8", errors="replace")
         except OSError:
-            return 0
-        counts = [line[6:] for line in lines.splitlines() if line.startswith("frame=")]
-        return int(counts[-1]) if counts and counts[-1].strip().isdigit() else 0
+            return None
+        counts = [line[6:].strip() for line in lines.splitlines()
+                  if line.startswith("frame=")]
+        return int(counts[-1]) if counts and counts[-1].isdigit() else None
 
     def _close_stdin(self) -> None:
         with contextlib.suppress(OSError):  # a broken pipe: the exit status tells

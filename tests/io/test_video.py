@@ -218,8 +218,10 @@ _FAKE_FFMPEG = """#!{python}
 import sys
 args = sys.argv[1:]
 sys.stdin.buffer.read()
-with open(args[args.index("-progress") + 1], "w") as f:
-    f.write("frame={frames}\\nprogress=end\\n")
+frames = {frames!r}  # None: a progress report that could not be written
+if frames is not None:
+    with open(args[args.index("-progress") + 1], "w") as f:
+        f.write("frame={frames}\\nprogress=end\\n")
 with open(args[-1], "wb") as f:
     f.write(b"a header and no frames")
 sys.stderr.write({message!r} + "\\n")
@@ -257,6 +259,26 @@ def test_an_encoder_that_exits_0_without_every_frame_is_an_error(tmp_path, monke
         write_video((np.zeros((16, 16, 3), np.uint8) for _ in range(3)), out, fps=10)
     assert out.read_bytes() == b"the previous take"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ffmpeg", "take.mp4"]
+
+
+@pytest.mark.skipif(os.name != "posix", reason="a fake ffmpeg as a script")
+def test_an_encoder_without_a_progress_report_is_judged_by_its_exit_status(tmp_path,
+                                                                           monkeypatch):
+    """A full temporary folder leaves ffmpeg's progress report empty: the frame count
+    is then unknown, not 0, and a video ffmpeg finished is kept as before."""
+    import sys
+
+    import imageio_ffmpeg
+
+    fake = tmp_path / "ffmpeg"
+    fake.write_text(_FAKE_FFMPEG.format(python=sys.executable, frames=None, message="",
+                                        code=0))
+    fake.chmod(0o755)
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", lambda: str(fake))
+    out = tmp_path / "take.mp4"
+    assert write_video((np.zeros((16, 16, 3), np.uint8) for _ in range(3)), out,
+                       fps=10) == 3
+    assert out.read_bytes() == b"a header and no frames"
 
 
 def test_bad_arguments(tmp_path):
