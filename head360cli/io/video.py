@@ -280,7 +280,18 @@ class _Encoder:
         handle, progress = tempfile.mkstemp(prefix="head360-ffmpeg-", suffix=".txt")
         os.close(handle)
         self._progress = Path(progress)
-        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
+        try:
+            exe = imageio_ffmpeg.get_ffmpeg_exe()
+        except RuntimeError as exc:  # imageio-ffmpeg without its binary, none on PATH
+            from head360cli.errors import ModelNotFoundError
+
+            self._log.close()
+            self._progress.unlink(missing_ok=True)
+            why = " ".join(str(exc).split())[:120]
+            raise ModelNotFoundError(f"no ffmpeg to write videos ({why}): reinstall "
+                                     f"imageio-ffmpeg, or name one in IMAGEIO_FFMPEG_EXE"
+                                     ) from None
+        cmd = [exe, "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
                "-s", f"{width}x{height}", "-pix_fmt", "rgb24",
                "-r", str(Fraction(fps).limit_denominator()), "-i", "-", "-an", *args,
                "-v", level, "-progress", str(self._progress), str(path)]
@@ -288,9 +299,22 @@ class _Encoder:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE,
                                           stdout=subprocess.DEVNULL, stderr=self._log,
                                           start_new_session=True)
-        except BaseException:
+        except BaseException as exc:
             self._log.close()
             self._progress.unlink(missing_ok=True)
+            if isinstance(exc, OSError):  # missing, not executable, not a program
+                from head360cli.errors import ModelNotFoundError
+
+                why = exc.strerror or str(exc)
+                if os.environ.get("IMAGEIO_FFMPEG_EXE"):
+                    message = (f"cannot run ffmpeg {cmd[0]!r}, named by IMAGEIO_FFMPEG_EXE, "
+                               f"to write videos ({why}): point it at an ffmpeg program "
+                               f"or unset it")
+                else:
+                    message = (f"cannot run the ffmpeg that imageio-ffmpeg ships "
+                               f"({cmd[0]!r}) to write videos ({why}): reinstall "
+                               f"imageio-ffmpeg")
+                raise ModelNotFoundError(message) from None
             raise
 
     def send(self, frame: np.ndarray) -> None:

@@ -281,6 +281,39 @@ def test_an_encoder_without_a_progress_report_is_judged_by_its_exit_status(tmp_p
     assert out.read_bytes() == b"a header and no frames"
 
 
+@pytest.mark.parametrize("exe", ["missing", "not_a_program"])
+def test_an_ffmpeg_that_cannot_run_is_exit_7(tmp_path, monkeypatch, exe):
+    """IMAGEIO_FFMPEG_EXE naming a missing file (or imageio-ffmpeg's binary gone) was an
+    internal error to report (FileNotFoundError), exit 1; a file that is no program
+    said only "Permission denied"."""
+    from head360cli.errors import ModelNotFoundError
+
+    path = tmp_path / exe
+    if exe == "not_a_program":
+        path.write_text("not ffmpeg")
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(path))
+    out = tmp_path / "take.mp4"
+    with pytest.raises(ModelNotFoundError, match=rf"cannot run ffmpeg '.*{exe}', named by "
+                                                 r"IMAGEIO_FFMPEG_EXE, to write videos \("
+                                                 r".*\): point it at an ffmpeg program"):
+        write_video((np.zeros((16, 16, 3), np.uint8) for _ in range(3)), out, fps=10)
+    assert not out.exists()
+    monkeypatch.delenv("IMAGEIO_FFMPEG_EXE")
+    monkeypatch.setattr("imageio_ffmpeg.get_ffmpeg_exe", lambda: str(path))
+    with pytest.raises(ModelNotFoundError, match="reinstall imageio-ffmpeg"):
+        write_video((np.zeros((16, 16, 3), np.uint8) for _ in range(3)), out, fps=10)
+
+    def none_found():
+        raise RuntimeError("No ffmpeg exe could be found. Install ffmpeg on your system, "
+                           "or set the IMAGEIO_FFMPEG_EXE environment variable.")
+
+    monkeypatch.setattr("imageio_ffmpeg.get_ffmpeg_exe", none_found)
+    with pytest.raises(ModelNotFoundError, match=r"no ffmpeg to write videos \(No ffmpeg "
+                                                 r"exe could be found.*\): reinstall"):
+        write_video((np.zeros((16, 16, 3), np.uint8) for _ in range(3)), out, fps=10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ([exe] if path.exists() else [])
+
+
 def test_bad_arguments(tmp_path):
     with pytest.raises(BadInputError, match="does not exist"):
         VideoWriter(tmp_path / "nope" / "a.mp4")
