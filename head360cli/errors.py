@@ -26,7 +26,7 @@ code  exception              meaning
 6     ModelMismatchError     a file was made with another model than the one
                              loaded, or a checkpoint's config does not fit
 7     ModelNotFoundError     a model file or an optional package the command
-                             needs is not installed
+                             needs is not installed, or ffmpeg cannot be run
 8     (out of memory)        the CPU's or the GPU's memory ran out (MemoryError,
                              torch's OutOfMemoryError or failed CPU allocation),
                              or a library could not be mapped (``ulimit -v``)
