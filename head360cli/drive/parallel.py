@@ -300,8 +300,8 @@ def parallel_frames(renderer, c2w, weights: np.ndarray, intrinsics, hair: bool =
             except RuntimeError as exc:
                 if "shared memory" not in str(exc):
                     raise
-                # /dev/shm too small for the renderer's tensors (a container's 64 MB
-                # or less): an internal error, where one process can do the work
+                # /dev/shm too small for the renderer's tensors (16 MiB failed here,
+                # 64 did not; a container's may be small): this process renders
                 pool.error = (f"no room in shared memory for the head ({_shm_size()}): "
                               f"{' '.join(str(exc).split())[:160]}")
                 pool.close()

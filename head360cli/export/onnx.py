@@ -284,8 +284,8 @@ def _export_pair(renderer, out: Path, bald: Path, cull: bool, meta: dict[str, An
     """Trace the hair graph here and the bald one in a spawned process at the same time.
     If the process cannot be started, the head does not fit in shared memory (a
     container's small ``/dev/shm``) or the process dies without an answer, the bald
-    graph is traced here afterwards; an error it reports is raised here. Returns whether it made the
-    bald graph."""
+    graph is traced here afterwards; an error it reports is raised here. Returns
+    whether it made the bald graph."""
     import copy
     import multiprocessing
     from multiprocessing.reduction import ForkingPickler

@@ -418,7 +418,8 @@ class _Encoder:
         else:
             detail = "no message"
         if code == 0:  # it exited as if all went well
-            return RuntimeError(f"ffmpeg encoded {encoded} of the {self.sent} "
+            told = "an unknown number" if encoded is None else str(encoded)
+            return RuntimeError(f"ffmpeg encoded {told} of the {self.sent} "
                                 f"frames of {where!r}: {detail}")
         return RuntimeError(f"ffmpeg could not write {where!r} (exit status {code}): "
                             f"{detail}")
