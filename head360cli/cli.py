@@ -79,7 +79,9 @@ class InputPath(click.Path):
             name, text = _param_name(param), repr(os.fspath(value))
             if not os.path.exists(value):
                 if self.exists:
-                    raise BadInputError(f"{text} ({name}) does not exist")
+                    from head360cli.io.sources import missing
+
+                    raise missing(value, f"{text} ({name}) does not exist")
             else:
                 error = _kind_error(self, value, name, text)
                 if error is not None:

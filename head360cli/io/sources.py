@@ -10,6 +10,8 @@ seekable buffer instead; a regular file is passed on as its path.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import io
 import os
 import stat
@@ -128,6 +130,15 @@ def missing(path: str | os.PathLike[str], message: str) -> Exception:
         return BadInputError(f"expected a local file, found a URL ({text!r}): head360 does "
                              f"not download; fetch it first, or pipe it in as '-' "
                              f"(curl -s URL | head360 ... -)")
+    if os.path.islink(text):  # it is there, in a listing: say why it does not count
+        try:
+            os.stat(text)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                return BadInputError(f"{message} (a loop of symbolic links)")
+        with contextlib.suppress(OSError):
+            return BadInputError(f"{message} (a symbolic link to {os.readlink(text)!r}, "
+                                 f"which does not exist)")
     return BadInputError(message)
 
 

@@ -4,6 +4,7 @@ given a pipe."""
 from __future__ import annotations
 
 import io
+import os
 
 import numpy as np
 import pytest
@@ -79,6 +80,24 @@ def test_existing_says_what_is_missing_or_a_folder(tmp_path):
         existing(tmp_path, "a head file")
     buf = NamedBytes(b"abc", "pipe")
     assert existing(buf, "anything") is buf
+
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="symbolic links")
+def test_a_broken_symbolic_link_says_why_it_is_missing(tmp_path, run_cli, head_file):
+    """``ls`` lists a dangling link or a loop of links, and "no such file" alone read as
+    a wrong name."""
+    (tmp_path / "photo.jpg").symlink_to(tmp_path / "moved.jpg")
+    (tmp_path / "loop.csv").symlink_to(tmp_path / "loop.csv")
+    with pytest.raises(BadInputError, match=r"no such file: '.*photo\.jpg' \(a symbolic "
+                                            r"link to '.*moved\.jpg', which does not "
+                                            r"exist\)$"):
+        existing(tmp_path / "photo.jpg", "an image file")
+    with pytest.raises(BadInputError, match=r"\(a loop of symbolic links\)$"):
+        existing(tmp_path / "loop.csv", "a stream")
+    r = run_cli("animate", head_file, "--arkit", tmp_path / "loop.csv", "-o",
+                tmp_path / "a.mp4")
+    assert r.code == 3 and r.err.strip().endswith("does not exist (a loop of symbolic "
+                                                  "links)"), r.err
 
 
 def test_input_stem_names_outputs_after_the_input(tmp_path, pipe):
