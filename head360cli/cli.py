@@ -281,8 +281,10 @@ def info() -> None:
             f"{d['model']}, {d['memory_gib']} GiB")
         lines.append(f"  {d['name']:<13} {extra}")
     lines.append(f"  selected      {report['device']}")
+    telemetry = {True: " (usage telemetry on)", False: " (usage telemetry off)"}.get(
+        report["onnxruntime_telemetry"], "")
     lines.append(f"  onnxruntime   {', '.join(report['onnxruntime_providers']) or 'none'}"
-                 f" (usage telemetry {'on' if report['onnxruntime_telemetry'] else 'off'})")
+                 f"{telemetry}")
     lines.append(f"models ({report['models_dir']}):")
     if not report["models"]:
         lines.append("  (no model files installed yet)")

@@ -59,7 +59,8 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         missing), ``devices``, ``models_dir``, ``models`` (name, bytes, sha256) and
         ``dlib_models`` (which dlib weights are installed), ``shared_data``, ``cache``
         (the folder of :mod:`head360cli.cache`, ``None`` when turned off) and
-        ``onnxruntime_telemetry`` (whether onnxruntime may keep and send usage events).
+        ``onnxruntime_telemetry`` (whether onnxruntime may keep and send usage events;
+        ``None`` without onnxruntime).
     """
     from head360cli import __version__
     from head360cli.paths import cache_dir, dlib_model_files, models_dir, shared_data_dir
@@ -125,7 +126,8 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         "devices": devices,
         "onnxruntime_providers": ort_providers,
         # head360cli's import sets it to 1 unless the user chose (see its __init__)
-        "onnxruntime_telemetry": os.environ.get("ORT_DISABLE_TELEMETRY", "").strip().lower()
+        "onnxruntime_telemetry": None if packages["onnxruntime"] is None else
+        os.environ.get("ORT_DISABLE_TELEMETRY", "").strip().lower()
         not in ("1", "true", "yes", "on", "y"),
         "models_dir": str(mdir),
         "models": models,
