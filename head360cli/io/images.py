@@ -350,11 +350,17 @@ def _has_alpha(img) -> bool:
     return img.mode in ("RGBA", "LA", "PA") or (img.mode == "P" and "transparency" in img.info)
 
 
-def _to_rgb_array(img, keep_alpha: bool, background: tuple[int, int, int]) -> np.ndarray:
+def _to_rgb_array(img, keep_alpha: bool, background: tuple[int, int, int],
+                  name: str) -> np.ndarray:
     if _has_alpha(img):
         rgba = np.asarray(img.convert("RGBA"))
         if keep_alpha:
             return np.ascontiguousarray(rgba)
+        if not rgba[..., 3].any():
+            # one colour once composited: the fit said "no face found" in a photo whose
+            # faces show in a viewer that ignores transparency
+            raise BadInputError(f"expected an image with visible pixels, found {name!r} "
+                                f"fully transparent (alpha 0 everywhere)")
         alpha = rgba[..., 3:4].astype(np.float32) / 255.0
         bg = np.asarray(background, dtype=np.float32)
         rgb = rgba[..., :3].astype(np.float32) * alpha + bg * (1.0 - alpha)
@@ -433,13 +439,7 @@ def load_image(
             upright = upright.resize(new, Image.Resampling.LANCZOS)
         if profile is None:
             upright, profile = _to_srgb(upright)
-        if not keep_alpha and _has_alpha(upright) and \
-                upright.convert("RGBA").getextrema()[3][1] == 0:
-            # one colour once composited: the fit said "no face found" in a photo whose
-            # faces show in a viewer that ignores transparency
-            raise BadInputError(f"expected an image with visible pixels, found "
-                                f"{str(path)!r} fully transparent (alpha 0 everywhere)")
-        pixels = _to_rgb_array(upright, keep_alpha, background)
+        pixels = _to_rgb_array(upright, keep_alpha, background, str(path))
         scale = pixels.shape[1] / full_w
     return LoadedImage(
         pixels=pixels,
