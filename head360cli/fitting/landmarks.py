@@ -41,7 +41,7 @@ import numpy as np
 
 from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
-__all__ = ["DETECTORS", "FALLBACK_SIDE", "LOW_CONTRAST_SPREAD", "MIRROR_68",
+__all__ = ["DETECTORS", "FALLBACK_SIDE", "FLAT_SPREAD", "LOW_CONTRAST_SPREAD", "MIRROR_68",
            "SMALL_RETRY_SIDE", "TURNED_SIDE", "TURNS", "DetectedFace", "LandmarkDetector",
            "ProfileFace", "find_faces", "find_profile", "hog_detector", "pick_face",
            "stretched", "turned_image", "upside_down"]
@@ -72,6 +72,10 @@ their brightness, dlib's landmark error (NME, % of the face's size, averaged lan
 read 4.01 / 4.42 / 4.82 / 3.81 % on the faces it found (5, 5, 3 and 1 of 5) and 3.80 /
 3.79 / 3.79 / 3.83 % on the stretched copies, every face found (3.82 % on the photos as
 they are)."""
+FLAT_SPREAD = 12.0
+"""Grey levels below which an image is left as it is: a blank or nearly blank one, whose
+stretch would only raise its noise (a flat grey with a grey level of noise spans about
+5 levels; a photo at 0.05 of its brightness 9 to 20)."""
 STRETCH_PIXELS = 1 << 20
 """At most about this many pixels (an even subsample) are read for the percentiles."""
 
@@ -343,14 +347,14 @@ def _averaged(predictor, img: np.ndarray, mirrored: np.ndarray,
 
 def stretched(rgb: np.ndarray) -> np.ndarray:
     """``rgb`` ``(H, W, 3)`` uint8 itself, or, when its luminance's 0.5th to 99.5th
-    percentile spans fewer than :data:`LOW_CONTRAST_SPREAD` grey levels, a copy whose
-    channels are mapped linearly (all three alike, keeping the hue) to put that span
-    on 0 to 255."""
+    percentile spans fewer than :data:`LOW_CONTRAST_SPREAD` grey levels (but at least
+    :data:`FLAT_SPREAD`), a copy whose channels are mapped linearly (all three alike,
+    keeping the hue) to put that span on 0 to 255."""
     step = max(1, int(np.sqrt(rgb.shape[0] * rgb.shape[1] / STRETCH_PIXELS)))
     sample = rgb[::step, ::step].reshape(-1, 3).astype(np.float32)
     lo, hi = np.percentile(sample @ np.array([0.299, 0.587, 0.114], np.float32),
                            [0.5, 99.5])
-    if hi - lo >= LOW_CONTRAST_SPREAD:
+    if not FLAT_SPREAD <= hi - lo < LOW_CONTRAST_SPREAD:
         return rgb
     gain = 255.0 / max(float(hi - lo), 1.0)
     lut = np.clip((np.arange(256, dtype=np.float32) - lo) * gain, 0, 255).round()

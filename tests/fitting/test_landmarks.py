@@ -326,6 +326,18 @@ def test_a_full_range_photo_is_not_stretched():
     assert stretched(img) is img
 
 
+def test_a_nearly_blank_image_is_not_stretched():
+    """A flat grey with a grey level or three of noise spans under ``FLAT_SPREAD``
+    levels: stretched, its noise would fill the range (and the hair parse read it as
+    hair everywhere)."""
+    from head360cli.fitting.landmarks import stretched
+
+    rng = np.random.default_rng(0)
+    for noise in (1.0, 2.0):
+        img = np.clip(128 + rng.normal(0, noise, (120, 160, 3)), 0, 255).astype(np.uint8)
+        assert stretched(img) is img
+
+
 def test_a_dark_photo_is_stretched_to_the_full_range_keeping_its_hue():
     """Brightness times 0.06 spans about 15 grey levels; the copy spans 0 to 255 at its
     0.5th and 99.5th percentiles, with the channels' order in each pixel kept."""
