@@ -2,7 +2,8 @@
 
 - Parity: one graph pair is exported (the mean head wearing a bob traces it), then ``heads``
   random heads (:func:`~head360cli.drive.sample.sample_heads`: random shape, texture,
-  hairstyle and colour; every fifth rendered bald, by the bald graph), each with a random
+  hairstyle and colour; every fifth rendered bald, by the bald graph; every third, since
+  stop 76, under a random light, a fit's ``colour_gain``), each with a random
   ARKit expression (a few weights up to 1, some extreme) and a random camera (any yaw,
   pitch within +-75 degrees), are rendered by torch in float32 and by onnxruntime from the
   same mesh; the largest absolute difference per image and over all.
@@ -91,12 +92,15 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     size, samples = runner.size, int(runner.meta["samples"])
     k = view_intrinsics(size)
     rng = np.random.default_rng(seed)
+    lights = np.random.default_rng(seed + 2)  # apart, so the heads' draws stay as they were
     rows, worst = [], 0.0
     for i, head in enumerate(sample_heads(heads, seed=seed + 1, lids=False)):
         a = head.arrays
+        # every third head under a light of its own, as a fit's (stop 76)
+        light = lights.uniform(0.6, 1.5, 3) if i % 3 == 2 else None
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"], samples=samples, size=size,
-                         precision="fp32")
+                         precision="fp32", colour_gain=light)
         w = random_expression(rng)
         yaw, pitch = float(rng.uniform(-180, 180)), float(rng.uniform(-75, 75))
         cam = view_cameras(yaw, pitch)
@@ -107,6 +111,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
         diff = float(np.abs(got - ref).max())
         worst = max(worst, diff)
         rows.append({"head": i, "hair_style": int(a["hair_style"]) if hair else 0,
+                     "light": None if light is None else [round(float(g), 3) for g in light],
                      "yaw": round(yaw, 1), "pitch": round(pitch, 1),
                      "active_weights": int((w > 0).sum()),
                      "max_abs_diff": diff, "finite": bool(np.isfinite(got).all())})

@@ -6,7 +6,7 @@ or read from a head file and the exported extras):
     verts (1, V, 3), texture (1, C, R, R), c2w (1, 4, 4), intrinsics (1, 3, 3)
     [+ hair_verts (1, HAIR_VERTS, 3), hair_faces (HAIR_FACES, 3),
        hair_planes (1, P, C + 2, r, r)]
-        -> rgb (1, 3, S, S)
+        -> rgb (1, 3, S, S) in [0, 1], alpha (1, 1, S, S)
 
 (hair meshes are padded to fixed sizes, so one graph serves all 30 hairstyles).
 
@@ -17,7 +17,10 @@ rays near a surface are found with ``NonZero``, so only they are decoded, as in 
 The projection and the rasterizer's coverage test are written element by element, so
 onnxruntime covers exactly the pixels torch covers (a matrix product rounds differently in
 each, and one flipped pixel on a silhouette changed images by 7e-3). Samples per ray and
-the image size are fixed at export.
+the image size are fixed at export. A fitted head's light (its ``colour_gain``) is
+applied to the graph's output with its ``alpha``, outside the graph, as torch applies it
+(:func:`~head360cli.model.render.lit`); graphs exported before stop 76 have no ``alpha``
+and cannot draw such a head.
 
 :class:`OnnxFrameRunner` runs the graphs in onnxruntime with the same arguments as
 :class:`FrameModel` (numpy arrays instead of tensors); it imports neither torch nor the
@@ -36,8 +39,13 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["HAIR_FACES", "HAIR_VERTS", "OnnxFrameRunner", "export_onnx", "head_inputs",
-           "pad_hair"]
+__all__ = ["HAIR_FACES", "HAIR_VERTS", "NO_ALPHA", "OnnxFrameRunner", "export_onnx",
+           "head_inputs", "pad_hair"]
+
+NO_ALPHA = ("expected an ONNX graph with an alpha output to draw a fitted head's light "
+            "(graphs exported before head360 stop 76 have none), found only rgb: export it "
+            "again with head360 export-onnx")
+"""The error for a head with a light of its own and a graph without ``alpha``."""
 
 META_KEY = "head360"
 """Metadata key of the export settings stored in each ONNX file."""
@@ -90,7 +98,8 @@ def _frame_model(gen, hair: bool):
                 h = Hair([(hair_verts[0], hair_faces, uv)],
                          torch.zeros(1, dtype=torch.long), torch.zeros(1, 3),
                          [hair_planes])
-            return self.gen(verts, c2w, intrinsics, texture=texture, hair=h)["rgb"].clamp(0, 1)
+            out = self.gen(verts, c2w, intrinsics, texture=texture, hair=h)
+            return out["rgb"].clamp(0, 1), out["alpha"]
 
     return FrameModel().eval()
 
@@ -249,7 +258,7 @@ def _export_graph(renderer, hair: bool, path: Path, cull: bool, meta: dict[str, 
         with torch.no_grad(), gen.samples_per_ray(renderer.samples), \
                 gen.image_size(renderer.size), static_windows(), _quiet_exporter():
             program = torch.onnx.export(model, args, input_names=names,
-                                        output_names=["rgb"], dynamo=True,
+                                        output_names=["rgb", "alpha"], dynamo=True,
                                         opset_version=18, verbose=False, **kwargs)
             if tidy:
                 _tidy(program.model)
@@ -348,7 +357,8 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
     with a lid change ``lids (2, C, R, R)`` (its left and right eye's parts), ``lid_from
     (2,)`` and ``lid_weights (2,)`` (the indices of eyeBlinkLeft / Right; see
     :meth:`~head360cli.model.head_render.HeadRenderer.textures`), and for a head with hair
-    ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``."""
+    ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``; for a head with
+    a light of its own (a fit's), ``colour_gain (3,)``."""
     out = {"base": renderer.neutral.astype(np.float32),
            "deltas": renderer.deltas.astype(np.float32),
            "expression": renderer.expression.astype(np.float32),
@@ -357,6 +367,8 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
         out.update(lids=renderer.lids.detach().cpu().numpy().astype(np.float32),
                    lid_from=renderer.lid_from.astype(np.float32),
                    lid_weights=np.asarray(renderer.blink_index, np.int64))
+    if renderer.colour_gain is not None:
+        out["colour_gain"] = renderer.colour_gain.reshape(3).cpu().numpy().astype(np.float32)
     if renderer.hair is not None:
         hv, hf, _ = renderer.hair.meshes[0]
         out.update(hair_verts=hv[None].cpu().numpy().astype(np.float32),
@@ -412,6 +424,9 @@ class OnnxFrameRunner:
         self.size = int(self.meta["size"])
         self.provider = self.sessions[True].get_providers()[0]
         """The execution provider that runs the graph."""
+        self.has_alpha = all(len(sess.get_outputs()) > 1 for sess in self.sessions.values())
+        """Whether the graphs give ``alpha`` beside ``rgb`` (those exported before stop 76
+        do not), which a head with a light of its own needs."""
 
     def __call__(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
                  intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,
@@ -419,6 +434,15 @@ class OnnxFrameRunner:
                  hair_planes: np.ndarray | None = None) -> np.ndarray:
         """``rgb (1, 3, S, S)`` in [0, 1]; the arguments of the torch ``FrameModel`` as
         float32 (faces int64) arrays; no hair arguments renders the bald head."""
+        return self.frame(verts, texture, c2w, intrinsics, hair_verts, hair_faces,
+                          hair_planes)[0]
+
+    def frame(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
+              intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,
+              hair_faces: np.ndarray | None = None, hair_planes: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray | None]:
+        """As calling the runner, with the coverage: ``(rgb (1, 3, S, S), alpha (1, 1, S,
+        S))``, ``alpha`` ``None`` from a graph without it (:attr:`has_alpha`)."""
         hair = hair_verts is not None
         feeds = {"verts": verts, "texture": texture, "c2w": c2w, "intrinsics": intrinsics}
         if hair:
@@ -429,7 +453,8 @@ class OnnxFrameRunner:
         wanted = {i.name for i in sess.get_inputs()}
         feeds = {k: np.ascontiguousarray(v, np.int64 if k == "hair_faces" else np.float32)
                  for k, v in feeds.items() if k in wanted}
-        return sess.run(None, feeds)[0]
+        outs = sess.run(None, feeds)
+        return outs[0], (outs[1] if len(outs) > 1 else None)
 
     def render(self, inputs: dict[str, np.ndarray], weights: np.ndarray, c2w: np.ndarray,
                intrinsics: np.ndarray, hair: bool = True) -> np.ndarray:
@@ -453,5 +478,14 @@ class OnnxFrameRunner:
                                  inputs["lid_from"])[0]
             if (amount > 0).any():
                 texture = texture + np.tensordot(amount, inputs["lids"], 1)[None]
-        return self(verts[None], texture, np.asarray(c2w).reshape(1, 4, 4),
-                    np.asarray(intrinsics).reshape(1, 3, 3), **extra)
+        rgb, alpha = self.frame(verts[None], texture, np.asarray(c2w).reshape(1, 4, 4),
+                                np.asarray(intrinsics).reshape(1, 3, 3), **extra)
+        if "colour_gain" not in inputs:
+            return rgb
+        if alpha is None:
+            from head360cli.errors import FileFormatError
+
+            raise FileFormatError(NO_ALPHA)
+        back = 1.0 - alpha
+        gain = np.asarray(inputs["colour_gain"], np.float32).reshape(1, 3, 1, 1)
+        return np.clip(gain * (rgb - back) + back, 0.0, 1.0)

@@ -6,6 +6,7 @@ outputs atomically. The work itself lives in :mod:`head360cli.fitting.shape`,
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Callable
@@ -236,7 +237,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     if width < SMALL_FACE_PX:
         warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
                         "blurry")
-    if np.ptp(img.pixels.astype(np.int16), axis=2).max() <= 2:
+    if _greyscale(img.pixels):
         warnings.append("greyscale photo: the texture and hair colour will be grey")
     if on_face is not None:
         on_face(img, found)
@@ -456,14 +457,15 @@ held-out synthetic heads of corpus seed 1 (all 5 right) and scored within 0.05 d
 
 
 def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
-                      crop: np.ndarray, hair: np.ndarray, estimate: np.ndarray
-                      ) -> tuple[str, np.ndarray, str]:
+                      crop: np.ndarray, hair: np.ndarray, estimate: np.ndarray,
+                      gain=None) -> tuple[str, np.ndarray, str]:
     """The hair colour the fitted head wears: of the :data:`COLOUR_CANDIDATES` SynHead-P
     colours nearest the tone curve's ``estimate``, the one whose render in ``style`` from
     the photo's camera (``cam (4, 4)``, ``k (3, 3)`` for ``crop``) differs least from the
     photo's hair pixels (``crop (R, R, 3)`` uint8, ``hair (R, R)`` bool): ``(name, linear
     RGB, "render" or "tone curve")``. The generator renders a named colour close to, but
-    not exactly as, the corpus renderer whose look the tone curve was fitted to."""
+    not exactly as, the corpus renderer whose look the tone curve was fitted to. With
+    ``gain (3,)`` (the photo's light, a tensor) the renders are drawn under it."""
     import dataclasses
 
     import cv2
@@ -471,6 +473,7 @@ def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
 
     from head360cli.fitting.hair_class import nearest_colour_names, pick_colour_by_render
     from head360cli.model.generator import hair_for
+    from head360cli.model.render import lit
     from head360cli.synth.hair import HAIR_COLOURS
 
     size = COLOUR_RENDER_SIZE
@@ -490,7 +493,10 @@ def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
             np.asarray(rgb, np.float32)[None], device=verts.device)))
         with torch.no_grad(), gen.image_size(size):
             out = gen(verts[None], cam[None], small_k[None], texture=texture, hair=h)
-        return (out["rgb"][0].permute(1, 2, 0).clamp(0, 1).cpu().numpy(),
+        rgb = out["rgb"].clamp(0, 1)
+        if gain is not None:
+            rgb = lit(rgb, out["alpha"], gain.to(rgb)).clamp(0, 1)
+        return (rgb[0].permute(1, 2, 0).cpu().numpy(),
                 out["hair_alpha"][0, 0].cpu().numpy() > 0.5)
 
     candidates = nearest_colour_names(estimate, COLOUR_CANDIDATES)
@@ -722,13 +728,6 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     t0 = time.perf_counter()
     hair_crop = crop_mask(parse.hair, affine, res)
     face_crop = crop_mask(parse.face, affine, res)
-    colour_by, colour_s = "tone curve", 0.0
-    if style != 0:  # the colour check renders: timed with the classification
-        t1 = time.perf_counter()
-        colour_name, colour, colour_by = _colour_by_render(
-            gen, verts, cam, kk, start, neutral, style, crop, hair_crop, estimate)
-        colour_s = time.perf_counter() - t1
-        timings["classify"] += colour_s
     target = bald_target(crop, hair_crop, to_uint8(first["rgb"])[0])
     alpha = first["alpha"][0, 0].cpu().numpy() > 0.5
     weight = face_crop & alpha
@@ -737,8 +736,10 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                             f"{int(weight.sum())} pixels (is the face covered?)")
     valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
-    timings["bald_target"] = first_s + time.perf_counter() - t0 - colour_s
+    timings["bald_target"] = first_s + time.perf_counter() - t0
     cfg = PRESETS[preset]
+    if _greyscale(img.pixels):  # a grey photo shows no light's colour (and no skin's)
+        cfg = dataclasses.replace(cfg, gain=False)
     inv = invert_texture(
         gen, verts, cam, kk,
         torch.tensor(target, dtype=torch.float32, device=dev).permute(2, 0, 1) / 255.0,
@@ -747,6 +748,25 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev),
         held=torch.as_tensor(INNER_EYES, device=dev))
     timings["invert"] = inv.seconds + mirror_s  # its mirror grid was made beside the parse
+
+    # The hair's colour as it would look under white light: the photo's pixels without the
+    # light the inversion found, and the candidates rendered under it (timed with the
+    # classification, which it completes).
+    t0 = time.perf_counter()
+    colour_by = "tone curve"
+    if inv.gain is not None:
+        from head360cli.fitting.hair_class import hair_colour, nearest_colour_name
+        from head360cli.synth.hair import HAIR_COLOURS
+
+        gain = inv.gain.cpu().numpy().astype(np.float64)
+        unlit = np.clip(img.pixels / gain, 0, 255).round().astype(np.uint8)
+        estimate = hair_colour(unlit, parse.hair)
+        colour_name = nearest_colour_name(estimate)
+        colour = np.asarray(HAIR_COLOURS[colour_name], np.float32)
+    if style != 0:
+        colour_name, colour, colour_by = _colour_by_render(
+            gen, verts, cam, kk, start, neutral, style, crop, hair_crop, estimate, inv.gain)
+    timings["classify"] += time.perf_counter() - t0
     lids = None
     if closed_lids:
         from head360cli.fitting.lids import head_lids
@@ -770,7 +790,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     t0 = time.perf_counter()
     head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
                         samples=cfg.preview_samples, precision="fp32", hair_offset=offset,
-                        lid_change=None if lids is None else lids.change)
+                        lid_change=None if lids is None else lids.change,
+                        colour_gain=inv.gain)
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
@@ -798,7 +819,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                 "hair_color": colour.astype(np.float32),
                 "hair_offset": offset.astype(np.float32),
                 "vertices": neutral.astype(np.float32),
-                **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy()))},
+                **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy())),
+                **({} if inv.gain is None else
+                   {"colour_gain": inv.gain.cpu().numpy().astype(np.float32)})},
         model_hash=model_hash,
         info={"photo": Path(photo).name, "preset": preset, "face": face,
               "hair_style_name": HAIRSTYLES[style].name,
@@ -835,6 +858,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                            "hair_fraction": round(float(parse.hair.mean()), 4)},
             "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                           "loss_last": round(inv.losses[-1], 5)},
+            # the photo's light: the gain per channel on the head's pixels in every render
+            "light": None if inv.gain is None else [round(float(g), 4) for g in inv.gain],
             "closed_lids": None if lids is None else {
                 "loss_first": round(lids.loss_first, 5), "loss_last": round(lids.loss_last, 5),
                 "texels": lids.texels},
@@ -851,6 +876,11 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         }
         tmp_summary.write_text(dumps(summary, indent=1))
     return summary
+
+
+def _greyscale(pixels: np.ndarray) -> bool:
+    """Whether ``pixels (H, W, 3)`` uint8 are grey: no pixel's channels more than 2 apart."""
+    return bool(np.ptp(pixels.astype(np.int16), axis=2).max() <= 2)
 
 
 def _rig_intrinsics(res: int):
@@ -925,7 +955,8 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
                         a["hair_color"], a["expression"], samples=samples, size=size,
                         precision=precision,
                         reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
-                        hair_offset=a.get("hair_offset"), lid_change=lid_change_of(a))
+                        hair_offset=a.get("hair_offset"), lid_change=lid_change_of(a),
+                        colour_gain=a.get("colour_gain"))
 
 
 def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,

@@ -70,6 +70,7 @@ KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "vertices": (2, "f"),  # (V, 3) fitted neutral mesh
     "lid_index": (1, "i"),  # (N,) flat texel indices of the lid change (optional)
     "lid_change": (2, "f"),  # (C, N) the texture's change there, eyes closed (optional)
+    "colour_gain": (1, "f"),  # (3,) the photo's light on the head's pixels (optional)
 }
 """Array name -> (rank, kind: ``f`` float, ``i`` integer) for the arrays the pipeline uses."""
 

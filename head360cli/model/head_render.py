@@ -93,6 +93,9 @@ class HeadRenderer:
             ``eyeBlink`` weight ``b``, ``b / 0.6`` of it, all of it from 0.6 on
             (:func:`~head360cli.io.headfile.lid_amounts`). ``None``: the texture is the
             same in every frame.
+        colour_gain: ``(3,)`` the photo's light (a head file's ``colour_gain``): the
+            head's pixels are scaled by it per channel, the backdrop stays white
+            (:func:`~head360cli.model.render.lit`). ``None``: none.
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,
@@ -100,7 +103,8 @@ class HeadRenderer:
                  samples: int | None = None, size: int | None = None,
                  precision: str = "auto", reuse: float | None = REUSE_TOL,
                  hair_offset: np.ndarray | None = None,
-                 lid_change: torch.Tensor | np.ndarray | None = None) -> None:
+                 lid_change: torch.Tensor | np.ndarray | None = None,
+                 colour_gain: np.ndarray | torch.Tensor | None = None) -> None:
         from head360cli.devices import fast_bfloat16
         from head360cli.mesh.bilinear import load_bilinear
 
@@ -145,6 +149,17 @@ class HeadRenderer:
                              f"{np.asarray(hair_offset).tolist()}")
         """``(3,)`` metres every hairstyle this head wears is moved by (its fit's
         placement, :func:`head360cli.fitting.hair_class.place_hair`)."""
+        self.colour_gain = None
+        """``(1, 3, 1, 1)`` the photo's light on the head's pixels, or ``None``."""
+        if colour_gain is not None:
+            gain = (colour_gain.detach().cpu().double().numpy() if torch.is_tensor(colour_gain)
+                    else np.asarray(colour_gain, np.float64))
+            if gain.shape != (3,) or not np.isfinite(gain).all() or (gain <= 0).any():
+                raise ValueError("expected a colour gain of 3 positive finite numbers, found "
+                                 f"{gain.tolist()}")
+            if not np.allclose(gain, 1.0, rtol=0, atol=1e-6):
+                self.colour_gain = torch.tensor(gain, dtype=torch.float32,
+                                                device=self.device).view(1, 3, 1, 1)
         self.lids = None
         """``(2, C, R, R)``: the lid change on the left and on the right eye's texels,
         or ``None``."""
@@ -181,10 +196,22 @@ class HeadRenderer:
         arrays returning ``rgb (1, 3, S, S)`` in [0, 1], such as
         :class:`~head360cli.export.onnx.OnnxFrameRunner`. Its image size must be this
         renderer's (``runner.size``). The meshes still come from :meth:`vertices`, so both
-        backends see the same input."""
+        backends see the same input. A head with a light of its own (``colour_gain``)
+        needs the coverage too: ``runner.frame(...)`` returning ``(rgb, alpha (1, 1, S,
+        S))``, as the runner's ``has_alpha`` says.
+
+        Raises:
+            ValueError: A runner for another image size.
+            FileFormatError: This head has a light and the runner gives no alpha.
+        """
         size = getattr(runner, "size", self.size)
         if size != self.size:
             raise ValueError(f"expected a runner for {self.size} px images, found {size}")
+        if self.colour_gain is not None and not getattr(runner, "has_alpha", False):
+            from head360cli.errors import FileFormatError
+            from head360cli.export.onnx import NO_ALPHA
+
+            raise FileFormatError(NO_ALPHA)
         self.runner = runner
 
     def set_hair(self, hair_style: int, hair_colour: np.ndarray) -> None:
@@ -325,6 +352,8 @@ class HeadRenderer:
                 self.gen.network_dtype = own_dtype
 
     def _runner_frames(self, c2w, weights, k, hair, uint8):
+        from head360cli.model.render import lit
+
         extra = ()
         if hair and self.hair is not None:
             hv, hf, _ = self.hair.meshes[0]
@@ -337,14 +366,21 @@ class HeadRenderer:
             verts = self._vertices(w).cpu().numpy()
             tex = plain if self._lid_amounts(w) is None else \
                 self._textures(w).detach().cpu().numpy()
-            out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
-                                               *extra))
+            if self.colour_gain is None:
+                out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
+                                                   *extra))
+            else:
+                rgb, alpha = self.runner.frame(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
+                                               *extra)
+                out = lit(torch.from_numpy(rgb), torch.from_numpy(alpha),
+                          self.colour_gain.cpu()).clamp(0, 1)
             yield to_uint8(out) if uint8 else out
 
     def _frames(self, c2w, weights, k, hair, batch, uint8):
         if self.runner is not None:
             yield from self._runner_frames(c2w, weights, k, hair, uint8)
             return
+        from head360cli.model.render import lit
         from head360cli.model.reuse import DecodeReuse
 
         moves = not bool((c2w == c2w[:1]).all())
@@ -357,6 +393,8 @@ class HeadRenderer:
             w = np.asarray(weights[i:i + n], np.float32)
             verts = self._vertices(w)
             h = self.hair.repeat(n) if hair and self.hair is not None else None
-            out = self.gen(verts, cams, k, texture=self._textures(w),
-                           hair=h, reuse=reuse)["rgb"].clamp(0, 1)  # RefineNet may overshoot
+            res = self.gen(verts, cams, k, texture=self._textures(w), hair=h, reuse=reuse)
+            out = res["rgb"].clamp(0, 1)  # RefineNet may overshoot
+            if self.colour_gain is not None:  # as the exported graphs' runner does
+                out = lit(out, res["alpha"], self.colour_gain.to(out.dtype)).clamp(0, 1)
             yield to_uint8(out) if uint8 else out.cpu()

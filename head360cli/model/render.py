@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from head360cli.geometry.cameras import project
 from head360cli.geometry.rasterize import ZBuffer, rasterize
 
-__all__ = ["EMPTY", "composite", "samples_around", "screen_depth", "surface_samples"]
+__all__ = ["EMPTY", "composite", "lit", "samples_around", "screen_depth", "surface_samples"]
 
 
 EMPTY = 1e3
@@ -152,3 +152,14 @@ def composite(density: torch.Tensor, features: torch.Tensor, depths: torch.Tenso
     feats = (weights[..., None] * features).sum(-2)
     depth = (weights * depths).sum(-1) / acc.clamp_min(1e-6)
     return feats, acc, depth
+
+
+def lit(rgb: torch.Tensor, alpha: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+    """Images ``rgb (B, 3, H, W)`` composited on white, of coverage ``alpha (B, 1, H, W)``,
+    with the head's pixels scaled by ``gain`` (``(3,)`` or broadcastable to ``(B, 3, 1,
+    1)``: the colour of a photo's light) and the backdrop left white:
+    ``gain * (rgb - (1 - alpha)) + (1 - alpha)``."""
+    if gain.ndim == 1:
+        gain = gain.view(1, -1, 1, 1)
+    back = 1.0 - alpha
+    return gain * (rgb - back) + back

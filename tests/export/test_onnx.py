@@ -95,6 +95,38 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     assert np.abs(ref - r.render(cam, k, w).numpy()).max() > 1e-2  # the eyes moved
     got = runner.render(head_inputs(fitted), w, cam.numpy(), k.numpy())
     assert np.abs(got - ref).max() <= 1e-3
+    # a head with a light of its own (a fit's colour_gain): drawn from the graph's alpha,
+    # by the torch-free runner and through HeadRenderer.use_runner alike
+    lit = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour,
+                       samples=3, size=48, precision="fp32", colour_gain=[0.7, 1.0, 1.3])
+    assert runner.has_alpha
+    ref = lit.render(cam, k, w).numpy()
+    assert np.abs(ref - r.render(cam, k, w).numpy()).max() > 5e-2  # the light shows
+    got = runner.render(head_inputs(lit), w, cam.numpy(), k.numpy())
+    assert np.abs(got - ref).max() <= 1e-3
+    lit.use_runner(runner)
+    assert np.abs(lit.render(cam, k, w).numpy() - ref).max() <= 1e-3
+
+
+def test_a_graph_without_alpha_cannot_draw_a_heads_light(head_file):
+    """Graphs exported before stop 76 give only rgb: a head with a light is refused with
+    what to do, before any frame; a head without one renders from them as before."""
+    from head360cli.errors import FileFormatError
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.model.head_render import HeadRenderer
+
+    class OldRunner:
+        size, has_alpha = 48, False
+
+        def __call__(self, *args):
+            return np.ones((1, 3, 48, 48), np.float32)
+
+    r = load_head_renderer(head_file, samples=3, size=48, precision="fp32")
+    lit = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour,
+                       samples=3, size=48, precision="fp32", colour_gain=[0.7, 1.0, 1.3])
+    with pytest.raises(FileFormatError, match="export it again with head360 export-onnx"):
+        lit.use_runner(OldRunner())
+    r.use_runner(OldRunner())
 
 
 def test_pad_hair_refuses_oversized_meshes():

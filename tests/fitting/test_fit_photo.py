@@ -51,6 +51,9 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert s["psnr_face_input_view"] > 21.0
     assert s["inversion"]["loss_last"] < s["inversion"]["loss_first"]
     head = read_head(out)
+    # the photo's light, fitted with the texture, kept in the head and named in the summary
+    np.testing.assert_allclose(head.arrays["colour_gain"], s["light"], atol=1e-4)
+    assert all(0.5 < g < 2.0 for g in s["light"])
     assert head.arrays["texture"].shape[0] == 16 and np.isfinite(head.arrays["texture"]).all()
     assert int(head.arrays["hair_style"]) == s["hair_style"]["id"]
     # the hair placement: on the grid and saved in the head
@@ -389,6 +392,7 @@ def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
     assert any("greyscale" in w for w in s["warnings"]) and "greyscale" in r.err
     c = np.array(s["hair_color_estimate"])
     assert np.ptp(c) < 0.05  # grey hair from a grey photo
+    assert s["light"] is None  # a grey photo shows no light's colour
     assert np.isfinite(s["psnr_face_input_view"]) and s["psnr_face_input_view"] > 18
 
 

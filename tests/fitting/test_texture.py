@@ -234,7 +234,10 @@ def test_held_landmarks_stay_within_the_held_slack(scene):
     start[:3, 3] += 0.008 * start[:3, 1]
     points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
     seen, _ = project(points[None], start[None], batch.intrinsics[None])
-    cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4)
+    # The mechanism alone, without the light's gain: it moves with the camera in the
+    # first steps (after 10, the held eyes at most 0.0106, mean 0.0064; after the fast
+    # preset's 30, 0.0102 / 0.0050 with the gain against 0.0097 / 0.0068 without).
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4, gain=False)
     eyes = torch.zeros(len(points), dtype=torch.bool)
     eyes[19:31] = True  # iBUG 36-47
 
@@ -453,3 +456,31 @@ def test_mirror_grid_read_from_the_cache_is_the_one_made(tmp_path, monkeypatch):
         np.testing.assert_array_equal(grid[0].numpy(), made)
     assert len(list(tmp_path.glob("mirror-grid-*-32.npy"))) == 1
     mirror_grid.cache_clear()
+
+
+def test_the_light_of_a_photo_is_fitted(scene):
+    """The held-out head's render with its pixels' red and blue scaled (0.7, 1, 1.35; a
+    photo under a bluish light): the gain fitted to it, over the one fitted to the render
+    as it is, is that light's colour (the light over its geometric mean, as the gain
+    leaves the brightness to the texture) within 0.08 a channel, and the texture fits it
+    closer than without a gain. A fit without it reports none."""
+    from head360cli.model.render import lit
+
+    gen, codes, batch = scene
+    cfg = dataclasses.replace(PRESETS["fast"], steps=4, samples=4, patience=10, pose=False)
+    light = torch.tensor([0.7, 1.0, 1.35])
+    target = lit(batch.rgb, batch.alpha, light)[0]
+
+    def fit(image, config):
+        return invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, image,
+                              batch.alpha[0], codes.mean(0), config)
+
+    plain, under = fit(batch.rgb[0], cfg), fit(target, cfg)
+    for inv in (plain, under):
+        torch.testing.assert_close(inv.gain.log().mean(), torch.tensor(0.0), atol=1e-6,
+                                   rtol=0)
+    ratio = under.gain / plain.gain
+    torch.testing.assert_close(ratio, light / light.log().mean().exp(), atol=0.08, rtol=0)
+    without = fit(target, dataclasses.replace(cfg, gain=False))
+    assert without.gain is None
+    assert under.losses[-1] < 0.9 * without.losses[-1], (under.losses[-1], without.losses[-1])

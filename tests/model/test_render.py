@@ -77,3 +77,20 @@ def test_compositing_of_known_densities():
     assert torch.allclose(d, torch.tensor([[1.15]]))
     f0, a0, _ = composite(dens, feats, depths, torch.zeros(1, 1), shell=0.15)
     assert a0.item() == 0 and f0.item() == 0  # rays that pass no surface stay empty
+
+
+def test_lit_scales_the_head_and_leaves_the_backdrop_white():
+    """A pixel of colour c and coverage a composited on white, ``a c + 1 - a``, comes
+    out as ``a g c + 1 - a``: an empty pixel stays white, an opaque one is ``g c``."""
+    from head360cli.model.render import lit
+
+    alpha = torch.tensor([0.0, 0.5, 1.0]).view(1, 1, 1, 3)
+    colour = torch.tensor([0.2, 0.4, 0.6]).view(1, 3, 1, 1)
+    rgb = colour * alpha + (1 - alpha)
+    gain = torch.tensor([0.5, 1.0, 1.5])
+    out = lit(rgb, alpha, gain)
+    torch.testing.assert_close(out, gain.view(1, 3, 1, 1) * colour * alpha + (1 - alpha))
+    assert torch.equal(out[..., 0], torch.ones(1, 3, 1))
+    torch.testing.assert_close(out[0, :, 0, 2], torch.tensor([0.1, 0.4, 0.9]))
+    # a (B, 3, 1, 1) gain works as well as a (3,) one
+    torch.testing.assert_close(lit(rgb, alpha, gain.view(1, 3, 1, 1)), out)
