@@ -758,9 +758,10 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         from head360cli.fitting.hair_class import hair_colour, nearest_colour_name
         from head360cli.synth.hair import HAIR_COLOURS
 
+        # the hair pixels only: a 4096-pixel photo as float64 would take 400 MB
         gain = inv.gain.cpu().numpy().astype(np.float64)
-        unlit = np.clip(img.pixels / gain, 0, 255).round().astype(np.uint8)
-        estimate = hair_colour(unlit, parse.hair)
+        unlit = np.clip(img.pixels[parse.hair] / gain, 0, 255).round().astype(np.uint8)
+        estimate = hair_colour(unlit[None], np.ones((1, len(unlit)), bool))
         colour_name = nearest_colour_name(estimate)
         colour = np.asarray(HAIR_COLOURS[colour_name], np.float32)
     if style != 0:
