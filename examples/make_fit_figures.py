@@ -6,9 +6,12 @@
   face blue), downscaled to 256 pixels;
 - ``examples/figures/texture_grid.png``: the fitted face at its own expression, neutral,
   jaw open and eyes closed, with the neural texture fitted texel by texel (top, as before
-  stop 31) and on the coarse grid with a smooth fine layer (bottom, the default).
+  stop 31) and on the coarse grid with a smooth fine layer (bottom, the default);
+- ``examples/figures/light_astronaut.png``: the photo under a bluish light (its channels
+  times 0.7, 0.85 and 1.2), the head fitted to it without the light's colour (as before
+  stop 76) and with it.
 
-Run from the repository root (about 40 s on 2 CPU cores):
+Run from the repository root (about a minute on 2 CPU cores):
 
     python examples/make_fit_figures.py
 """
@@ -68,6 +71,32 @@ def texture_figure(photo: Path, work: Path) -> None:
                                                   optimize=True)
 
 
+LIGHT = (0.7, 0.85, 1.2)
+"""The bluish light of the light figure: the photo's red, green and blue times these."""
+
+
+def light_figure(work: Path) -> None:
+    """``light_astronaut.png``: photo crop | fitted front without the light | with it."""
+    photo = work / "blue.png"
+    blue = np.clip(data.astronaut() * np.array(LIGHT), 0, 255).round().astype(np.uint8)
+    Image.fromarray(blue).save(photo)
+    fast = texture.PRESETS["fast"]
+    tiles = []
+    for name, cfg in (("unlit", dataclasses.replace(fast, gain=False)), ("lit", fast)):
+        texture.PRESETS["fast"] = cfg
+        try:
+            fit = fit_photo(photo, work / f"{name}.h360")
+        finally:
+            texture.PRESETS["fast"] = fast
+        sheet = np.asarray(Image.open(fit["files"]["preview"]))
+        size = sheet.shape[0]
+        if not tiles:
+            tiles.append(sheet[:, :size])  # the photo's crop
+        tiles.append(sheet[:, size:2 * size])  # the fitted front view
+    Image.fromarray(np.concatenate(tiles, 1)).save(FIGURES / "light_astronaut.png",
+                                                   optimize=True)
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         photo = Path(tmp) / "astronaut.png"
@@ -79,8 +108,9 @@ def main() -> None:
         Image.open(parse["overlay"]).resize((256, 256), Image.Resampling.LANCZOS).save(
             FIGURES / "parse_astronaut.png", optimize=True)
         texture_figure(photo, Path(tmp))
-    print(f"wrote {FIGURES / 'fit_astronaut.png'}, {FIGURES / 'parse_astronaut.png'} and "
-          f"{FIGURES / 'texture_grid.png'}")
+        light_figure(Path(tmp))
+    print(f"wrote {FIGURES / 'fit_astronaut.png'}, {FIGURES / 'parse_astronaut.png'}, "
+          f"{FIGURES / 'texture_grid.png'} and {FIGURES / 'light_astronaut.png'}")
 
 
 if __name__ == "__main__":
