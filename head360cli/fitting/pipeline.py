@@ -917,7 +917,8 @@ def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
 
     Raises:
         FileFormatError: An array of :data:`~head360cli.io.headfile.HEAD_ARRAYS` has
-            another shape than the model's.
+            another shape than the model's, the optional ``hair_offset`` or
+            ``colour_gain`` is not 3 numbers, or the light's gain is not positive.
     """
     from head360cli.errors import FileFormatError
     from head360cli.mesh.bilinear import load_bilinear
@@ -930,6 +931,13 @@ def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
         if found != shape:
             raise FileFormatError(f"{where}: expected {name} of shape {shape} for the "
                                   f"installed model, found {found}")
+    for name in ("hair_offset", "colour_gain"):
+        if name in arrays and tuple(np.shape(arrays[name])) != (3,):
+            raise FileFormatError(f"{where}: expected {name} of 3 numbers, found shape "
+                                  f"{tuple(np.shape(arrays[name]))}")
+    if "colour_gain" in arrays and not (np.asarray(arrays["colour_gain"]) > 0).all():
+        raise FileFormatError(f"{where}: expected a colour_gain above 0 in every channel, "
+                              f"found {np.asarray(arrays['colour_gain']).tolist()}")
 
 
 def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | None = None,

@@ -269,6 +269,24 @@ def test_renderers_refuse_a_head_whose_arrays_do_not_fit_the_model(run_cli, head
     assert not (tmp_path / "v.png").exists() and not (tmp_path / "m.glb").exists()
 
 
+@pytest.mark.parametrize(("name", "value", "says"), [
+    ("colour_gain", [1.0, 1.0], "expected colour_gain of 3 numbers"),
+    ("colour_gain", [1.0, -1.0, 1.0], "expected a colour_gain above 0 in every channel"),
+    ("hair_offset", [0.0, 0.01], "expected hair_offset of 3 numbers")])
+def test_renderers_refuse_a_malformed_light_or_hair_offset_as_a_bad_file(run_cli, head_file,
+                                                                         tmp_path, name,
+                                                                         value, says):
+    """Both were refused by the renderer's own check, as bad input (exit 3) without the
+    file's name; they are the file's fault (exit 5)."""
+    head = read_head(head_file)
+    head.arrays[name] = np.array(value, np.float32)
+    path = write_head(head, tmp_path / "edited.h360")
+    r = run_cli("render", path, "--size", "64", "-o", tmp_path / "v.png")
+    assert r.code == 5, r.err
+    assert says in r.err and "edited.h360" in r.err
+    assert not (tmp_path / "v.png").exists()
+
+
 def test_a_head_that_decompresses_to_too_much_is_refused_unread(head_file, tmp_path,
                                                                 monkeypatch):
     """A zip's entries can decompress to far more than the file holds: a 6.5 MB head file
