@@ -12,6 +12,8 @@ texture's change from the generated one is a coarse grid, upsampled, plus a fine
 held smooth: the feature planes read the texture more sparsely than its texels, and a
 change fitted texel by texel showed as blotches at every other expression. While the
 code is fitted the camera is refined photometrically, held near the detected landmarks.
+Throughout, the colour of the photo's light is fitted too: a gain per channel on the
+head's pixels (``InvertConfig.gain``), which the renders of the head apply after.
 Each step renders only the square of the crop around the loss's pixels
 (:func:`loss_window`).
 """
