@@ -16,6 +16,7 @@ from head360cli.cli import (
     InputPath,
     OutputPath,
     _cpu_only,
+    _drop_stdout,
     _emit,
     _progress_printer,
     _settings,
@@ -114,11 +115,57 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
     return r
 
 
+def _check_stdout_image(turntable: bool) -> None:
+    """Refuse ``render -o -`` where standard output cannot take the PNG: a turntable (a
+    video), ``--json`` (which prints there too) or a terminal (binary bytes on screen).
+
+    Raises:
+        BadInputError: One of those, said in one line.
+    """
+    import sys
+
+    if turntable:
+        raise BadInputError("expected a file or folder for a --turntable video, found '-' "
+                            "(standard output takes one view or a grid, as PNG)")
+    if _settings().json:
+        raise BadInputError("expected -o FILE with --json, found '-': the image and the "
+                            "JSON would both go to standard output")
+    stdout = sys.stdout
+    if stdout is None or not hasattr(stdout, "buffer") or stdout.isatty():
+        raise BadInputError("expected standard output redirected or piped for -o - "
+                            "(> view.png or | another command), found a terminal")
+
+
+def _write_stdout_png(image) -> None:
+    """Write ``image (H, W, 3)`` uint8 to standard output as one PNG, encoded first, so
+    a failed encode writes nothing.
+
+    Raises:
+        BadInputError: Standard output cannot be written (a full disk behind ``>``).
+    """
+    import io
+    import sys
+
+    from PIL import Image
+
+    data = io.BytesIO()
+    Image.fromarray(image).save(data, format="PNG")
+    try:
+        sys.stdout.buffer.write(data.getvalue())
+        sys.stdout.buffer.flush()
+    except BrokenPipeError:
+        raise  # a reader that stopped reading (| head -c 8): not an error, see cli._run
+    except OSError as exc:
+        _drop_stdout()
+        raise BadInputError(f"cannot write the image to standard output: "
+                            f"{exc.strerror or exc}") from None
+
+
 @cli.command()
 @click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
 @click.option("-o", "--out", required=True, type=OutputPath(),
-              help="Output: .png (or .jpg) for a view or a grid; .mp4, .gif or a folder "
-              "for --turntable.")
+              help="Output: .png (or .jpg) for a view or a grid, or - for a PNG on "
+              "standard output; .mp4, .gif or a folder for --turntable.")
 @click.option("--turntable", is_flag=True, help="A video turning once around the head.")
 @click.option("--frames", default=48, show_default=True, help="Turntable frames.")
 @click.option("--fps", default=24.0, show_default=True, help="Turntable frame rate.")
@@ -148,6 +195,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
       head360 render me.h360 --views 0,45,90,180,270 -o views.png
       head360 render me.h360 --turntable --frames 96 -o turn.mp4
       head360 render me.h360 --backend onnx --onnx generator.onnx -o front.png
+      head360 render me.h360 --yaw 30 -o - | display -     a PNG on standard output
       cat me.h360 | head360 render - --turntable -o turn.mp4   a head on standard input
     """
     import numpy as np
@@ -170,7 +218,10 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
     if not turntable:
         _unused(("frames", "fps"), "without --turntable")
-    image_format = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(
+    to_stdout = out == "-"
+    if to_stdout:
+        _check_stdout_image(turntable)
+    image_format = "PNG" if to_stdout else {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(
         Path(out).suffix.lower())
     if not turntable and image_format is None:
         raise BadInputError(f"expected a .png or .jpg output for a view, found {out!r} (use "
@@ -179,7 +230,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         from head360cli.io.video import check_video_target
 
         check_video_target(out)
-    else:
+    elif not to_stdout:
         from head360cli.io.atomic import check_file_target
 
         check_file_target(out)
@@ -201,6 +252,9 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
                                            view_intrinsics(r.size), hair=not no_hair)))
     image = frames_[0] if len(pairs) == 1 else grid_image(
         frames_, [f"{y:g}/{p:g}" for y, p in pairs], cols=min(len(pairs), GRID_COLUMNS))
+    if to_stdout:
+        _write_stdout_png(image)
+        return
     with atomic_path(out) as tmp:
         Image.fromarray(image).save(tmp, format=image_format,
                                     **({"quality": 95} if image_format == "JPEG" else {}))

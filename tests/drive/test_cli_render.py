@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -306,3 +307,35 @@ def test_inputs_and_outputs_without_permission_are_one_line_exit_3(run_cli, head
     assert r.code == 3 and r.err.strip().splitlines() == [
         f"head360: error: Operation not permitted ({tmp_path / 'w.png'}): check the file's "
         f"and its folder's permissions"], r.err
+
+
+def test_a_view_goes_to_standard_output_with_dash(head_file, tmp_path):
+    """``render -o -`` writes the PNG of the view to standard output, the same pixels as
+    ``-o view.png``, and nothing else there (no "wrote ..." line)."""
+    import io
+    import subprocess
+    import sys
+
+    args = [sys.executable, "-m", "head360cli", "render", str(head_file), "--yaw", "20",
+            "--size", "32", "--samples", "4"]
+    run = subprocess.run([*args, "-o", "-"], capture_output=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    piped = Image.open(io.BytesIO(run.stdout))
+    assert piped.format == "PNG" and piped.size == (32, 32)
+    run = subprocess.run([*args, "-o", str(tmp_path / "v.png")], capture_output=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert np.array_equal(np.asarray(piped), np.asarray(Image.open(tmp_path / "v.png")))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.png"]
+
+
+def test_dash_is_refused_where_standard_output_cannot_take_a_png(run_cli, head_file,
+                                                                 monkeypatch):
+    r = run_cli("render", head_file, "--size", "32", "-o", "-", "--json")
+    assert r.code == 3 and "both go to standard output" in r.err
+    r = run_cli("render", head_file, "--turntable", "--frames", "2", "-o", "-")
+    assert r.code == 3 and "--turntable video, found '-'" in r.err
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)  # a terminal: no binary there
+    r = run_cli("render", head_file, "--size", "32", "-o", "-")
+    assert r.code == 3 and "found a terminal" in r.err
+    assert r.out == ""
