@@ -122,8 +122,6 @@ def _check_stdout_image(turntable: bool) -> None:
     Raises:
         BadInputError: One of those, said in one line.
     """
-    import sys
-
     if turntable:
         raise BadInputError("expected a file or folder for a --turntable video, found '-' "
                             "(standard output takes one view or a grid, as PNG)")
@@ -144,7 +142,6 @@ def _write_stdout_png(image) -> None:
         BadInputError: Standard output cannot be written (a full disk behind ``>``).
     """
     import io
-    import sys
 
     from PIL import Image
 
