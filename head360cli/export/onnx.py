@@ -358,9 +358,7 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
     (2,)`` and ``lid_weights (2,)`` (the indices of eyeBlinkLeft / Right; see
     :meth:`~head360cli.model.head_render.HeadRenderer.textures`), and for a head with hair
     ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``; for a head with
-    a light of its own (a fit's), ``colour_gain (3,)``; for a head with a mouth change (a
-    fit's), ``mouth (C, R, R)``, ``mouth_from ()`` and ``mouth_weight ()`` (the index of
-    jawOpen)."""
+    a light of its own (a fit's), ``colour_gain (3,)``."""
     out = {"base": renderer.neutral.astype(np.float32),
            "deltas": renderer.deltas.astype(np.float32),
            "expression": renderer.expression.astype(np.float32),
@@ -369,10 +367,6 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
         out.update(lids=renderer.lids.detach().cpu().numpy().astype(np.float32),
                    lid_from=renderer.lid_from.astype(np.float32),
                    lid_weights=np.asarray(renderer.blink_index, np.int64))
-    if renderer.mouth is not None:
-        out.update(mouth=renderer.mouth.detach().cpu().numpy().astype(np.float32),
-                   mouth_from=np.asarray(renderer.mouth_from, np.float32),
-                   mouth_weight=np.asarray(renderer.jaw_index, np.int64))
     if renderer.colour_gain is not None:
         out["colour_gain"] = renderer.colour_gain.reshape(3).cpu().numpy().astype(np.float32)
     if renderer.hair is not None:
@@ -484,13 +478,6 @@ class OnnxFrameRunner:
                                  inputs["lid_from"])[0]
             if (amount > 0).any():
                 texture = texture + np.tensordot(amount, inputs["lids"], 1)[None]
-        if "mouth" in inputs:
-            from head360cli.io.headfile import mouth_amounts
-
-            amount = float(mouth_amounts(weights[int(inputs["mouth_weight"])][None],
-                                         float(inputs["mouth_from"]))[0])
-            if amount > 0:
-                texture = texture + amount * inputs["mouth"][None]
         rgb, alpha = self.frame(verts[None], texture, np.asarray(c2w).reshape(1, 4, 4),
                                 np.asarray(intrinsics).reshape(1, 3, 3), **extra)
         if "colour_gain" not in inputs:

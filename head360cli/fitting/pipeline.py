@@ -653,15 +653,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         crop_mask,
         invert_texture,
         mirror_grid,
-        mouth_change,
     )
     from head360cli.io.atomic import atomic_paths, check_file_target
-    from head360cli.io.headfile import (
-        HeadFile,
-        lid_change_arrays,
-        mouth_change_arrays,
-        write_head,
-    )
+    from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
     from head360cli.io.images import png_info
     from head360cli.model.head_render import HeadRenderer, to_uint8
     from head360cli.model.train import load_generator
@@ -753,10 +747,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         progress=lambda s, n, loss: say("texture", s, n),
         landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev),
         held=torch.as_tensor(INNER_EYES, device=dev))
-    t0 = time.perf_counter()
-    mouth = mouth_change(gen, inv.code, inv.texture)  # for a jaw opened wider than the photo's
-    timings["invert"] = inv.seconds + mirror_s + time.perf_counter() - t0
-    # (its mirror grid was made beside the parse)
+    timings["invert"] = inv.seconds + mirror_s  # its mirror grid was made beside the parse
 
     # The hair's colour as it would look under white light: the photo's pixels without the
     # light the inversion found, and the candidates rendered under it (timed with the
@@ -801,7 +792,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
                         samples=cfg.preview_samples, precision="fp32", hair_offset=offset,
                         lid_change=None if lids is None else lids.change,
-                        colour_gain=inv.gain, mouth_change=mouth)
+                        colour_gain=inv.gain)
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
 
     others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
@@ -830,7 +821,6 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                 "hair_offset": offset.astype(np.float32),
                 "vertices": neutral.astype(np.float32),
                 **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy())),
-                **mouth_change_arrays(mouth.cpu().numpy()),
                 **({} if inv.gain is None else
                    {"colour_gain": inv.gain.cpu().numpy().astype(np.float32)})},
         model_hash=model_hash,
@@ -970,7 +960,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     """
     import torch
 
-    from head360cli.io.headfile import HEAD_ARRAYS, lid_change_of, mouth_change_of, read_head
+    from head360cli.io.headfile import HEAD_ARRAYS, lid_change_of, read_head
     from head360cli.model.head_render import REUSE_TOL, HeadRenderer
     from head360cli.model.train import load_generator
 
@@ -983,7 +973,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
                         precision=precision,
                         reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
                         hair_offset=a.get("hair_offset"), lid_change=lid_change_of(a),
-                        colour_gain=a.get("colour_gain"), mouth_change=mouth_change_of(a))
+                        colour_gain=a.get("colour_gain"))
 
 
 def run_demo(out_dir: str | Path, preset: str = "fast", frames: int = 48,

@@ -396,33 +396,6 @@ def _make_mirror_grid(model, res: int) -> np.ndarray:
     return (grid * 2.0 - 1.0).astype(np.float32)
 
 
-def mouth_change(gen, code: torch.Tensor, texture: torch.Tensor) -> torch.Tensor:
-    """The change from a fitted ``texture (C, R, R)`` back to the texture generated from
-    its ``code (code_dim,)`` on the inside of the mouth
-    (:func:`~head360cli.mesh.mouth.mouth_texels`), zero elsewhere: ``(C, R, R)``.
-
-    A photo shows the inside of a mouth through the gap between its lips at most (its
-    teeth in a smile), and the inversion paints that on the mouth's inside; a jaw then
-    opened wider stretches the painted texels over the gap, where the generated texture
-    has a dark mouth. The renderer brings this change in as the jaw opens beyond the
-    photo's (:func:`~head360cli.io.headfile.mouth_amounts`). On four development heads
-    driven by the LLV capture, dlib's mouth opening followed jawOpen at a mean r of 0.77
-    with it against 0.55 without (one head -0.11 -> 0.89, one laughing with its teeth
-    0.95 -> 0.89; stop 77); holding those texels at the generated texture in the
-    inversion instead read 0.82 but cost that laughing photo 4.5 dB of face PSNR.
-    """
-    from head360cli.mesh.bilinear import load_bilinear
-    from head360cli.mesh.mouth import mouth_texels
-
-    model = load_bilinear()
-    inside = mouth_texels(model.faces, model.uv, model.faces_uv, model.region,
-                          texture.shape[-1])
-    with torch.no_grad():
-        generated = gen.texture(code[None].to(texture))[0]
-    return (generated - texture) * torch.as_tensor(inside, device=texture.device).to(
-        texture.dtype)
-
-
 def _laplacian(x: torch.Tensor) -> torch.Tensor:
     """``(..., R - 2, R - 2)`` discrete Laplacian (4 x centre - the 4 neighbours) of the
     inner texels of ``(..., R, R)``."""

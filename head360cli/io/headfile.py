@@ -39,15 +39,11 @@ __all__ = [
     "KNOWN_ARRAYS",
     "LID_FULL_AT",
     "MAX_ARRAY_BYTES",
-    "MOUTH_FULL_AT",
     "HeadFile",
     "driven_weights",
     "lid_amounts",
     "lid_change_arrays",
     "lid_change_of",
-    "mouth_amounts",
-    "mouth_change_arrays",
-    "mouth_change_of",
     "read_head",
     "write_head",
 ]
@@ -75,8 +71,6 @@ KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "lid_index": (1, "i"),  # (N,) flat texel indices of the lid change (optional)
     "lid_change": (2, "f"),  # (C, N) the texture's change there, eyes closed (optional)
     "colour_gain": (1, "f"),  # (3,) the photo's light on the head's pixels (optional)
-    "mouth_index": (1, "i"),  # (N,) flat texel indices of the mouth change (optional)
-    "mouth_change": (2, "f"),  # (C, N) the texture's change there, jaw open (optional)
 }
 """Array name -> (rank, kind: ``f`` float, ``i`` integer) for the arrays the pipeline uses."""
 
@@ -145,26 +139,13 @@ def _validate_arrays(arrays: dict[str, np.ndarray], where: str, error: type[Exce
                             f"found {int(value)}")
 
 
-def _sparse_change(change: np.ndarray, name: str) -> dict[str, np.ndarray]:
-    """``{name}_index`` (the nonzero texels of ``change (C, R, R)``, flat) and
-    ``{name}_change (C, N)`` there."""
-    flat = np.asarray(change, np.float32).reshape(change.shape[0], -1)
-    index = np.flatnonzero(np.any(flat != 0, axis=0)).astype(np.int32)
-    return {f"{name}_index": index, f"{name}_change": flat[:, index]}
-
-
 def lid_change_arrays(change: np.ndarray) -> dict[str, np.ndarray]:
     """The head-file arrays of a lid change ``(C, R, R)`` (see
     :func:`head360cli.fitting.lids.close_lids`): ``lid_index`` (its nonzero texels, flat)
     and ``lid_change (C, N)`` there, about 3000 of 65536 texels."""
-    return _sparse_change(change, "lid")
-
-
-def mouth_change_arrays(change: np.ndarray) -> dict[str, np.ndarray]:
-    """The head-file arrays of a mouth change ``(C, R, R)`` (see
-    :func:`head360cli.fitting.texture.mouth_change`): ``mouth_index`` and ``mouth_change
-    (C, N)``, about 4400 of 65536 texels."""
-    return _sparse_change(change, "mouth")
+    flat = np.asarray(change, np.float32).reshape(change.shape[0], -1)
+    index = np.flatnonzero(np.any(flat != 0, axis=0)).astype(np.int32)
+    return {"lid_index": index, "lid_change": flat[:, index]}
 
 
 EYE_WEIGHTS = {side: tuple(f"eye{part}{side}" for part in ("Blink", "Squint", "Wide"))
@@ -225,28 +206,6 @@ def lid_amounts(blinks: np.ndarray, own: np.ndarray) -> np.ndarray:
     return np.clip(closed / LID_FULL_AT, 0.0, 1.0)
 
 
-def _dense_change(arrays: dict[str, np.ndarray], name: str) -> np.ndarray | None:
-    """The dense ``(C, R, R)`` change stored as ``{name}_index`` and ``{name}_change``,
-    or ``None`` if the arrays hold neither.
-
-    Raises:
-        FileFormatError: The two arrays do not fit the texture, or one is missing.
-    """
-    index, values = arrays.get(f"{name}_index"), arrays.get(f"{name}_change")
-    if index is None and values is None:
-        return None
-    c, h, w = arrays["texture"].shape
-    if index is None or values is None or values.shape != (c, len(index)) \
-            or (len(index) and not 0 <= index.min() <= index.max() < h * w):
-        raise FileFormatError(
-            f"expected {name}_index (N,) in [0, {h * w}) with {name}_change ({c}, N), "
-            f"found {None if index is None else tuple(index.shape)} and "
-            f"{None if values is None else tuple(values.shape)}")
-    dense = np.zeros((c, h * w), np.float32)
-    dense[:, index] = values
-    return dense.reshape(c, h, w)
-
-
 def lid_change_of(arrays: dict[str, np.ndarray]) -> np.ndarray | None:
     """The dense lid change ``(C, R, R)`` of a head file's arrays (shaped like its
     texture), or ``None`` if it has none.
@@ -254,35 +213,19 @@ def lid_change_of(arrays: dict[str, np.ndarray]) -> np.ndarray | None:
     Raises:
         FileFormatError: The lid arrays do not fit the texture.
     """
-    return _dense_change(arrays, "lid")
-
-
-def mouth_change_of(arrays: dict[str, np.ndarray]) -> np.ndarray | None:
-    """The dense mouth change ``(C, R, R)`` of a head file's arrays, or ``None`` (a
-    sampled head, or a head fitted before stop 77).
-
-    Raises:
-        FileFormatError: The mouth arrays do not fit the texture.
-    """
-    return _dense_change(arrays, "mouth")
-
-
-MOUTH_FULL_AT = 0.3
-"""How far the jaw has opened beyond the head's own ``jawOpen`` (as a share of what was
-left to open) when its mouth change is all in. Chosen on four development heads
-(AFLW2000-3D 02545, 03614, VOC 2009_004587, dlib's ``bald_guys``) driven by the LLV
-capture, dlib's mouth opening against jawOpen: mean r 0.55 without the change, 0.71
-with it in by a jaw of 1.0, 0.75 by 0.6 and 0.77 by 0.3 (stop 77)."""
-
-
-def mouth_amounts(jaw: np.ndarray, own: float) -> np.ndarray:
-    """How much of the mouth change frames show: ``(B,)`` in [0, 1] for their ``(B,)``
-    jawOpen weights, ``(w - w0) / (1 - w0) /`` :data:`MOUTH_FULL_AT` (at most 1) above
-    the head's own ``w0`` (its texture shows the photo's mouth there), 0 below. ``own``
-    is clipped to 0.95."""
-    own = min(max(float(own), 0.0), 0.95)
-    opened = (np.asarray(jaw, np.float32) - own) / (1.0 - own)
-    return np.clip(opened / MOUTH_FULL_AT, 0.0, 1.0)
+    if "lid_index" not in arrays and "lid_change" not in arrays:
+        return None
+    index, values = arrays.get("lid_index"), arrays.get("lid_change")
+    c, h, w = arrays["texture"].shape
+    if index is None or values is None or values.shape != (c, len(index)) \
+            or (len(index) and not 0 <= index.min() <= index.max() < h * w):
+        raise FileFormatError(
+            f"expected lid_index (N,) in [0, {h * w}) with lid_change ({c}, N), found "
+            f"{None if index is None else tuple(index.shape)} and "
+            f"{None if values is None else tuple(values.shape)}")
+    dense = np.zeros((c, h * w), np.float32)
+    dense[:, index] = values
+    return dense.reshape(c, h, w)
 
 
 def write_head(head: HeadFile, path: str | os.PathLike[str]) -> Path:

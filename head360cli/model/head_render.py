@@ -96,11 +96,6 @@ class HeadRenderer:
         colour_gain: ``(3,)`` the photo's light (a head file's ``colour_gain``): the
             head's pixels are scaled by it per channel, the backdrop stays white
             (:func:`~head360cli.model.render.lit`). ``None``: none.
-        mouth_change: ``(C, R, R)`` the texture's change on the inside of the mouth
-            that a jaw opened wider than the photo's shows
-            (:func:`~head360cli.fitting.texture.mouth_change`); a frame's texture adds
-            it as far as its ``jawOpen`` is beyond the own expression's
-            (:func:`~head360cli.io.headfile.mouth_amounts`). ``None``: none.
     """
 
     def __init__(self, gen, shape: np.ndarray, texture: torch.Tensor, hair_style: int,
@@ -109,8 +104,7 @@ class HeadRenderer:
                  precision: str = "auto", reuse: float | None = REUSE_TOL,
                  hair_offset: np.ndarray | None = None,
                  lid_change: torch.Tensor | np.ndarray | None = None,
-                 colour_gain: np.ndarray | torch.Tensor | None = None,
-                 mouth_change: torch.Tensor | np.ndarray | None = None) -> None:
+                 colour_gain: np.ndarray | torch.Tensor | None = None) -> None:
         from head360cli.devices import fast_bfloat16
         from head360cli.mesh.bilinear import load_bilinear
 
@@ -193,21 +187,6 @@ class HeadRenderer:
         comes in (:func:`~head360cli.io.headfile.lid_amounts`): added to a photo's
         half-closed eyes from 0 on, it darkened their lids and cost the bench's real
         photos 0.6 (fast) and 1.5 dB (quality) of face PSNR at the input view."""
-        self.mouth = None
-        """``(C, R, R)``: the mouth change, or ``None``."""
-        if mouth_change is not None:
-            change = (mouth_change.detach() if torch.is_tensor(mouth_change)
-                      else torch.as_tensor(np.asarray(mouth_change, np.float32)))
-            change = change.to(self.device, torch.float32)
-            if change.shape != self.texture.shape[1:]:
-                raise ValueError(f"expected a mouth change shaped like the texture "
-                                 f"{tuple(self.texture.shape[1:])}, found "
-                                 f"{tuple(change.shape)}")
-            self.mouth = change
-        self.jaw_index = INDEX["jawOpen"]
-        """Where jawOpen is among the 52 weights."""
-        self.mouth_from = float(self.expression[self.jaw_index])
-        """The own expression's jawOpen, from which the mouth change comes in."""
         self.set_hair(hair_style, hair_colour)
 
     def use_runner(self, runner) -> None:
@@ -282,38 +261,16 @@ class HeadRenderer:
     def textures(self, weights: np.ndarray) -> torch.Tensor:
         """Neural textures ``(B, C, R, R)`` of frames driven by ARKit weights ``(B, 52)``
         (see :meth:`drive`): the texture, plus the lid change as far as each eye is
-        closed beyond the head's own expression and the mouth change as far as the jaw
-        is open beyond it."""
+        closed beyond the head's own expression."""
         return self._textures(self.drive(weights))
 
     def _textures(self, weights: np.ndarray) -> torch.Tensor:
         """:meth:`textures` of the mesh's own weights (already driven)."""
-        lids, mouth = self._lid_amounts(weights), self._mouth_amounts(weights)
-        out = self.texture.expand(len(weights), -1, -1, -1)
-        if lids is not None:
-            w = torch.as_tensor(lids, device=self.device)
-            out = out + torch.einsum("be,echw->bchw", w, self.lids)
-        if mouth is not None:
-            w = torch.as_tensor(mouth, device=self.device)
-            out = out + w.view(-1, 1, 1, 1) * self.mouth
-        return out
-
-    def _changes_texture(self, weights: np.ndarray) -> bool:
-        """Whether frames with weights ``(B, 52)`` (already driven) add a change to the
-        texture (a lid or the mouth's inside)."""
-        return self._lid_amounts(weights) is not None \
-            or self._mouth_amounts(weights) is not None
-
-    def _mouth_amounts(self, weights: np.ndarray) -> np.ndarray | None:
-        """``(B,)`` how much of the mouth change frames with weights ``(B, 52)`` show, or
-        ``None`` when none shows any (or the head has no mouth change)."""
-        if self.mouth is None:
-            return None
-        from head360cli.io.headfile import mouth_amounts
-
-        w = mouth_amounts(np.asarray(weights, np.float32)[:, self.jaw_index],
-                          self.mouth_from)
-        return w if bool((w > 0).any()) else None
+        w = self._lid_amounts(weights)
+        if w is None:
+            return self.texture.expand(len(weights), -1, -1, -1)
+        w = torch.as_tensor(w, device=self.device)
+        return self.texture + torch.einsum("be,echw->bchw", w, self.lids)
 
     def _lid_amounts(self, weights: np.ndarray) -> np.ndarray | None:
         """``(B, 2)`` how much of each eye's lid change frames with weights ``(B, 52)``
@@ -407,8 +364,8 @@ class HeadRenderer:
         for i in range(len(c2w)):
             w = np.asarray(weights[i:i + 1], np.float32)
             verts = self._vertices(w).cpu().numpy()
-            tex = self._textures(w).detach().cpu().numpy() if self._changes_texture(w) \
-                else plain
+            tex = plain if self._lid_amounts(w) is None else \
+                self._textures(w).detach().cpu().numpy()
             if self.colour_gain is None:
                 out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
                                                    *extra))

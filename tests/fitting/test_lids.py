@@ -174,36 +174,6 @@ def test_a_renderer_adds_each_eyes_change_as_far_as_it_is_closed(head):
                      lid_change=change[:, :8])
 
 
-def test_a_renderer_adds_the_mouth_change_as_the_jaw_opens_past_its_own(head):
-    """The mouth change (stop 77) comes in above the head's own jawOpen, on top of the
-    lid change, and every frame at or below the own jaw has the fitted texture."""
-    from head360cli.io.headfile import MOUTH_FULL_AT
-    from head360cli.mesh.arkit52 import INDEX
-    from head360cli.mesh.mouth import mouth_texels
-    from head360cli.model.head_render import HeadRenderer
-
-    gen, model, _, _, texture, texels = head
-    inside = torch.as_tensor(mouth_texels(model.faces, model.uv, model.faces_uv,
-                                          model.region, texture.shape[-1]))
-    assert inside.any() and not (inside & torch.as_tensor(texels)).any()
-    mouth = torch.randn_like(texture) * inside
-    lids = torch.randn_like(texture) * torch.as_tensor(texels)
-    own = np.zeros(52)
-    own[INDEX["jawOpen"]] = 0.4
-    r = HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3), own,
-                     lid_change=lids, mouth_change=mouth.numpy())
-    w = np.zeros((4, 52))
-    w[:, INDEX["jawOpen"]] = 0.0, 0.4, 0.4 + 0.6 * MOUTH_FULL_AT / 4, 1.0
-    w[3, INDEX["eyeBlinkLeft"]] = w[3, INDEX["eyeBlinkRight"]] = 1.0
-    tex = r.textures(w)
-    assert torch.equal(tex[0], texture) and torch.equal(tex[1], texture)
-    torch.testing.assert_close(tex[2], texture + 0.25 * mouth)
-    torch.testing.assert_close(tex[3], texture + mouth + lids)
-    with pytest.raises(ValueError, match="mouth change shaped like the texture"):
-        HeadRenderer(gen, np.zeros(model.rank), texture, 0, np.zeros(3),
-                     mouth_change=mouth[:, :8])
-
-
 def test_a_renderer_takes_the_lid_change_as_a_fit_hands_it_over(head):
     """``fit`` passes its lid change as a tensor on the fit's device, maybe still tied to
     the optimiser's graph: the renderer must not read it through numpy (which fails for a

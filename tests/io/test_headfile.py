@@ -200,35 +200,6 @@ def test_a_lid_change_is_stored_on_its_texels_and_read_back_dense(tmp_path):
         lid_change_of(only)
 
 
-def test_a_mouth_change_is_stored_on_its_texels_and_comes_in_past_the_own_jaw(tmp_path):
-    from head360cli.io.headfile import (
-        MOUTH_FULL_AT,
-        mouth_amounts,
-        mouth_change_arrays,
-        mouth_change_of,
-    )
-
-    head = sample_head()
-    assert mouth_change_of(head.arrays) is None  # a sampled head, or one fitted before
-    change = np.zeros((8, 16, 16), np.float32)
-    change[:, 10:12, 2:5] = np.random.default_rng(2).standard_normal((8, 2, 3))
-    packed = mouth_change_arrays(change)
-    assert packed["mouth_index"].shape == (6,) and packed["mouth_change"].shape == (8, 6)
-    head.arrays.update(packed)
-    back = read_head(write_head(head, tmp_path / "mouth.h360"))
-    np.testing.assert_array_equal(mouth_change_of(back.arrays), change)
-    for bad in ({"mouth_index": packed["mouth_index"][:-1]},
-                {"mouth_change": packed["mouth_change"][:3]}):
-        with pytest.raises(FileFormatError, match="mouth_index"):
-            mouth_change_of({**head.arrays, **bad})
-    # 0 up to the head's own jaw, all in MOUTH_FULL_AT of the rest of the way past it
-    own = 0.2
-    jaw = np.array([0.0, 0.2, 0.2 + 0.8 * MOUTH_FULL_AT / 2, 0.2 + 0.8 * MOUTH_FULL_AT, 1.0])
-    np.testing.assert_allclose(mouth_amounts(jaw, own), [0, 0, 0.5, 1, 1], atol=1e-6)
-    np.testing.assert_allclose(mouth_amounts(np.array([0.95, 0.96]), 1.0),
-                               [0.0, 0.2 / MOUTH_FULL_AT], atol=1e-4)  # own clipped to 0.95
-
-
 def test_driven_weights_rest_each_eye_at_the_heads_own():
     from head360cli.io.headfile import LID_FULL_AT, driven_weights, lid_amounts
     from head360cli.mesh.arkit52 import INDEX
