@@ -53,6 +53,8 @@ from typing import Any
 
 import numpy as np
 
+from head360cli.fitting.landmarks import mouth_opening
+
 __all__ = ["bench_animate", "correlation", "eye_opening", "mouth_opening"]
 
 FIDELITY_SAMPLES = 2
@@ -74,12 +76,6 @@ columns."""
 
 SWAP_STYLES = (0, 2, 7, 9, 12, 17, 22, 28)
 """Hairstyles the swap measurement puts on the head (bald, short, long, voluminous)."""
-
-
-def mouth_opening(lm: np.ndarray) -> float:
-    """Inner-lip gap over the outer eye-corner distance, from 68 iBUG landmarks."""
-    gap = np.linalg.norm(lm[[61, 62, 63]] - lm[[67, 66, 65]], axis=1).mean()
-    return float(gap / np.linalg.norm(lm[36] - lm[45]))
 
 
 def eye_opening(lm: np.ndarray, which: str) -> float:

@@ -403,6 +403,7 @@ def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
         rows.append({"photo": photo.name, "psnr_face": s["psnr_face_input_view"],
                      "psnr_face_bald": s["psnr_face_input_view_bald"],
                      "descriptor_distance": dist, "hair": s["hair_style"]["name"],
+                     "mouth_inside": s["inversion"]["mouth_inside"],
                      "seconds": s["timings"]["total"]})
     ok = [r for r in rows if "error" not in r]
 

@@ -43,8 +43,8 @@ from head360cli.errors import BadInputError, ModelNotFoundError, NoFaceError
 
 __all__ = ["DETECTORS", "FALLBACK_SIDE", "FLAT_SPREAD", "LOW_CONTRAST_SPREAD", "MIRROR_68",
            "SMALL_RETRY_SIDE", "TURNED_SIDE", "TURNS", "DetectedFace", "LandmarkDetector",
-           "ProfileFace", "find_faces", "find_profile", "hog_detector", "pick_face",
-           "stretched", "turned_image", "upside_down"]
+           "ProfileFace", "find_faces", "find_profile", "hog_detector", "mouth_opening",
+           "pick_face", "stretched", "turned_image", "upside_down"]
 
 DETECTORS = ("auto", "hog", "cnn")
 """The detector kinds :class:`LandmarkDetector` takes."""
@@ -78,6 +78,14 @@ stretch would only raise its noise (a flat grey with a grey level of noise spans
 5 levels; a photo at 0.05 of its brightness 9 to 20)."""
 STRETCH_PIXELS = 1 << 20
 """At most about this many pixels (an even subsample) are read for the percentiles."""
+
+
+def mouth_opening(landmarks: np.ndarray) -> float:
+    """How far the lips are apart: the mean gap between the inner lips (iBUG 61-63 and
+    67-65) over the distance between the outer eye corners (36, 45), from ``(68, 2)``
+    landmarks. About 0.01 for closed lips, 0.1 for a smile that shows the teeth."""
+    gap = np.linalg.norm(landmarks[[61, 62, 63]] - landmarks[[67, 66, 65]], axis=1).mean()
+    return float(gap / np.linalg.norm(landmarks[36] - landmarks[45]))
 
 
 @dataclasses.dataclass

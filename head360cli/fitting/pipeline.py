@@ -646,6 +646,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
 
     from head360cli.errors import BadInputError
     from head360cli.fitting.hair_parse import parse_hair
+    from head360cli.fitting.landmarks import mouth_opening
     from head360cli.fitting.shape import check_camera
     from head360cli.fitting.texture import (
         PRESETS,
@@ -653,6 +654,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         crop_mask,
         invert_texture,
         mirror_grid,
+        region_texels,
     )
     from head360cli.io.atomic import atomic_paths, check_file_target
     from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
@@ -740,13 +742,16 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     cfg = PRESETS[preset]
     if _greyscale(img.pixels):  # a grey photo shows no light's colour (and no skin's)
         cfg = dataclasses.replace(cfg, gain=False)
+    # lips closed or nearly: the inside of the mouth keeps the generated texture
+    lips = mouth_opening(found.landmarks)
+    keep = region_texels(gen.cfg.texture_res).to(dev) if lips < cfg.closed_mouth else None
     inv = invert_texture(
         gen, verts, cam, kk,
         torch.tensor(target, dtype=torch.float32, device=dev).permute(2, 0, 1) / 255.0,
         torch.tensor(mask, device=dev)[None], start, cfg,
         progress=lambda s, n, loss: say("texture", s, n),
         landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev),
-        held=torch.as_tensor(INNER_EYES, device=dev))
+        held=torch.as_tensor(INNER_EYES, device=dev), keep=keep)
     timings["invert"] = inv.seconds + mirror_s  # its mirror grid was made beside the parse
 
     # The hair's colour as it would look under white light: the photo's pixels without the
@@ -858,7 +863,10 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                            "learned_prior": parse.prior,
                            "hair_fraction": round(float(parse.hair.mean()), 4)},
             "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
-                          "loss_last": round(inv.losses[-1], 5)},
+                          "loss_last": round(inv.losses[-1], 5),
+                          # the lips' gap, and whether the mouth's inside was fitted
+                          "mouth_opening": round(lips, 4),
+                          "mouth_inside": "generated" if keep is not None else "fitted"},
             # the photo's light: the gain per channel on the head's pixels in every render
             "light": None if inv.gain is None else [round(float(g), 4) for g in inv.gain],
             "closed_lids": None if lids is None else {

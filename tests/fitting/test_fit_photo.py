@@ -23,6 +23,41 @@ def astronaut(tmp_path_factory):
     return path
 
 
+def _inside_changed(head) -> bool:
+    """Whether a fitted head's texture inside the mouth differs from its code's."""
+    import torch
+
+    from head360cli.fitting.texture import region_texels
+    from head360cli.model.train import load_generator
+
+    gen, _ = load_generator()
+    with torch.no_grad():
+        code = torch.from_numpy(head.arrays["texture_code"])[None]
+        generated = gen.texture(code)[0].numpy()
+    inside = region_texels(generated.shape[-1]).numpy()
+    return bool((head.arrays["texture"][:, inside] != generated[:, inside]).any())
+
+
+def test_lips_counted_closed_keep_the_generated_inside_of_the_mouth(
+        run_cli, astronaut, tmp_path, monkeypatch):
+    """With every gap counted as closed, the astronaut's fit keeps the code's texture on
+    the inside of her mouth (the full fit above checks the other way), and says so."""
+    import dataclasses
+
+    from head360cli.fitting import texture
+    from head360cli.io.headfile import read_head
+
+    monkeypatch.setitem(texture.PRESETS, "fast",
+                        dataclasses.replace(texture.PRESETS["fast"], closed_mouth=1.0))
+    out = tmp_path / "closed.h360"
+    r = run_cli("fit", astronaut, "-o", out, "--json", "--quiet")
+    assert r.code == 0, r.err
+    s = json.loads(r.out)
+    assert s["inversion"]["mouth_inside"] == "generated"
+    assert not _inside_changed(read_head(out))
+    assert s["psnr_face_input_view"] > 20.0
+
+
 def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     from head360cli.io.headfile import read_head
 
@@ -51,6 +86,13 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert s["psnr_face_input_view"] > 21.0
     assert s["inversion"]["loss_last"] < s["inversion"]["loss_first"]
     head = read_head(out)
+    # the lips' gap decides whether the mouth's inside keeps the generated texture
+    from head360cli.fitting.texture import PRESETS
+
+    closed = s["inversion"]["mouth_opening"] < PRESETS["fast"].closed_mouth
+    assert 0 <= s["inversion"]["mouth_opening"] < 0.3
+    assert s["inversion"]["mouth_inside"] == ("generated" if closed else "fitted")
+    assert _inside_changed(head) == (not closed)
     # the photo's light, fitted with the texture, kept in the head and named in the summary
     np.testing.assert_allclose(head.arrays["colour_gain"], s["light"], atol=1e-4)
     assert all(0.5 < g < 2.0 for g in s["light"])

@@ -378,3 +378,16 @@ def test_a_dark_photos_face_is_found_with_its_landmarks_in_place():
     dark = np.round(img * 0.06).astype(np.uint8)
     found = det.detect_one(dark).landmarks
     assert np.abs(found - full).mean() < 1.0, np.abs(found - full).mean()
+
+
+def test_mouth_opening_is_the_lip_gap_over_the_eye_corners_distance():
+    from head360cli.fitting.landmarks import mouth_opening
+
+    lm = np.zeros((68, 2))
+    lm[36], lm[45] = (10.0, 50.0), (90.0, 50.0)  # eye corners 80 px apart
+    lm[61:64] = [(40.0, 100.0), (50.0, 100.0), (60.0, 100.0)]  # upper inner lip
+    lm[65:68] = [(60.0, 108.0), (50.0, 108.0), (40.0, 108.0)]  # lower, right to left
+    assert mouth_opening(lm) == pytest.approx(8 / 80)
+    assert mouth_opening(lm * 3.0 + 7.0) == pytest.approx(8 / 80)  # any scale and place
+    lm[65:68] = lm[[63, 62, 61]]
+    assert mouth_opening(lm) == 0.0  # closed lips

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from head360cli.fitting.texture import (
+    MOUTH_INSIDE,
     PRESETS,
     _mirror,
     bald_target,
@@ -16,6 +17,7 @@ from head360cli.fitting.texture import (
     invert_texture,
     loss_window,
     photo_camera,
+    region_texels,
 )
 
 
@@ -489,3 +491,43 @@ def test_the_light_of_a_photo_is_fitted(scene):
     without = fit(target, dataclasses.replace(cfg, gain=False))
     assert without.gain is None
     assert under.losses[-1] < 0.9 * without.losses[-1], (under.losses[-1], without.losses[-1])
+
+
+def test_region_texels_cover_the_mouths_inside_and_nothing_of_the_face():
+    inside = region_texels(128)
+    assert inside.shape == (128, 128) and inside.dtype == torch.bool
+    assert 0.01 < float(inside.float().mean()) < 0.2  # measured 0.067 at 256 texels
+    face = region_texels(128, ("face", "lips"))
+    assert not (inside & face).any()
+    parts = [region_texels(128, (r,)) for r in MOUTH_INSIDE]
+    assert all(p.any() for p in parts)
+    assert torch.equal(parts[0] | parts[1] | parts[2], inside)
+    with pytest.raises(ValueError, match=r"expected template regions.*'gums'"):
+        region_texels(64, ("gums",))
+
+
+def test_kept_texels_keep_the_codes_texture_and_the_rest_are_fitted(scene):
+    """``keep`` (``fit``'s closed mouth) leaves its texels at the texture of the fitted
+    code through every texture step; the other texels move as without it."""
+    gen, codes, batch = scene
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=2, steps=3, samples=4,
+                              patience=10)
+    keep = region_texels(gen.cfg.texture_res)
+    runs = []
+    for k in (None, keep):
+        torch.manual_seed(0)
+        runs.append(invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics,
+                                   batch.rgb[0], batch.alpha[0], codes.mean(0), cfg, keep=k))
+    free, kept = runs
+    torch.testing.assert_close(kept.code, free.code)  # the code steps do not see it
+    with torch.no_grad():
+        generated = gen.texture(kept.code[None])[0]
+    assert torch.equal(kept.texture[:, keep], generated[:, keep])
+    assert (free.texture[:, keep] - generated[:, keep]).abs().max() > 1e-3  # it would move
+    moved = (kept.texture[:, ~keep] - generated[:, ~keep]).abs().mean()
+    assert moved > 1e-3
+    with pytest.raises(ValueError, match=r"keep as a \(256, 256\) bool tensor"):
+        invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, batch.rgb[0],
+                       batch.alpha[0], codes.mean(0), cfg, keep=keep[:8])
+    with pytest.raises(ValueError, match="closed_mouth >= 0"):
+        dataclasses.replace(PRESETS["fast"], closed_mouth=-0.1)
