@@ -208,7 +208,7 @@ class InvertConfig:
     teeth at 0.110, fitted as before: 0.95); face PSNR on nine photos 24.58 -> 24.56 dB,
     dlib descriptor distance at 0 / +-30 degrees 0.426 / 0.536 -> 0.422 / 0.536. Kept
     on every photo, ``bald_guys`` lost 4.5 dB. The nine photos' gaps: 0.010 to 0.077
-    (six), then 0.097, 0.110, 0.122, 0.144. ``0``: always fitted."""
+    (five), then 0.097, 0.110, 0.122, 0.144. ``0``: always fitted."""
 
     def __post_init__(self) -> None:
         if self.texture_stride < 1:
