@@ -1178,6 +1178,40 @@ def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
 # The subcommands that use a head (render, animate, swap-hair, sample, export-mesh).
 from head360cli import cli_drive  # noqa: E402,F401  (registers them on `cli`)
 
+
+def _restore_help(command: click.Command) -> None:
+    """Give ``command`` and its subcommands back the help texts that ``python -OO`` (or
+    ``PYTHONOPTIMIZE=2``) dropped with every docstring: each command's docstring, read
+    from its module's source. Without it, ``head360 fit --help`` under ``-OO`` showed
+    the options and neither what the command does nor its examples."""
+    import ast
+    import inspect
+
+    modules: dict[str, dict[str, str]] = {}
+    todo = [command]
+    while todo:
+        cmd = todo.pop()
+        if isinstance(cmd, click.Group):
+            todo += cmd.commands.values()
+        if cmd.help is not None or cmd.callback is None:
+            continue
+        code = getattr(inspect.unwrap(cmd.callback), "__code__", None)
+        if code is None:
+            continue
+        if code.co_filename not in modules:
+            try:
+                tree = ast.parse(Path(code.co_filename).read_text(encoding="utf-8"))
+            except (OSError, SyntaxError, ValueError):  # no source beside the bytecode
+                tree = ast.Module(body=[], type_ignores=[])
+            modules[code.co_filename] = {
+                node.name: ast.get_docstring(node, clean=False) or ""
+                for node in tree.body if isinstance(node, ast.FunctionDef)}
+        cmd.help = modules[code.co_filename].get(code.co_name) or None
+
+
+if sys.flags.optimize >= 2:
+    _restore_help(cli)
+
 # --------------------------------------------------------------------------- entry point
 
 

@@ -33,6 +33,35 @@ def test_help_lists_commands_and_exit_codes(run_cli):
         assert word in r.out
 
 
+def test_every_commands_help_survives_python_OO():
+    """``python -OO`` drops docstrings, the commands' help texts: the CLI reads them back
+    from its source, so each command (the group and ``bench``'s included) says under
+    ``-OO`` what it says without it."""
+    import inspect
+
+    from head360cli.cli import cli
+
+    walk = (
+        "import json, click\n"
+        "def walk(cmd, path):\n"
+        "    yield ' '.join(path), cmd.help\n"
+        "    if isinstance(cmd, click.Group):\n"
+        "        for name, sub in cmd.commands.items():\n"
+        "            yield from walk(sub, path + [name])\n")
+    code = walk + ("from head360cli.cli import cli\n"
+                   "print(json.dumps(dict(walk(cli, ['head360']))))")
+    out = subprocess.run([sys.executable, "-OO", "-c", code], capture_output=True,
+                         text=True, check=True, cwd=REPO)
+    under_oo = json.loads(out.stdout)
+    here: dict = {}
+    exec(walk + "here.update(walk(cli, ['head360']))", {"cli": cli, "here": here})
+    assert len(here) > 20 and set(under_oo) == set(here)
+    assert all(here.values())  # every command has a docstring to lose
+    for name, text in here.items():
+        assert under_oo[name] is not None, name
+        assert inspect.cleandoc(under_oo[name]) == inspect.cleandoc(text), name
+
+
 def test_importing_the_cli_does_not_import_heavy_modules():
     code = (
         "import sys, head360cli.cli; "
