@@ -83,9 +83,11 @@ STRETCH_PIXELS = 1 << 20
 def mouth_opening(landmarks: np.ndarray) -> float:
     """How far the lips are apart: the mean gap between the inner lips (iBUG 61-63 and
     67-65) over the distance between the outer eye corners (36, 45), from ``(68, 2)``
-    landmarks. About 0.01 for closed lips, 0.1 for a smile that shows the teeth."""
+    landmarks. About 0.01 for closed lips, 0.1 for a smile that shows the teeth; NaN
+    where the eye corners fall on one point."""
     gap = np.linalg.norm(landmarks[[61, 62, 63]] - landmarks[[67, 66, 65]], axis=1).mean()
-    return float(gap / np.linalg.norm(landmarks[36] - landmarks[45]))
+    eyes = np.linalg.norm(landmarks[36] - landmarks[45])
+    return float(gap / eyes) if eyes > 0 else float("nan")
 
 
 @dataclasses.dataclass

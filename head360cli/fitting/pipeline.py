@@ -743,7 +743,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     if _greyscale(img.pixels):  # a grey photo shows no light's colour (and no skin's)
         cfg = dataclasses.replace(cfg, gain=False)
     # lips closed or nearly: the inside of the mouth keeps the generated texture
-    lips = mouth_opening(found.landmarks)
+    lips = mouth_opening(found.landmarks)  # NaN for eye corners on one point: not closed
     keep = region_texels(gen.cfg.texture_res).to(dev) if lips < cfg.closed_mouth else None
     inv = invert_texture(
         gen, verts, cam, kk,
@@ -865,7 +865,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
             "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
                           "loss_last": round(inv.losses[-1], 5),
                           # the lips' gap, and whether the mouth's inside was fitted
-                          "mouth_opening": round(lips, 4),
+                          "mouth_opening": round(lips, 4) if np.isfinite(lips) else None,
                           "mouth_inside": "generated" if keep is not None else "fitted"},
             # the photo's light: the gain per channel on the head's pixels in every render
             "light": None if inv.gain is None else [round(float(g), 4) for g in inv.gain],

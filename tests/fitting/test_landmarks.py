@@ -391,3 +391,5 @@ def test_mouth_opening_is_the_lip_gap_over_the_eye_corners_distance():
     assert mouth_opening(lm * 3.0 + 7.0) == pytest.approx(8 / 80)  # any scale and place
     lm[65:68] = lm[[63, 62, 61]]
     assert mouth_opening(lm) == 0.0  # closed lips
+    lm[45] = lm[36]
+    assert np.isnan(mouth_opening(lm))  # no scale to measure by: never counted closed
