@@ -395,16 +395,24 @@ def mirror_grid(res: int) -> torch.Tensor:
     return torch.from_numpy(grid.copy())[None]
 
 
+def _uv_fragments(model, res: int):
+    """The bilinear ``model``'s UV layout rasterized onto a ``res`` x ``res`` texture:
+    which triangle each texel lies on (``face_id`` -1 off the UV islands)."""
+    from head360cli.geometry.rasterize import rasterize
+
+    uv = torch.tensor(model.uv, dtype=torch.float32) * res
+    return rasterize(uv[None], torch.ones(1, len(uv)), torch.as_tensor(model.faces_uv),
+                     res, res, perspective_correct=False)
+
+
 def _make_mirror_grid(model, res: int) -> np.ndarray:
     """:func:`mirror_grid`'s ``(res, res, 2)`` float32 grid for the bilinear ``model``."""
     from scipy.spatial import cKDTree
 
-    from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+    from head360cli.geometry.rasterize import interpolate_face_corners
 
     verts = model.vertices(np.zeros(model.rank), np.zeros(52))
-    uv = torch.tensor(model.uv, dtype=torch.float32) * res
-    frags = rasterize(uv[None], torch.ones(1, len(uv)), torch.as_tensor(model.faces_uv),
-                      res, res, perspective_correct=False)
+    frags = _uv_fragments(model, res)
     corners = torch.tensor(verts, dtype=torch.float32)[torch.as_tensor(model.faces)]
     pos = interpolate_face_corners(corners, frags)[0].numpy()
     part = frags.face_id[0].numpy()
@@ -430,7 +438,6 @@ def region_texels(res: int, regions: tuple[str, ...] = MOUTH_INSIDE) -> torch.Te
     Raises:
         ValueError: A name that is not a template region.
     """
-    from head360cli.geometry.rasterize import rasterize
     from head360cli.mesh.bilinear import load_bilinear
     from head360cli.mesh.template import REGION_NAMES
 
@@ -439,12 +446,9 @@ def region_texels(res: int, regions: tuple[str, ...] = MOUTH_INSIDE) -> torch.Te
         raise ValueError(f"expected template regions ({', '.join(REGION_NAMES)}), found "
                          f"{unknown}")
     model = load_bilinear()
-    uv = torch.tensor(model.uv, dtype=torch.float32) * res
-    frags = rasterize(uv[None], torch.ones(1, len(uv)), torch.as_tensor(model.faces_uv),
-                      res, res, perspective_correct=False)
-    face = frags.face_id[0].numpy()
-    inside = np.isin(model.region[model.faces], [REGION_NAMES.index(r) for r in regions])
-    inside = inside.all(1)
+    face = _uv_fragments(model, res).face_id[0].numpy()
+    inside = np.isin(model.region[model.faces],
+                     [REGION_NAMES.index(r) for r in regions]).all(1)
     return torch.from_numpy((face >= 0) & inside[np.clip(face, 0, None)])
 
 
