@@ -654,7 +654,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     t = result["timings"]
     text = (f"fitted {photo}: yaw {result['pose']['yaw']:.1f} deg, hair "
             f"{result['hair_style']['name']} ({result['hair_color_name']}), face PSNR "
-            f"{result['psnr_face_input_view']:.2f} dB at the input view, "
+            f"{result['psnr_face_input_view']:.2f} dB at the input view"
+            f"{' (in grey)' if result['inversion']['fitted_in'] == 'grey' else ''}, "
             f"{t['total']:.1f} s (" + ", ".join(f"{k} {v:.1f}" for k, v in t.items()
                                                  if k != "total") + ")\n"
             + "\n".join(f"  wrote {p}" for p in result["files"].values()))

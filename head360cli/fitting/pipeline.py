@@ -237,8 +237,9 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     if width < SMALL_FACE_PX:
         warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
                         "blurry")
-    if _greyscale(img.pixels):
-        warnings.append("greyscale photo: the texture and hair colour will be grey")
+    if img.greyscale:
+        warnings.append("greyscale photo: the hair colour will be grey, the skin's comes "
+                        "from the model")
     if on_face is not None:
         on_face(img, found)
     t0 = time.perf_counter()
@@ -649,6 +650,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     from head360cli.fitting.landmarks import mouth_opening
     from head360cli.fitting.shape import check_camera
     from head360cli.fitting.texture import (
+        LUMA,
         PRESETS,
         bald_target,
         crop_mask,
@@ -740,8 +742,8 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
     timings["bald_target"] = first_s + time.perf_counter() - t0
     cfg = PRESETS[preset]
-    if _greyscale(img.pixels):  # a grey photo shows no light's colour (and no skin's)
-        cfg = dataclasses.replace(cfg, gain=False)
+    if img.greyscale:  # no light's colour, no skin's: its grey is fitted, not its colour
+        cfg = dataclasses.replace(cfg, gain=False, grey=True)
     # lips closed or nearly: the inside of the mouth keeps the generated texture
     lips = mouth_opening(found.landmarks)  # NaN for eye corners on one point: not closed
     keep = region_texels(gen.cfg.texture_res).to(dev) if lips < cfg.closed_mouth else None
@@ -806,10 +808,12 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     front = to_uint8(head.render(inv.c2w[None], kk))[0]
     views = to_uint8(head.render(others, rig_k, expression=np.zeros(52)))
     # With its hair, as the user will see it: hair over the forehead counts as error.
-    psnr_face = _masked_psnr(front, crop, weight)
+    # A grey photo is compared in grey, the values it has (its colour is the model's).
+    seen = (lambda x: x.astype(np.float64) @ np.array(LUMA)) if cfg.grey else (lambda x: x)
+    psnr_face = _masked_psnr(seen(front), seen(crop), weight)
     # Bald, as the inversion saw it: the texture alone.
     bald = to_uint8(head.render(inv.c2w[None], kk, hair=False))[0]
-    psnr_bald = _masked_psnr(bald, crop, weight)
+    psnr_bald = _masked_psnr(seen(bald), seen(crop), weight)
     timings["preview"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -866,7 +870,9 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
                           "loss_last": round(inv.losses[-1], 5),
                           # the lips' gap, and whether the mouth's inside was fitted
                           "mouth_opening": round(lips, 4) if np.isfinite(lips) else None,
-                          "mouth_inside": "generated" if keep is not None else "fitted"},
+                          "mouth_inside": "generated" if keep is not None else "fitted",
+                          # a grey photo's grey is fitted; the colour is the model's
+                          "fitted_in": "grey" if cfg.grey else "colour"},
             # the photo's light: the gain per channel on the head's pixels in every render
             "light": None if inv.gain is None else [round(float(g), 4) for g in inv.gain],
             "closed_lids": None if lids is None else {
@@ -887,19 +893,6 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     return summary
 
 
-def _greyscale(pixels: np.ndarray) -> bool:
-    """Whether ``pixels (H, W, 3)`` uint8 are grey: no pixel's channels more than 2 apart.
-
-    Each pair of channels is compared by OpenCV in uint8: numpy's ``ptp`` over the
-    channel axis of an int16 copy took 1.1 s and 100 MB for a photo decoded at 4096 x
-    4096 pixels, this 0.16 s (the fit asks twice: for its warning and its light)."""
-    import cv2
-
-    r, g, b = cv2.split(np.ascontiguousarray(pixels))
-    return max(int(cv2.absdiff(r, g).max()), int(cv2.absdiff(g, b).max()),
-               int(cv2.absdiff(r, b).max())) <= 2
-
-
 def _rig_intrinsics(res: int):
     from head360cli.geometry.cameras import RIG_FOV_DEG, intrinsics_from_fov
 
@@ -907,7 +900,8 @@ def _rig_intrinsics(res: int):
 
 
 def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR in dB of uint8 images inside a boolean mask."""
+    """PSNR in dB of images of values 0 to 255 (``(H, W[, 3])``) inside a boolean mask
+    ``(H, W)``."""
     d = (a.astype(np.float64) - b.astype(np.float64))[mask] / 255.0
     mse = float(np.mean(d ** 2)) if d.size else 0.0
     return 10 * np.log10(1.0 / max(mse, 1e-10))

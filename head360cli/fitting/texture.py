@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 __all__ = [
+    "LUMA",
     "MOUTH_INSIDE",
     "PRESETS",
     "Inversion",
@@ -209,6 +210,13 @@ class InvertConfig:
     dlib descriptor distance at 0 / +-30 degrees 0.426 / 0.536 -> 0.422 / 0.536. Kept
     on every photo, ``bald_guys`` lost 4.5 dB. The nine photos' gaps: 0.010 to 0.077
     (five), then 0.097, 0.110, 0.122, 0.144. ``0``: always fitted."""
+    grey: bool = False
+    """The photo is greyscale: the photometric loss compares the render's grey
+    (:data:`LUMA`, as a greyscale conversion weighs the channels) with the photo's, so
+    the texture fits the photo's shading and keeps the generated texture's colour, held
+    there by ``near`` and ``symmetry``. ``fit`` sets it for a grey photo (and fits no
+    light). Fitted in colour, a grey photo's face came out grey, some of it tinted green
+    or pink, on a head whose unseen skin is the generator's colour."""
 
     def __post_init__(self) -> None:
         if self.texture_stride < 1:
@@ -222,6 +230,11 @@ class InvertConfig:
             raise ValueError(f"expected closed_mouth >= 0, found {self.closed_mouth}")
         if self.code_samples is not None and self.code_samples < 1:
             raise ValueError(f"expected code_samples >= 1 or None, found {self.code_samples}")
+
+
+LUMA = (0.299, 0.587, 0.114)
+"""Weights of red, green and blue in a grey value (ITU-R BT.601, what Pillow's and
+OpenCV's greyscale conversions use)."""
 
 
 PRESETS: dict[str, InvertConfig] = {
@@ -585,14 +598,21 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
     log_gain = torch.zeros(3, dtype=target.dtype, device=target.device,
                            requires_grad=cfg.gain)
 
+    if cfg.grey:  # a grey photo: its grey against the render's, the colour left free
+        luma = torch.tensor(LUMA, dtype=target.dtype, device=target.device).view(1, 3, 1, 1)
+        tgt, low_t = ((x * luma).sum(1, keepdim=True) for x in (tgt, low_t))
+    channels = 1 if cfg.grey else 3
+
     def photometric(out) -> torch.Tensor:
         rgb, rgb_low = out["rgb"], out["rgb_low"]
         if cfg.gain:  # the head's pixels under the photo's light, the backdrop white
             g = light(log_gain).view(1, 3, 1, 1)
             rgb = lit(rgb, out["alpha"], g)
             rgb_low = lit(rgb_low, out["alpha_low"], g)
-        return ((rgb - tgt).abs() * m).sum() / (3 * area) + 0.5 * (
-            (rgb_low - low_t).abs() * low_m).sum() / (3 * low_area)
+        if cfg.grey:
+            rgb, rgb_low = ((x * luma).sum(1, keepdim=True) for x in (rgb, rgb_low))
+        return ((rgb - tgt).abs() * m).sum() / (channels * area) + 0.5 * (
+            (rgb_low - low_t).abs() * low_m).sum() / (channels * low_area)
 
     forward = c2w[:3, 2]  # the line of sight
 

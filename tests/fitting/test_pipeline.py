@@ -77,21 +77,3 @@ def test_several_faces(run_cli, shared_data, tmp_path):
     areas = [(f["face_box"][2] - f["face_box"][0]) * (f["face_box"][3] - f["face_box"][1])
              for f in faces]
     assert areas == sorted(areas, reverse=True)  # largest first
-
-
-def test_a_photo_is_greyscale_when_no_pixels_channels_are_over_2_apart():
-    """The fit's greyscale check (its warning, and no light for such a photo): channels 2
-    apart anywhere still grey, one pixel with two channels 3 apart not, whichever pair."""
-    from head360cli.fitting.pipeline import _greyscale
-
-    rng = np.random.default_rng(0)
-    grey = np.repeat(rng.integers(3, 250, (64, 48, 1), dtype=np.uint8), 3, axis=2)
-    assert _greyscale(grey)
-    near = grey.copy()
-    near[..., 0] += 2
-    assert _greyscale(near)
-    for a, b in ((0, 1), (1, 2), (0, 2)):
-        off = grey.copy()
-        off[10, 20, a] = off[10, 20, b] + 3
-        assert not _greyscale(off), (a, b)
-    assert not _greyscale(rng.integers(0, 256, (64, 48, 3), dtype=np.uint8))

@@ -531,3 +531,37 @@ def test_kept_texels_keep_the_codes_texture_and_the_rest_are_fitted(scene):
                        batch.alpha[0], codes.mean(0), cfg, keep=keep[:8])
     with pytest.raises(ValueError, match="closed_mouth >= 0"):
         dataclasses.replace(PRESETS["fast"], closed_mouth=-0.1)
+
+
+def test_a_grey_photo_is_fitted_in_grey_and_keeps_the_generated_colour(scene):
+    """``grey`` (``fit``'s greyscale photo): the held-out head's render made grey. Fitted
+    in colour, the texture turns the head grey; fitted in grey, its render's grey matches
+    the photo as closely and it keeps colour: its pixels' distance from their own grey
+    stays near the head's true render's (0.055), more than twice the colour fit's."""
+    from head360cli.fitting.texture import LUMA
+
+    gen, codes, batch = scene
+    luma = torch.tensor(LUMA).view(1, 3, 1, 1)
+    grey = (batch.rgb * luma).sum(1, keepdim=True).expand(-1, 3, -1, -1)
+    head = batch.alpha[0, 0] > 0.5
+    cfg = dataclasses.replace(PRESETS["fast"], code_steps=4, steps=16, samples=4,
+                              patience=20, gain=False)
+
+    def colourfulness(rgb):  # (1, 3, H, W) -> mean distance of the head's pixels from grey
+        return float((rgb - (rgb * luma).sum(1, keepdim=True)).abs().mean(1)[0][head].mean())
+
+    renders = {}
+    for name, config in (("colour", cfg), ("grey", dataclasses.replace(cfg, grey=True))):
+        torch.manual_seed(0)
+        inv = invert_texture(gen, batch.verts[0], batch.c2w[0], batch.intrinsics, grey[0],
+                             batch.alpha[0], codes.mean(0), config)
+        with torch.no_grad():
+            renders[name] = gen(batch.verts, inv.c2w[None], batch.intrinsics[None],
+                                texture=inv.texture[None])["rgb"].clamp(0, 1)
+    truth = colourfulness(batch.rgb)
+    seen = {k: colourfulness(v) for k, v in renders.items()}
+    assert seen["grey"] > 2 * seen["colour"], seen  # measured 0.064 against 0.023
+    assert 0.5 * truth < seen["grey"] < 1.5 * truth, (seen, truth)
+    err = {k: float(((v - grey) * luma).sum(1).abs()[0][head].mean())
+           for k, v in renders.items()}
+    assert err["grey"] < 1.1 * err["colour"], err

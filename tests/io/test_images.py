@@ -343,3 +343,25 @@ def test_a_cmyk_photo_with_a_profile_is_converted_through_it(tmp_path):
         naive = np.asarray(Image.open(path).convert("RGB"))[8::16, 8::16].astype(int)
         assert np.abs(naive - want).max() >= 200  # what reading it without the profile gave
         assert describe_image(path)["converted"] is True
+
+
+def test_a_photo_is_greyscale_when_no_pixels_channels_are_over_2_apart():
+    """The fit's greyscale check (its warning, its grey fit without a light): channels 2
+    apart anywhere still grey, one pixel with two channels 3 apart not, whichever pair;
+    a loaded image answers it once."""
+    from head360cli.io.images import LoadedImage, is_greyscale
+
+    rng = np.random.default_rng(0)
+    grey = np.repeat(rng.integers(3, 250, (64, 48, 1), dtype=np.uint8), 3, axis=2)
+    assert is_greyscale(grey)
+    near = grey.copy()
+    near[..., 0] += 2
+    assert is_greyscale(near)
+    for a, b in ((0, 1), (1, 2), (0, 2)):
+        off = grey.copy()
+        off[10, 20, a] = off[10, 20, b] + 3
+        assert not is_greyscale(off), (a, b)
+    assert not is_greyscale(rng.integers(0, 256, (64, 48, 3), dtype=np.uint8))
+
+    img = LoadedImage(grey, (48, 64), 1.0, "L", 1, "PNG", "grey.png")
+    assert img.greyscale and "greyscale" in vars(img)  # worked out once, then kept
