@@ -9,7 +9,10 @@
   stop 31) and on the coarse grid with a smooth fine layer (bottom, the default);
 - ``examples/figures/light_astronaut.png``: the photo under a bluish light (its channels
   times 0.7, 0.85 and 1.2), the head fitted to it without the light's colour (as before
-  stop 76) and with it.
+  stop 76) and with it;
+- ``examples/figures/grey_astronaut.png``: the photo in greyscale, the head fitted to its
+  colours (as before stop 79: a grey face) and to its grey (the skin's colour the
+  model's), each from the front and turned 45 degrees.
 
 Run from the repository root (about a minute on 2 CPU cores):
 
@@ -97,6 +100,30 @@ def light_figure(work: Path) -> None:
                                                    optimize=True)
 
 
+def grey_figure(work: Path) -> None:
+    """``grey_astronaut.png``: the grey photo's crop | fitted in colour, front and -45
+    degrees | fitted in grey, the same views."""
+    photo = work / "grey.png"
+    Image.fromarray(data.astronaut()).convert("L").save(photo)
+    invert = texture.invert_texture
+    tiles = []
+    for name in ("colour", "grey"):
+        if name == "colour":  # as before stop 79: the grey photo's RGB fitted
+            texture.invert_texture = lambda *a, **k: invert(
+                *a[:7], dataclasses.replace(a[7], grey=False), *a[8:], **k)
+        try:
+            fit = fit_photo(photo, work / f"{name}.h360")
+        finally:
+            texture.invert_texture = invert
+        sheet = np.asarray(Image.open(fit["files"]["preview"]).convert("RGB"))
+        size = sheet.shape[0]
+        if not tiles:
+            tiles.append(sheet[:, :size])  # the photo's crop
+        tiles.append(sheet[:, size:3 * size])  # the fitted front and -45 degree views
+    Image.fromarray(np.concatenate(tiles, 1)).save(FIGURES / "grey_astronaut.png",
+                                                   optimize=True)
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         photo = Path(tmp) / "astronaut.png"
@@ -109,8 +136,10 @@ def main() -> None:
             FIGURES / "parse_astronaut.png", optimize=True)
         texture_figure(photo, Path(tmp))
         light_figure(Path(tmp))
+        grey_figure(Path(tmp))
     print(f"wrote {FIGURES / 'fit_astronaut.png'}, {FIGURES / 'parse_astronaut.png'}, "
-          f"{FIGURES / 'texture_grid.png'} and {FIGURES / 'light_astronaut.png'}")
+          f"{FIGURES / 'texture_grid.png'}, {FIGURES / 'light_astronaut.png'} and "
+          f"{FIGURES / 'grey_astronaut.png'}")
 
 
 if __name__ == "__main__":
