@@ -334,6 +334,9 @@ def _format_image(r: dict[str, Any]) -> str:
         f"{r['display_size'][0]}x{r['display_size'][1]}",
         f"  frames       {r['frames']}",
         f"  colours      {_colours(r.get('colour_profile'), r.get('converted'))}",
+        *([f"  tone         {r['tone']}"
+           + (" (fit fits its grey; the skin's colour comes from the model)"
+              if r["tone"] != "colour" else "")] if r.get("tone") else []),
         f"  file size    {r['bytes']} bytes",
         f"  pixels       {r.get('problem') or 'decoded without error'}",
     ])

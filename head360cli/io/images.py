@@ -269,8 +269,10 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
         name), upright ``display_size``, ``frames``, ``bytes``, ``megapixels``,
         ``colour_profile`` (the embedded ICC profile's description, ``"unreadable"``, or
         ``None`` without one), ``converted`` (whether loading converts the pixels to
-        sRGB: a profile other than sRGB's), and ``problem``: why the commands would
-        refuse the pixels (over ``max_pixels``, truncated or corrupted), or ``None``.
+        sRGB: a profile other than sRGB's), ``tone`` (``greyscale``, ``one tone`` for a
+        sepia or toned print, or ``colour``: ``fit`` fits the first two in grey; ``None``
+        when the pixels do not decode), and ``problem``: why the commands would refuse
+        the pixels (over ``max_pixels``, truncated or corrupted), or ``None``.
     """
     from head360cli.io.sources import NamedBytes
 
@@ -293,6 +295,7 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
             except Exception:  # a profile of another colour space: not used
                 profile = "unreadable"
         problem = _decode_problem(img, max_pixels)  # after the header: draft changes mode
+        tone = None if problem else _tone(img)
         return {
             "kind": "image",
             "path": name,
@@ -308,8 +311,20 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
             "megapixels": round(w * h / 1e6, 3),
             "colour_profile": profile,
             "converted": converted,
+            "tone": tone,
             "problem": problem,
         }
+
+
+def _tone(img) -> str:
+    """``"greyscale"``, ``"one tone"`` (:func:`is_monochrome`: a sepia print) or
+    ``"colour"`` for a decoded image (a JPEG at the eighth of its size it was read at)."""
+    if img.mode in ("1", "L", "LA", "F") or img.mode.startswith("I"):
+        return "greyscale"
+    pixels = np.asarray(_eight_bit(img).convert("RGB"))
+    if is_greyscale(pixels):
+        return "greyscale"
+    return "one tone" if is_monochrome(pixels) else "colour"
 
 
 def _eight_bit(img):  # PIL.Image -> PIL.Image in an 8-bit mode

@@ -394,3 +394,25 @@ def test_one_tone_photos_are_monochrome_and_colour_photos_are_not():
     assert not is_monochrome(pair.round().astype(np.uint8))  # shaded red beside green
     img = LoadedImage(grey, (512, 512), 1.0, "RGB", 1, "PNG", "grey.png")
     assert img.monochrome and "monochrome" in vars(img)
+
+
+def test_describe_image_tells_the_tone_fit_will_see(tmp_path):
+    """``inspect``'s ``tone``: greyscale for a grey file (as L or as RGB), one tone for a
+    sepia JPEG (read at an eighth of its size), colour for a colour photo, and none for
+    pixels that do not decode."""
+    from skimage import data
+
+    colour = Image.fromarray(data.astronaut())
+    grey = colour.convert("L")
+    sepia = np.clip(np.asarray(grey.convert("RGB")) * (1.1, 1.0, 0.8), 0, 255)
+    files = {"grey.png": grey, "grey_rgb.png": grey.convert("RGB"),
+             "sepia.jpg": Image.fromarray(sepia.astype(np.uint8)), "colour.png": colour}
+    for name, im in files.items():
+        im.save(tmp_path / name)
+    tones = {name: describe_image(tmp_path / name)["tone"] for name in files}
+    assert tones == {"grey.png": "greyscale", "grey_rgb.png": "greyscale",
+                     "sepia.jpg": "one tone", "colour.png": "colour"}
+    data_ = (tmp_path / "sepia.jpg").read_bytes()
+    (tmp_path / "cut.jpg").write_bytes(data_[:len(data_) // 2])
+    cut = describe_image(tmp_path / "cut.jpg")
+    assert cut["problem"] and cut["tone"] is None
