@@ -336,7 +336,7 @@ def _format_image(r: dict[str, Any]) -> str:
         f"  colours      {_colours(r.get('colour_profile'), r.get('converted'))}",
         *([f"  tone         {r['tone']}"
            + (" (fit fits its grey; the skin's colour comes from the model)"
-              if r["tone"] != "colour" else "")] if r.get("tone") else []),
+              if r["tone"] == "greyscale" else "")] if r.get("tone") else []),
         f"  file size    {r['bytes']} bytes",
         f"  pixels       {r.get('problem') or 'decoded without error'}",
     ])

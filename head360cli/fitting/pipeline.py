@@ -237,10 +237,9 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     if width < SMALL_FACE_PX:
         warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
                         "blurry")
-    if img.monochrome:
-        kind = "greyscale" if img.greyscale else "one-tone (sepia or toned)"
-        warnings.append(f"{kind} photo: the hair colour will be its tone, the skin's "
-                        "comes from the model")
+    if img.greyscale:
+        warnings.append("greyscale photo: the hair colour will be grey, the skin's comes "
+                        "from the model")
     if on_face is not None:
         on_face(img, found)
     t0 = time.perf_counter()
@@ -743,7 +742,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
     timings["bald_target"] = first_s + time.perf_counter() - t0
     cfg = PRESETS[preset]
-    if img.monochrome:  # no light's colour, no skin's: its grey is fitted, not its tone
+    if img.greyscale:  # no light's colour, no skin's: its grey is fitted, not its colour
         cfg = dataclasses.replace(cfg, gain=False, grey=True)
     # lips closed or nearly: the inside of the mouth keeps the generated texture
     lips = mouth_opening(found.landmarks)  # NaN for eye corners on one point: not closed

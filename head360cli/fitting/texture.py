@@ -211,8 +211,7 @@ class InvertConfig:
     on every photo, ``bald_guys`` lost 4.5 dB. The nine photos' gaps: 0.010 to 0.077
     (five), then 0.097, 0.110, 0.122, 0.144. ``0``: always fitted."""
     grey: bool = False
-    """The photo is greyscale or of one tone (a sepia print; :func:`~head360cli.io.
-    images.is_monochrome`): the photometric loss compares the render's grey
+    """The photo is greyscale: the photometric loss compares the render's grey
     (:data:`LUMA`, as a greyscale conversion weighs the channels) with the photo's, so
     the texture fits the photo's shading and keeps the generated texture's colour, held
     there by ``near`` and ``symmetry``. ``fit`` sets it for a grey photo (and fits no

@@ -31,8 +31,7 @@ if TYPE_CHECKING:
     from head360cli.io.sources import NamedBytes
 
 __all__ = ["MAX_PIXELS", "MAX_SIDE", "LoadedImage", "check_companion_png", "describe_image",
-           "is_greyscale", "is_monochrome", "load_image", "png_info", "tone_spread",
-           "written_by_head360"]
+           "is_greyscale", "load_image", "png_info", "written_by_head360"]
 
 MAX_PIXELS = 100_000_000
 """Images with more pixels than this are refused."""
@@ -95,55 +94,6 @@ class LoadedImage:
         """Whether the pixels are grey (:func:`is_greyscale`), worked out once."""
         return is_greyscale(self.pixels[..., :3])
 
-    @functools.cached_property
-    def monochrome(self) -> bool:
-        """Whether the pixels are grey or one tone of a colour, a sepia print's
-        (:func:`is_monochrome`), worked out once."""
-        return self.greyscale or is_monochrome(self.pixels[..., :3])
-
-
-TONE_SIDE = 128
-"""The longest side of the copy :func:`tone_spread` reads: averaging down evens out
-noise and JPEG's colour artefacts, which a toned print's spread rose with (scikit-image's
-astronaut made grey and toned sepia, JPEG at quality 75: 6.9 read at 512 pixels, 4.4 at
-128), where a colour photo's spread is its regions' colours and stays."""
-
-MONOCHROME_TOLERANCE = 6.0
-"""The largest :func:`tone_spread` (grey levels) of an image :func:`is_monochrome` calls
-one tone. Greyscale photos read 0; the astronaut made grey and toned four ways (sepia,
-strong sepia, cool, warm) 0.8-0.9, saved as JPEG at quality 75 1.7-4.4, with noise of 2
-to 4 grey levels 1.2-2.1; AFLW2000-3D's sepia portrait 00251 2.1; the colour development
-photos (nine VOC photos, dlib's bald_guys, AFLW2000-3D 01322 and 03614) 13 to 63. The
-bench's and the hair masks' colour photos (28 more) read 8.0 to 55: none is taken for
-one tone."""
-
-
-def is_monochrome(pixels: np.ndarray, tolerance: float = MONOCHROME_TOLERANCE) -> bool:
-    """Whether ``pixels (H, W, 3)`` uint8 hold one tone: each pixel's colour is, within
-    ``tolerance``, the mean colour of the pixels as bright as it (BT.601 grey levels;
-    :func:`tone_spread`). True for greyscale and for toned prints (sepia, cyanotype); a
-    colour photo shows other colours at the same brightness (skin, clothes, sky)."""
-    return tone_spread(pixels) <= tolerance
-
-
-def tone_spread(pixels: np.ndarray) -> float:
-    """The 90th percentile over ``pixels (H, W, 3)`` uint8 of how far (grey levels, the
-    largest channel's difference) each pixel's colour lies from the mean colour of the
-    pixels of its grey level. Read on a copy at most 512 pixels long, averaged down,
-    which also evens out JPEG's colour noise."""
-    import cv2
-
-    h, w = pixels.shape[:2]
-    scale = TONE_SIDE / max(h, w)
-    small = np.ascontiguousarray(pixels[..., :3])
-    if scale < 1:
-        small = cv2.resize(small, (max(1, round(w * scale)), max(1, round(h * scale))),
-                           interpolation=cv2.INTER_AREA)
-    rgb = small.reshape(-1, 3).astype(np.float64)
-    level = np.clip(np.rint(rgb @ np.array([0.299, 0.587, 0.114])), 0, 255).astype(np.intp)
-    count = np.bincount(level, minlength=256).clip(min=1)
-    mean = np.stack([np.bincount(level, rgb[:, c], 256) for c in range(3)], 1) / count[:, None]
-    return float(np.percentile(np.abs(rgb - mean[level]).max(1), 90))
 
 
 def is_greyscale(pixels: np.ndarray) -> bool:
@@ -269,9 +219,9 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
         name), upright ``display_size``, ``frames``, ``bytes``, ``megapixels``,
         ``colour_profile`` (the embedded ICC profile's description, ``"unreadable"``, or
         ``None`` without one), ``converted`` (whether loading converts the pixels to
-        sRGB: a profile other than sRGB's), ``tone`` (``greyscale``, ``one tone`` for a
-        sepia or toned print, or ``colour``: ``fit`` fits the first two in grey; ``None``
-        when the pixels do not decode), and ``problem``: why the commands would refuse
+        sRGB: a profile other than sRGB's), ``tone`` (``greyscale``, which ``fit`` fits
+        in grey, or ``colour``; ``None`` when the pixels do not decode), and ``problem``:
+        why the commands would refuse
         the pixels (over ``max_pixels``, truncated or corrupted), or ``None``.
     """
     from head360cli.io.sources import NamedBytes
@@ -317,14 +267,12 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
 
 
 def _tone(img) -> str:
-    """``"greyscale"``, ``"one tone"`` (:func:`is_monochrome`: a sepia print) or
-    ``"colour"`` for a decoded image (a JPEG at the eighth of its size it was read at)."""
+    """``"greyscale"`` (:func:`is_greyscale`) or ``"colour"`` for a decoded image (a JPEG
+    at the eighth of its size it was read at)."""
     if img.mode in ("1", "L", "LA", "F") or img.mode.startswith("I"):
         return "greyscale"
-    pixels = np.asarray(_eight_bit(img).convert("RGB"))
-    if is_greyscale(pixels):
-        return "greyscale"
-    return "one tone" if is_monochrome(pixels) else "colour"
+    return "greyscale" if is_greyscale(np.asarray(_eight_bit(img).convert("RGB"))) \
+        else "colour"
 
 
 def _eight_bit(img):  # PIL.Image -> PIL.Image in an 8-bit mode

@@ -445,20 +445,6 @@ def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
     assert (face[..., 0] - face[..., 2]).mean() > 45, face.mean((0, 1))
 
 
-def test_a_sepia_photo_is_fitted_in_grey_without_a_light(run_cli, astronaut, tmp_path):
-    """A toned print (the astronaut made grey, then sepia, saved as JPEG) holds one tone,
-    not a light on coloured skin: fitted in grey, as a greyscale photo, with a warning."""
-    grey = np.asarray(Image.open(astronaut).convert("L").convert("RGB")).astype(float)
-    sepia = tmp_path / "sepia.jpg"
-    Image.fromarray(np.clip(grey * (1.1, 1.0, 0.8), 0, 255).astype(np.uint8)).save(
-        sepia, quality=90)
-    r = run_cli("fit", sepia, "-o", tmp_path / "sepia.h360", "--json")
-    assert r.code == 0, r.err
-    s = json.loads(r.out)
-    assert s["inversion"]["fitted_in"] == "grey" and s["light"] is None
-    assert any("one-tone (sepia or toned) photo" in w for w in s["warnings"])
-
-
 def test_small_faces_are_refused_or_warned(tmp_path):
     from skimage import data
 
