@@ -370,6 +370,7 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     import cv2
 
     from head360cli.errors import BadInputError
+    from head360cli.io.images import is_greyscale
 
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
@@ -424,9 +425,10 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
         cheeks = _poly((sh, sw), cv2.convexHull(lm[[1, 2, 3, 31, 39, 40, 41, 36]])[:, 0])
         cheeks |= _poly((sh, sw), cv2.convexHull(lm[[15, 14, 13, 35, 42, 47, 46, 45]])[:, 0])
         samples = lab[cheeks] if cheeks.sum() >= MIN_SAMPLES else lab[jaw_in]
-        # A greyscale photo has no skin colour: brightness alone would call blond or
-        # grey hair skin, so no pixel is skin by colour there.
-        grey = np.ptp(small.astype(np.int16), axis=2).max() <= 2
+        # A greyscale photo (faint casts and noise too, as the fit sees it) has no skin
+        # colour: brightness alone would call blond or grey hair skin, so no pixel is
+        # skin by colour there.
+        grey = is_greyscale(small)
         modelled = len(samples) >= MIN_SAMPLES and not grey
         skin_distance = (_colour_distance(lab, samples) if modelled
                          else np.full(face.shape, np.inf))

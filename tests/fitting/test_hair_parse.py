@@ -492,3 +492,21 @@ def test_unseeded_profile_needs_skin_colour_and_the_cascade(monkeypatch):
     monkeypatch.setattr(landmarks, "_profile_cascade", lambda: None)
     r = parse_hair(rgb, None)
     assert not r.profile and np.array_equal(r.hair, plain.hair)
+
+
+def test_a_grey_photo_with_a_faint_cast_is_parsed_as_its_grey_self():
+    """A black-and-white photo with a faint cast and noise (red and blue times 1.02 and
+    0.98, noise of 2 grey levels) is greyscale to the fit and to the parse alike: its
+    masks are the grey photo's (with the skin colour model, its face mask was 0.948 of
+    them)."""
+    from PIL import Image
+    from skimage import data
+
+    from head360cli.fitting.landmarks import find_faces, pick_face
+
+    grey = np.asarray(Image.fromarray(data.astronaut()).convert("L").convert("RGB"))
+    noise = np.random.default_rng(0).normal(0, 2, grey.shape)
+    cast = np.clip(grey * (1.02, 1.0, 0.98) + noise, 0, 255).astype(np.uint8)
+    face = pick_face(find_faces(grey, "hog"), 0, "hog", grey)
+    a, b = (parse_hair(x, face.landmarks) for x in (grey, cast))
+    assert mask_iou(b.face, a.face) > 0.99 and mask_iou(b.hair, a.hair) > 0.99
