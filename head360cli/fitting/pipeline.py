@@ -237,7 +237,7 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
     if width < SMALL_FACE_PX:
         warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
                         "blurry")
-    if img.greyscale:
+    if _grey_face(img, found):
         warnings.append("greyscale photo: the hair colour will be grey, the skin's comes "
                         "from the model")
     if on_face is not None:
@@ -742,7 +742,7 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
     mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
     timings["bald_target"] = first_s + time.perf_counter() - t0
     cfg = PRESETS[preset]
-    if img.greyscale:  # no light's colour, no skin's: its grey is fitted, not its colour
+    if _grey_face(img, found):  # no light's colour, no skin's: its grey is fitted
         cfg = dataclasses.replace(cfg, gain=False, grey=True)
     # lips closed or nearly: the inside of the mouth keeps the generated texture
     lips = mouth_opening(found.landmarks)  # NaN for eye corners on one point: not closed
@@ -897,6 +897,20 @@ def _rig_intrinsics(res: int):
     from head360cli.geometry.cameras import RIG_FOV_DEG, intrinsics_from_fov
 
     return intrinsics_from_fov(RIG_FOV_DEG, res, res)
+
+
+def _grey_face(img, found) -> bool:
+    """Whether the photo (a :class:`~head360cli.io.images.LoadedImage`) is greyscale and
+    so is the found face's box in it (:func:`~head360cli.io.images.is_greyscale`): a
+    small face in a photo of grey and black and white is under 1 % of its pixels."""
+    from head360cli.io.images import is_greyscale
+
+    if not img.greyscale:
+        return False
+    h, w = img.pixels.shape[:2]
+    x0, y0, x1, y1 = (int(np.rint(c)) for c in found.box)
+    box = img.pixels[max(0, y0):min(h, y1), max(0, x0):min(w, x1), :3]
+    return box.size == 0 or is_greyscale(box)
 
 
 def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:

@@ -445,6 +445,22 @@ def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
     assert (face[..., 0] - face[..., 2]).mean() > 45, face.mean((0, 1))
 
 
+def test_a_colour_face_in_a_grey_scene_is_not_a_grey_photo(tmp_path):
+    """A colour face on under 1 % of a grey photo: the photo passes as greyscale, but
+    the face's box does not, so no greyscale warning (nor a grey fit)."""
+    from skimage import data
+
+    from head360cli.io.images import load_image
+
+    canvas = np.full((3000, 3000, 3), 128, np.uint8)
+    canvas[1000:1300, 1000:1300] = data.astronaut()[0:300, 100:400]  # her face
+    path = tmp_path / "scene.png"
+    Image.fromarray(canvas).save(path)
+    assert load_image(path).greyscale  # the whole photo is
+    _, warnings = _stage(path)
+    assert not any("greyscale" in w for w in warnings), warnings
+
+
 def test_small_faces_are_refused_or_warned(tmp_path):
     from skimage import data
 
