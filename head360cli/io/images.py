@@ -95,7 +95,6 @@ class LoadedImage:
         return is_greyscale(self.pixels[..., :3])
 
 
-
 GREY_TOLERANCE = 16
 """How far apart (grey levels) a pixel's channels may be in a photo :func:`is_greyscale`
 calls grey, in all but one pixel in a hundred. A black-and-white photo with a faint cast
@@ -236,8 +235,8 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
         ``None`` without one), ``converted`` (whether loading converts the pixels to
         sRGB: a profile other than sRGB's), ``tone`` (``greyscale``, which ``fit`` fits
         in grey, or ``colour``; ``None`` when the pixels do not decode), and ``problem``:
-        why the commands would refuse
-        the pixels (over ``max_pixels``, truncated or corrupted), or ``None``.
+        why the commands would refuse the pixels (over ``max_pixels``, truncated or
+        corrupted), or ``None``.
     """
     from head360cli.io.sources import NamedBytes
 
