@@ -238,8 +238,8 @@ def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | Non
         warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
                         "blurry")
     if _grey_face(img, found):
-        warnings.append("greyscale photo: the hair colour will be grey, the skin's comes "
-                        "from the model")
+        warnings.append("greyscale photo: the skin's colour comes from the model, the "
+                        "hair's is the named colour nearest its grey")
     if on_face is not None:
         on_face(img, found)
     t0 = time.perf_counter()
