@@ -598,9 +598,13 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
     log_gain = torch.zeros(3, dtype=target.dtype, device=target.device,
                            requires_grad=cfg.gain)
 
+    luma = torch.tensor(LUMA, dtype=target.dtype, device=target.device).view(1, 3, 1, 1)
+
+    def grey(x: torch.Tensor) -> torch.Tensor:  # (B, 3, H, W) -> (B, 1, H, W)
+        return (x * luma).sum(1, keepdim=True)
+
     if cfg.grey:  # a grey photo: its grey against the render's, the colour left free
-        luma = torch.tensor(LUMA, dtype=target.dtype, device=target.device).view(1, 3, 1, 1)
-        tgt, low_t = ((x * luma).sum(1, keepdim=True) for x in (tgt, low_t))
+        tgt, low_t = grey(tgt), grey(low_t)
     channels = 1 if cfg.grey else 3
 
     def photometric(out) -> torch.Tensor:
@@ -610,7 +614,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
             rgb = lit(rgb, out["alpha"], g)
             rgb_low = lit(rgb_low, out["alpha_low"], g)
         if cfg.grey:
-            rgb, rgb_low = ((x * luma).sum(1, keepdim=True) for x in (rgb, rgb_low))
+            rgb, rgb_low = grey(rgb), grey(rgb_low)
         return ((rgb - tgt).abs() * m).sum() / (channels * area) + 0.5 * (
             (rgb_low - low_t).abs() * low_m).sum() / (channels * low_area)
 

@@ -99,12 +99,12 @@ GREY_TOLERANCE = 16
 """How far apart (grey levels) a pixel's channels may be in a photo :func:`is_greyscale`
 calls grey, in all but one pixel in a hundred. A black-and-white photo with a faint cast
 and noise (scikit-image's astronaut made grey, red and blue times 1.02 and 0.98, noise of
-2 levels) reads 14 at its 99th percentile, 8 as a JPEG at quality 85; a cast of 4 to 5 %
-21-24; the colour development photos 58 to 178 and the corpus' renders 66 and over (a
-skin-coloured head on white), so none comes near it. A sepia print (AFLW2000-3D's
-00251: 42; the astronaut toned 1.1 / 1.0 / 0.8: 68) is fitted as a colour photo under a
-light: its tone cannot be told from a one-coloured subject's (``docs/HISTORY.md``,
-stop 79)."""
+2 levels) reads 14 at its 99th percentile (the cast alone, as a JPEG at quality 85: 8); a
+cast of 4 to 5 % 21-24; the colour development photos 58 to 178 and the corpus' renders
+66 and over (a skin-coloured head on white), so none comes near it. A sepia print
+(AFLW2000-3D's 00251: 42; the astronaut toned 1.1 / 1.0 / 0.8: 68) is fitted as a colour
+photo under a light: its tone cannot be told from a one-coloured subject's
+(``docs/HISTORY.md``, stop 79)."""
 
 
 def is_greyscale(pixels: np.ndarray) -> bool:
