@@ -61,20 +61,25 @@ class InvertConfig:
     face PSNR from 29.46 to 29.68 dB (every photo up), for 5-10 s more a fit: the camera
     refinement had not settled in 20 steps. The fast preset takes 30 at ``code_samples``
     4 (see there)."""
-    steps: int = 16
-    """Most steps optimising the neural texture. The stopping rule rarely ends a fast fit
-    early, so more steps cost time in proportion (stop 57, nine development photos: five
-    AFLW2000-3D, three VOC, dlib's bald_guys; every fit ran all its steps). 16 -> 20 ->
-    24 took their face PSNR from 24.87 to 25.42 and 25.82 dB (every photo up at 24) and
-    the dlib descriptor distance of the frontal render from 0.446 to 0.424 and 0.420
-    (five of eight renders closer at 20), for 0.5 and 1.1 s more inversion, but the
-    eyes' detail that buys it costs the blinks: dlib's eye opening over a blink ramp of
-    0 to 1 (front view, eight heads) followed it at a mean r of -0.90 / -0.90 with 16
-    steps and -0.86 / -0.84 with 20 (five heads worse, two better; the jaw 0.81 ->
-    0.84), and holding the eyes' texels near the generated texture (``near`` 25 times
-    over them) lost the descriptor gain (0.449) and turned one head's blink the wrong
-    way. A faster rate at 16 steps (``lr_texture`` 0.4) gained nothing (24.95 dB,
-    0.448). Both presets keep their counts."""
+    steps: int = 24
+    """Most steps optimising the neural texture (the fast preset's count). The stopping
+    rule rarely ends a fast fit early, so more steps cost time in proportion (about
+    0.14 s a step on a 2-core CPU).
+
+    Stop 57 (nine development photos: five AFLW2000-3D, three VOC, dlib's bald_guys)
+    measured 16 -> 20 -> 24 as face PSNR 24.87 -> 25.42 -> 25.82 dB and the frontal
+    render's dlib descriptor distance 0.446 -> 0.424 -> 0.420, but kept 16: the eyes'
+    detail cost the blinks (dlib's eye opening over a 0-to-1 blink ramp, eight heads,
+    mean r -0.90 -> -0.86). The closed lids fitted since (``fit``'s lid change) took
+    that cost away: at stop 80 the same nine photos read, at 16 / 20 / 24 steps, face
+    PSNR 25.48 / 25.91 / 26.18 dB (every photo up at 24), bald 27.95 / 28.55 / 28.92,
+    descriptor distance at 0 degrees 0.418 / 0.398 / 0.392 (the same eight renders;
+    six closer at 24) and 0.510 / 0.508 / 0.502 at +-30, the blink ramps -0.66, -0.64 /
+    -0.67, -0.66 / -0.74, -0.79 and the jaw ramp 0.83 / 0.86 / 0.87, for 1.1 s more a
+    fit at 24 (9.6 -> 10.7 s, three photos fitted twice each way). Six held-out
+    synthetic heads of corpus seed 1 hardly move (17.85 -> 17.88 dB over 72 views).
+    Fewer code steps to pay for them (24 and 24) lost the descriptor gain (0.418). A
+    faster rate at 16 steps (``lr_texture`` 0.4, stop 57) gained nothing."""
     samples: int = 6
     """Samples per ray while fitting (the generator's own count is used for output)."""
     code_samples: int | None = None
