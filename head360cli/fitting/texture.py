@@ -55,11 +55,11 @@ class InvertConfig:
     """Steps fitting the texture code ``t`` (and refining the camera) before the texture
     itself. 5 -> 20 with ``lr_rotation`` 0.01 -> 0.02 took held-out synthetic fits from
     16.8 to 17.9 dB over 72 views (6 heads, fast preset), for about 2 s more. The quality
-    preset takes 40: on three held-out heads of corpus seed 1 (not the bench's seed 0)
+    preset takes 60. First 40: on three held-out heads of corpus seed 1 (not the bench's seed 0)
     20 -> 40 took its fits from 17.73 to 18.71 dB over 72 views (every head up: +1.05,
     +1.81, +0.10) and 21.52 to 21.99 at the input view, and five development photos' bald
     face PSNR from 29.46 to 29.68 dB (every photo up), for 5-10 s more a fit: the camera
-    refinement had not settled in 20 steps. Stop 80 took it to 60: four held-out heads of
+    refinement had not settled in 20 steps. Then 60 (stop 80), four held-out heads of
     corpus seed 1, 40 / 60 / 80 steps, 18.53 / 19.15 / 19.29 dB over 72 views (every
     head up at 60), 20.97 / 21.52 / 21.48 at the input view, the pitch left after the
     refinement 5.1 / 3.3 / 2.2 degrees, for 29.7 / 34.5 / 40.8 s a fit; on the nine
