@@ -55,8 +55,8 @@ class InvertConfig:
     """Steps fitting the texture code ``t`` (and refining the camera) before the texture
     itself. 5 -> 20 with ``lr_rotation`` 0.01 -> 0.02 took held-out synthetic fits from
     16.8 to 17.9 dB over 72 views (6 heads, fast preset), for about 2 s more. The quality
-    preset takes 60. First 40: on three held-out heads of corpus seed 1 (not the bench's seed 0)
-    20 -> 40 took its fits from 17.73 to 18.71 dB over 72 views (every head up: +1.05,
+    preset takes 60. First 40: on three held-out heads of corpus seed 1 (not the bench's
+    seed 0) 20 -> 40 took its fits from 17.73 to 18.71 dB over 72 views (every head up: +1.05,
     +1.81, +0.10) and 21.52 to 21.99 at the input view, and five development photos' bald
     face PSNR from 29.46 to 29.68 dB (every photo up), for 5-10 s more a fit: the camera
     refinement had not settled in 20 steps. Then 60 (stop 80), four held-out heads of
