@@ -367,19 +367,38 @@ def _descriptor(rgb: np.ndarray):
     return np.array(cache["rec"].compute_face_descriptor(img, shape))
 
 
-def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
-          ) -> dict[str, Any]:
+def _distances(head_file: Path, ref, device: str = "cpu") -> dict[str, float | None]:
+    """dlib descriptor distances between a photo's descriptor ``ref`` (``None``: no face
+    in the photo) and renders of ``head_file`` at 0 and +-30 degrees yaw from the rig's
+    camera, keyed ``yaw_+0``, ``yaw_+30``, ``yaw_-30``; ``None`` where dlib finds no face."""
     import torch
 
-    from head360cli.fitting.pipeline import fit_photo, load_head_renderer
+    from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.geometry.cameras import (
         RIG_DISTANCE,
         RIG_FOV_DEG,
         camera_on_sphere,
         intrinsics_from_fov,
     )
-    from head360cli.io.images import load_image
     from head360cli.model.head_render import to_uint8
+
+    head = load_head_renderer(head_file, device=device, precision="fp32")
+    res = head.gen.cfg.image_res
+    yaws = (0.0, 30.0, -30.0)
+    cams = camera_on_sphere(torch.tensor(yaws), torch.zeros(3), RIG_DISTANCE)
+    renders = head.render(cams, intrinsics_from_fov(RIG_FOV_DEG, res, res))
+    dist = {}
+    for yaw, img in zip(yaws, to_uint8(renders), strict=True):
+        d = _descriptor(img)
+        dist[f"yaw_{yaw:+.0f}"] = (None if d is None or ref is None
+                                   else round(float(np.linalg.norm(d - ref)), 4))
+    return dist
+
+
+def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
+          ) -> dict[str, Any]:
+    from head360cli.fitting.pipeline import fit_photo
+    from head360cli.io.images import load_image
 
     rows = []
     for photo in photos:
@@ -389,17 +408,7 @@ def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
         except Exception as exc:  # reported, not fatal: one photo must not stop the rest
             rows.append({"photo": photo.name, "error": str(exc)})
             continue
-        head = load_head_renderer(out, device=device, precision="fp32")
-        res = head.gen.cfg.image_res
-        ref = _descriptor(load_image(photo).pixels)
-        yaws = (0.0, 30.0, -30.0)
-        cams = camera_on_sphere(torch.tensor(yaws), torch.zeros(3), RIG_DISTANCE)
-        renders = head.render(cams, intrinsics_from_fov(RIG_FOV_DEG, res, res))
-        dist = {}
-        for yaw, img in zip(yaws, to_uint8(renders), strict=True):
-            d = _descriptor(img)
-            dist[f"yaw_{yaw:+.0f}"] = (None if d is None or ref is None
-                                       else round(float(np.linalg.norm(d - ref)), 4))
+        dist = _distances(out, _descriptor(load_image(photo).pixels), device)
         rows.append({"photo": photo.name, "psnr_face": s["psnr_face_input_view"],
                      "psnr_face_bald": s["psnr_face_input_view_bald"],
                      "descriptor_distance": dist, "hair": s["hair_style"]["name"],
@@ -478,40 +487,95 @@ def noisy_copy(rgb: np.ndarray, seed: int) -> np.ndarray:
     return np.clip(rgb.astype(np.int16) + step, 0, 255).astype(np.uint8)
 
 
-def _stability(photo: Path, work: Path, draws: int, device: str = "cpu") -> dict[str, Any]:
-    """Fast fits of ``photo`` and of ``draws`` :func:`noisy_copy`-s of it (seeds 1..draws):
-    how far the fit's results move when the input moves by one grey level."""
+def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
+               ) -> dict[str, Any]:
+    """Fast fits of each photo and of ``draws`` :func:`noisy_copy`-s of it (seeds
+    1..draws): how far the fit's results move when the input moves by one grey level.
+
+    Besides each photo's ranges, with several photos the means over them are taken draw
+    by draw (the originals, then every photo's first copy, ...): how far the bench's
+    means over its photos (face PSNR, descriptor distance at 0 degrees) move with inputs
+    no eye tells apart. Every draw's renders are compared with the original photo's
+    descriptor, so only the fit moves. The descriptor's mean is over the photos whose
+    frontal render dlib reads in every draw, so the draws' means compare the same
+    photos. The first
+    photo's ranges stay at the top level (``photo``, ``range_psnr_face``,
+    ``range_psnr_face_bald``), as before several photos could be given.
+    """
     from PIL import Image
 
     from head360cli.fitting.pipeline import fit_photo
     from head360cli.io.images import load_image
 
-    rgb = load_image(photo).pixels
-    rows = []
-    for seed in range(draws + 1):
-        path = work / f"stability_{seed}.png"
-        Image.fromarray(rgb if seed == 0 else noisy_copy(rgb, seed)).save(path)
-        s = fit_photo(path, work / f"stability_{seed}.h360", preset="fast", device=device)
-        rows.append({"seed": seed, "psnr_face": s["psnr_face_input_view"],
-                     "psnr_face_bald": s["psnr_face_input_view_bald"],
-                     "hair": s["hair_style"]["name"], "colour": s["hair_color_name"]})
-    face = [r["psnr_face"] for r in rows]
-    bald = [r["psnr_face_bald"] for r in rows]
-    return {"photo": photo.name, "draws": draws, "rows": rows,
-            "range_psnr_face": round(max(face) - min(face), 2),
-            "range_psnr_face_bald": round(max(bald) - min(bald), 2)}
+    rows, errors = [], {}
+    for n, photo in enumerate(photos):
+        rgb = load_image(photo).pixels
+        ref = _descriptor(rgb)
+        for seed in range(draws + 1):
+            path = work / f"stability_{n}_{seed}.png"
+            Image.fromarray(rgb if seed == 0 else noisy_copy(rgb, seed)).save(path)
+            out = work / f"stability_{n}_{seed}.h360"
+            try:
+                s = fit_photo(path, out, preset="fast", device=device)
+            except Exception as exc:  # reported, not fatal, as in the real-photo part
+                errors[photo.name] = str(exc)
+                break
+            rows.append({"photo": photo.name, "seed": seed,
+                         "psnr_face": s["psnr_face_input_view"],
+                         "psnr_face_bald": s["psnr_face_input_view_bald"],
+                         "hair": s["hair_style"]["name"], "colour": s["hair_color_name"],
+                         "distance_0": _distances(out, ref, device)["yaw_+0"]})
+
+    def spread(values):
+        values = [v for v in values if v is not None]
+        return round(max(values) - min(values), 4) if values else None
+
+    fitted = [p.name for p in photos if p.name not in errors]
+    by_photo = []
+    for name in fitted:
+        mine = [r for r in rows if r["photo"] == name]
+        by_photo.append({"photo": name,
+                         "range_psnr_face": round(spread([r["psnr_face"] for r in mine]), 2),
+                         "range_psnr_face_bald": round(
+                             spread([r["psnr_face_bald"] for r in mine]), 2),
+                         "range_distance_0": spread([r["distance_0"] for r in mine])})
+    result: dict[str, Any] = {"photo": photos[0].name, "photos": [p.name for p in photos],
+                              "draws": draws, "rows": rows, "errors": errors,
+                              "by_photo": by_photo}
+    if by_photo and by_photo[0]["photo"] == photos[0].name:
+        result["range_psnr_face"] = by_photo[0]["range_psnr_face"]
+        result["range_psnr_face_bald"] = by_photo[0]["range_psnr_face_bald"]
+    if len(fitted) > 1:
+        seen = [name for name in fitted
+                if all(r["distance_0"] is not None for r in rows if r["photo"] == name)]
+        by_draw = []
+        for seed in range(draws + 1):
+            mine = [r for r in rows if r["seed"] == seed]
+            d0 = [r["distance_0"] for r in mine if r["photo"] in seen]
+            by_draw.append({"seed": seed,
+                            "psnr_face": round(float(np.mean([r["psnr_face"] for r in mine])),
+                                               3),
+                            "distance_0": round(float(np.mean(d0)), 4) if d0 else None})
+        result["by_draw"] = by_draw
+        result["by_draw_photos"] = {"psnr_face": len(fitted), "distance_0": len(seen)}
+        result["range_by_draw"] = {
+            "psnr_face": round(spread([d["psnr_face"] for d in by_draw]), 3),
+            "distance_0": spread([d["distance_0"] for d in by_draw])}
+    return result
 
 
 def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"),
               sweep: tuple[int, ...] = (5, 10, 20, 40), stability: int = 3,
-              progress=None, corpus_seed: int = 0, device: str = "cpu") -> tuple[dict, str]:
+              progress=None, corpus_seed: int = 0, device: str = "cpu",
+              stability_photos: int = 1) -> tuple[dict, str]:
     """Run every part that its data allows; returns ``(result, markdown)``. The
     synthetic parts use the held-out heads of corpus seed ``corpus_seed`` (0: the
     bench's; other seeds are for development, so that choices are not tuned on the
     heads the bench reports). The fits (synthetic and real, from the command line, the
     sweep and the stability draws) and their renders run on ``device``; the hair parts
     (which run on the CPU in every fit) and the known-geometry diagnostic stay on the
-    CPU."""
+    CPU. The stability part fits the first ``stability_photos`` real photos and
+    ``stability`` noisy copies of each (:func:`_stability`)."""
     import torch
 
     from head360cli.paths import shared_data_dir
@@ -557,9 +621,11 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
             if sweep:
                 say("inversion steps against quality")
                 result["sweep"] = _sweep(photos[0], work, sweep, device)
-            if stability:
-                say("stability: the first photo with one grey level of noise")
-                result["stability"] = _stability(photos[0], work, stability, device)
+            if stability and stability_photos:
+                chosen = photos[:stability_photos]
+                which = "the first photo" if len(chosen) == 1 else f"{len(chosen)} photos"
+                say(f"stability: {which} with one grey level of noise")
+                result["stability"] = _stability(chosen, work, stability, device)
     result["seconds"] = round(time.perf_counter() - t0, 1)
     return result, _markdown(result)
 
@@ -672,14 +738,44 @@ def _markdown(r: dict[str, Any]) -> str:
         lines += [f"| {s['texture_steps']} | {s['psnr_face']:.2f} | {s['invert_s']:.1f} | "
                   f"{s['total_s']:.1f} |" for s in r["sweep"]]
     if r.get("stability"):
-        st = r["stability"]
-        lines += ["", f"## Stability ({st['photo']}, fast preset, the photo and "
-                  f"{st['draws']} copies with each value moved by one grey level)", "",
-                  "| noise seed | face PSNR | same, bald | hairstyle | hair colour |",
-                  "|---|---|---|---|---|"]
-        lines += [f"| {'none' if t['seed'] == 0 else t['seed']} | {t['psnr_face']:.2f} | "
-                  f"{t['psnr_face_bald']:.2f} | {t['hair']} | {t['colour']} |"
-                  for t in st["rows"]]
-        lines += ["", f"Range: face PSNR {st['range_psnr_face']:.2f} dB, bald "
-                  f"{st['range_psnr_face_bald']:.2f} dB."]
+        lines += _stability_markdown(r["stability"])
     return "\n".join(lines) + "\n"
+
+
+def _stability_markdown(st: dict[str, Any]) -> list[str]:
+    """The stability part's section of :func:`_markdown`."""
+    several = len(st.get("photos", [st["photo"]])) > 1
+    what = (f"{len(st['photos'])} photos, fast preset, each photo and {st['draws']} copies"
+            if several else f"{st['photo']}, fast preset, the photo and {st['draws']} copies")
+    lines = ["", f"## Stability ({what} with each value moved by one grey level)", "",
+             ("| photo " if several else "") + "| noise seed | face PSNR | same, bald | "
+             "descriptor distance 0 deg | hairstyle | hair colour |",
+             ("|---" if several else "") + "|---|---|---|---|---|---|"]
+    for t in st["rows"]:
+        lines.append((f"| {t['photo']} " if several else "")
+                     + f"| {'none' if t['seed'] == 0 else t['seed']} | {t['psnr_face']:.2f} | "
+                     f"{t['psnr_face_bald']:.2f} | {_maybe(t.get('distance_0'))} | "
+                     f"{t['hair']} | {t['colour']} |")
+    lines.append("")
+    for name, error in st.get("errors", {}).items():
+        lines.append(f"{name}: not fitted ({error}).")
+    for b in st.get("by_photo", []):
+        lines.append(f"Range, {b['photo']}: face PSNR {b['range_psnr_face']:.2f} dB, bald "
+                     f"{b['range_psnr_face_bald']:.2f} dB, descriptor distance at 0 degrees "
+                     f"{_maybe(b['range_distance_0'])}.")
+    if "by_draw" not in st and "range_psnr_face" in st and not st.get("by_photo"):
+        lines.append(f"Range: face PSNR {st['range_psnr_face']:.2f} dB, bald "
+                     f"{st['range_psnr_face_bald']:.2f} dB.")  # results of older versions
+    if "by_draw" in st:
+        n = st["by_draw_photos"]
+        lines += ["", f"Means over the photos, draw by draw (face PSNR over {n['psnr_face']} "
+                  f"photos; descriptor distance over the {n['distance_0']} whose frontal "
+                  "render dlib reads in every draw):", "",
+                  "| noise seed | mean face PSNR | mean descriptor distance 0 deg |",
+                  "|---|---|---|"]
+        lines += [f"| {'none' if d['seed'] == 0 else d['seed']} | {d['psnr_face']:.2f} | "
+                  f"{_maybe(d['distance_0'])} |" for d in st["by_draw"]]
+        g = st["range_by_draw"]
+        lines += ["", f"Range of the means: face PSNR {g['psnr_face']:.2f} dB, descriptor "
+                  f"distance at 0 degrees {_maybe(g['distance_0'])}."]
+    return lines

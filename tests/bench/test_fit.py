@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from head360cli.bench.fit import (
     _cold_fit,
@@ -11,6 +14,7 @@ from head360cli.bench.fit import (
     _known_geometry,
     _markdown,
     _stability,
+    _stability_markdown,
     noisy_copy,
 )
 
@@ -100,7 +104,8 @@ def test_markdown_lists_every_part():
                  "| fast | 22.00 | 25.00 | - (0 of 2 renders with a face) | 0.700 (3 of 4 "
                  "renders with a face) | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",
-                 "| none | 22.00 | 25.00 | bob | black |", "| 1 | 20.50 | 25.25 | lob | black |",
+                 "| none | 22.00 | 25.00 | - | bob | black |",
+                 "| 1 | 20.50 | 25.25 | - | lob | black |",
                  "Range: face PSNR 1.50 dB, bald 0.25 dB.",
                  "yaw 10 degrees 0.900 (without the learned prior 0.850); no face, back "
                  "views 0.800, close-ups 0.700 (29 heads), profiles 0.850 (58 views, a "
@@ -121,32 +126,97 @@ def test_noisy_copy_moves_each_value_by_at_most_one_grey_level():
     assert np.array_equal(a, noisy_copy(rgb, 1)) and not np.array_equal(a, b)
 
 
-def test_stability_fits_the_photo_and_its_noisy_copies(tmp_path, monkeypatch):
-    """The photo and each noisy copy go through ``fit_photo`` (stubbed here: the fits
-    themselves are the bench's work) and the ranges span their results."""
+def _stub_fits(monkeypatch, psnr, distance):
+    """Stub ``fit_photo`` and the descriptor part (the fits themselves are the bench's
+    work): the n-th fit of a photo named ``name`` scores ``psnr(name, n)`` and its
+    frontal render ``distance(name, n)``. Returns the list of the pixels fitted."""
     from PIL import Image
 
+    import head360cli.bench.fit as bench
     import head360cli.fitting.pipeline as pipeline
+
+    seen, count = [], {}
+
+    def fake_fit(path, out, preset, device):
+        assert device == "cpu" and preset == "fast"
+        seen.append(np.asarray(Image.open(path)))
+        name = Path(path).stem.rsplit("_", 1)[0]
+        count[name] = count.get(name, 0) + 1
+        Path(out).write_text(f"{name} {count[name]}")
+        return {"psnr_face_input_view": psnr(name, count[name]),
+                "psnr_face_input_view_bald": 30.0 - count[name] / 4,
+                "hair_style": {"name": "bob"}, "hair_color_name": "black"}
+
+    def fake_distances(out, ref, device):
+        name, n = Path(out).read_text().split()
+        return {"yaw_+0": distance(name, int(n)), "yaw_+30": None, "yaw_-30": None}
+
+    monkeypatch.setattr(pipeline, "fit_photo", fake_fit)
+    monkeypatch.setattr(bench, "_distances", fake_distances)
+    monkeypatch.setattr(bench, "_descriptor", lambda rgb: np.zeros(128))
+    return seen
+
+
+def test_stability_fits_the_photo_and_its_noisy_copies(tmp_path, monkeypatch):
+    """The photo and each noisy copy go through ``fit_photo`` and the ranges span their
+    results."""
+    from PIL import Image
 
     rgb = np.random.default_rng(0).integers(0, 256, (40, 40, 3)).astype(np.uint8)
     Image.fromarray(rgb).save(tmp_path / "p.png")
-    seen = []
-
-    def fake_fit(path, out, preset, device):
-        assert device == "cpu"
-        seen.append(np.asarray(Image.open(path)))
-        n = len(seen)
-        return {"psnr_face_input_view": 20.0 + n, "psnr_face_input_view_bald": 30.0 - n / 4,
-                "hair_style": {"name": "bob"}, "hair_color_name": "black"}
-
-    monkeypatch.setattr(pipeline, "fit_photo", fake_fit)
+    seen = _stub_fits(monkeypatch, lambda name, n: 20.0 + n, lambda name, n: 0.4 + n / 100)
     work = tmp_path / "work"
     work.mkdir()
-    r = _stability(tmp_path / "p.png", work, 2)
+    r = _stability([tmp_path / "p.png"], work, 2)
     assert np.array_equal(seen[0], rgb)
     assert all(np.abs(s.astype(int) - rgb).max() == 1 for s in seen[1:])
     assert [t["seed"] for t in r["rows"]] == [0, 1, 2]
     assert r["range_psnr_face"] == 2.0 and r["range_psnr_face_bald"] == 0.5
+    assert r["by_photo"][0]["range_distance_0"] == pytest.approx(0.02)
+    assert "by_draw" not in r  # one photo: its own ranges are the spread
+
+
+def test_stability_over_several_photos_compares_their_means_draw_by_draw(tmp_path,
+                                                                         monkeypatch):
+    """With several photos the means over them are taken per draw; the descriptor's mean
+    leaves out a photo whose render has no face in some draw, and a photo the fit refuses
+    is reported, not fatal."""
+    from PIL import Image
+
+    from head360cli.errors import BadInputError
+
+    rgb = np.random.default_rng(0).integers(0, 256, (40, 40, 3)).astype(np.uint8)
+    for name in ("a", "b", "c", "d"):
+        Image.fromarray(rgb).save(tmp_path / f"{name}.png")
+
+    def psnr(name, n):
+        if name == "stability_3":
+            raise BadInputError("no face found in the image")
+        return {"stability_0": 20.0, "stability_1": 24.0, "stability_2": 30.0}[name] + n
+
+    def distance(name, n):
+        if name == "stability_2":  # photo c: dlib loses its render in the second draw
+            return None if n == 2 else 0.9
+        return {"stability_0": 0.4, "stability_1": 0.6}[name] + (0.02 if n == 3 else 0.0)
+
+    _stub_fits(monkeypatch, psnr, distance)
+    work = tmp_path / "work"
+    work.mkdir()
+    r = _stability([tmp_path / f"{n}.png" for n in "abcd"], work, 2)
+    assert r["errors"] == {"d.png": "no face found in the image"}
+    assert [b["photo"] for b in r["by_photo"]] == ["a.png", "b.png", "c.png"]
+    assert r["by_draw_photos"] == {"psnr_face": 3, "distance_0": 2}
+    assert [d["psnr_face"] for d in r["by_draw"]] == pytest.approx([77 / 3, 80 / 3, 83 / 3],
+                                                                   abs=1e-3)
+    assert [d["distance_0"] for d in r["by_draw"]] == pytest.approx([0.5, 0.5, 0.52])
+    assert r["range_by_draw"]["psnr_face"] == pytest.approx(2.0)
+    assert r["range_by_draw"]["distance_0"] == pytest.approx(0.02)
+    assert r["range_psnr_face"] == 2.0  # the first photo's, as with one photo
+    md = "\n".join(_stability_markdown(r))
+    assert "| c.png | 1 | 32.00 | 29.50 | - | bob | black |" in md
+    assert "d.png: not fitted (no face found in the image)." in md
+    assert "| 2 | 27.67 | 0.520 |" in md
+    assert "Range of the means: face PSNR 2.00 dB, descriptor distance at 0 degrees 0.020." in md
 
 
 def test_cold_fit_reports_the_commands_error(tmp_path):
