@@ -498,9 +498,10 @@ def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
     no eye tells apart. Every draw's renders are compared with the original photo's
     descriptor, so only the fit moves. The descriptor's mean is over the photos whose
     frontal render dlib reads in every draw, so the draws' means compare the same
-    photos. The first
-    photo's ranges stay at the top level (``photo``, ``range_psnr_face``,
-    ``range_psnr_face_bald``), as before several photos could be given.
+    photos; a photo the fit refuses in any draw is left out of every mean (its error is
+    reported). The first photo's ranges stay at the top level (``photo``,
+    ``range_psnr_face``, ``range_psnr_face_bald``), as before several photos could be
+    given.
     """
     from PIL import Image
 
@@ -531,6 +532,7 @@ def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
         return round(max(values) - min(values), 4) if values else None
 
     fitted = [p.name for p in photos if p.name not in errors]
+    rows_fitted = [r for r in rows if r["photo"] in fitted]  # every draw of the photo
     by_photo = []
     for name in fitted:
         mine = [r for r in rows if r["photo"] == name]
@@ -550,7 +552,7 @@ def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
                 if all(r["distance_0"] is not None for r in rows if r["photo"] == name)]
         by_draw = []
         for seed in range(draws + 1):
-            mine = [r for r in rows if r["seed"] == seed]
+            mine = [r for r in rows_fitted if r["seed"] == seed]
             d0 = [r["distance_0"] for r in mine if r["photo"] in seen]
             by_draw.append({"seed": seed,
                             "psnr_face": round(float(np.mean([r["psnr_face"] for r in mine])),
