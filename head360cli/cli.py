@@ -1098,6 +1098,9 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--stability-photos", default=1, show_default=True,
               help="How many of the real photos get --stability noisy copies each; with "
                    "several, the means over them are compared draw by draw.")
+@click.option("--synthetic-noise", default=0, show_default=True,
+              help="Fit the synthetic heads again from this many copies of their "
+                   "renders, each value moved by one grey level (0: none).")
 @click.option("--corpus-seed", default=0, show_default=True,
               help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
                    "for development).")
@@ -1105,8 +1108,8 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
               type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
 @common_options
 def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
-                  stability: int, stability_photos: int, corpus_seed: int,
-                  out_dir: str) -> None:
+                  stability: int, stability_photos: int, synthetic_noise: int,
+                  corpus_seed: int, out_dir: str) -> None:
     """Single-image fitting: hair parsing IoU, hairstyle accuracy, 72-view PSNR/SSIM of
     synthetic fits, face PSNR and dlib descriptor distance on real photos, time, and how
     far a fit moves when the photo moves by one grey level.
@@ -1118,6 +1121,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
       head360 bench fit --preset fast --identities 6 --corpus-seed 1 --no-sweep
       head360 bench fit --preset fast --no-sweep --stability-photos 6   how far the
                                                means move with one grey level of noise
+      head360 bench fit --preset quality --no-sweep --stability 0 --synthetic-noise 3
       head360 bench fit --device cuda          the fits on the GPU (dlib still needed)
     """
     from head360cli.bench.fit import bench_fit
@@ -1131,11 +1135,14 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
         raise BadInputError(f"expected --stability >= 0, found {stability}")
     if stability_photos < 0:
         raise BadInputError(f"expected --stability-photos >= 0, found {stability_photos}")
+    if synthetic_noise < 0:
+        raise BadInputError(f"expected --synthetic-noise >= 0, found {synthetic_noise}")
     if corpus_seed < 0:
         raise BadInputError(f"expected --corpus-seed >= 0, found {corpus_seed}")
     result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),
                            sweep=() if no_sweep else (5, 10, 20, 40), stability=stability,
                            stability_photos=stability_photos,
+                           synthetic_noise=synthetic_noise,
                            corpus_seed=corpus_seed, device=device,
                            progress=None if _settings().quiet else
                            (lambda t: click.echo(f"bench fit: {t}", err=True)))

@@ -496,7 +496,7 @@ def test_bench_fit_refuses_a_negative_corpus_seed(run_cli):
     assert r.code == 3 and "expected --corpus-seed >= 0, found -1" in r.err
 
 
-@pytest.mark.parametrize("option", ["--stability", "--stability-photos"])
+@pytest.mark.parametrize("option", ["--stability", "--stability-photos", "--synthetic-noise"])
 def test_bench_fit_refuses_negative_stability_counts(run_cli, option):
     r = run_cli("bench", "fit", option, "-2")
     assert r.code == 3 and f"expected {option} >= 0, found -2" in r.err

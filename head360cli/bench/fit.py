@@ -220,7 +220,11 @@ def _hair_parse_no_face(heads: int = 30, seed: int = 0) -> dict[str, Any]:
 
 
 def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0,
-                   device: str = "cpu") -> dict[str, Any]:
+                   device: str = "cpu", noise: int = 0) -> dict[str, Any]:
+    """Fit each held-out head of corpus seed ``seed`` from its frontal render (the
+    paper's protocol), then PSNR and SSIM over the 72 rig views and at the input view.
+    ``noise``: fit a :func:`noisy_copy` of each render (that seed; 0: the render as
+    it is), to see how far the means move with inputs no eye tells apart."""
     import torch
     from PIL import Image
 
@@ -251,8 +255,8 @@ def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0,
     for i in range(identities):
         photo = work / f"synthetic_{i}.png"
         shot = data.render(i, np.zeros(52, np.float32), cam_in, with_hair=True)
-        Image.fromarray((shot.rgb[0].permute(1, 2, 0).numpy() * 255).round()
-                        .astype(np.uint8)).save(photo)
+        rgb = (shot.rgb[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+        Image.fromarray(noisy_copy(rgb, noise) if noise else rgb).save(photo)
         # The render's camera is known: its focal and its distance to the head (a rig).
         summary = fit_photo(photo, work / f"synthetic_{i}.h360", preset=preset, focal=focal,
                             distance=RIG_DISTANCE, device=device)
@@ -280,9 +284,22 @@ def _synthetic_fit(identities: int, preset: str, work: Path, seed: int = 0,
             "hair": summary["hair_style"]["name"], "true_hair": truth.head(i).hair_style,
             "seconds": summary["timings"]["total"]})
     return {"preset": preset, "rows": rows, "camera": "focal and distance known",
+            "noise": noise,
             "mean": {k: round(float(np.mean([r[k] for r in rows])), 3)
                      for k in ("psnr_all_views", "ssim_all_views", "psnr_input_view",
                                "pitch_landmarks", "pitch_refined", "seconds")}}
+
+
+def _noise_draws(first: dict[str, float], copies: list[dict[str, float]]) -> dict[str, Any]:
+    """The synthetic fit's means from the renders as they are (``first``) and from each
+    set of noisy copies: every draw's 72-view and input-view PSNR, and their ranges."""
+    draws = [first, *copies]
+    out: dict[str, Any] = {"copies": len(copies)}
+    for key in ("psnr_all_views", "psnr_input_view"):
+        values = [d[key] for d in draws]
+        out[key] = values
+        out[f"range_{key}"] = round(max(values) - min(values), 3)
+    return out
 
 
 def _known_geometry(identities: int, preset: str, every: int = 1, seed: int = 0
@@ -569,7 +586,7 @@ def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
 def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"),
               sweep: tuple[int, ...] = (5, 10, 20, 40), stability: int = 3,
               progress=None, corpus_seed: int = 0, device: str = "cpu",
-              stability_photos: int = 1) -> tuple[dict, str]:
+              stability_photos: int = 1, synthetic_noise: int = 0) -> tuple[dict, str]:
     """Run every part that its data allows; returns ``(result, markdown)``. The
     synthetic parts use the held-out heads of corpus seed ``corpus_seed`` (0: the
     bench's; other seeds are for development, so that choices are not tuned on the
@@ -577,7 +594,8 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
     sweep and the stability draws) and their renders run on ``device``; the hair parts
     (which run on the CPU in every fit) and the known-geometry diagnostic stay on the
     CPU. The stability part fits the first ``stability_photos`` real photos and
-    ``stability`` noisy copies of each (:func:`_stability`)."""
+    ``stability`` noisy copies of each (:func:`_stability`); ``synthetic_noise`` fits
+    the synthetic heads again from that many noisy copies of their renders."""
     import torch
 
     from head360cli.paths import shared_data_dir
@@ -605,6 +623,12 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
             say(f"synthetic fit, {preset}")
             result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work,
                                                              corpus_seed, device)
+            if synthetic_noise:
+                say(f"synthetic fit, {preset}, {synthetic_noise} noisy copies")
+                result["synthetic_fit"][preset]["noise_draws"] = _noise_draws(
+                    result["synthetic_fit"][preset]["mean"],
+                    [_synthetic_fit(identities, preset, work, corpus_seed, device,
+                                    noise=n)["mean"] for n in range(1, synthetic_noise + 1)])
             say(f"synthetic heads, true mesh, camera and hair, {preset}")
             result["synthetic_fit"][preset]["known_geometry"] = _known_geometry(
                 identities, preset, seed=corpus_seed)
@@ -715,6 +739,15 @@ def _markdown(r: dict[str, Any]) -> str:
                      f"{m['pitch_landmarks']:+.1f} / {m['pitch_refined']:+.1f} | {tail}")
     lines += ["", "(The render's camera is level: a fitted pitch is the fit's error, + "
               "looking down on the head.)"]
+    for p, v in r["synthetic_fit"].items():
+        if "noise_draws" in v:
+            d = v["noise_draws"]
+            lines += ["", f"{p}: from the renders as they are and {d['copies']} copies "
+                      "with each value moved by one grey level, PSNR over 72 views "
+                      + " / ".join(f"{x:.2f}" for x in d["psnr_all_views"])
+                      + f" dB (range {d['range_psnr_all_views']:.2f}), at the input view "
+                      + " / ".join(f"{x:.2f}" for x in d["psnr_input_view"])
+                      + f" (range {d['range_psnr_input_view']:.2f})."]
     if "real" in r:
         lines += ["", "## Real photos", "",
                   "| preset | face PSNR | same, bald | descriptor distance 0 deg | at +-30 deg "

@@ -255,6 +255,40 @@ def test_every_synthetic_part_uses_the_corpus_seed_asked_for(monkeypatch):
     assert result["corpus_seed"] == 2 and md == "seed 2"
 
 
+def test_synthetic_noise_refits_the_heads_from_noisy_copies(monkeypatch):
+    """``synthetic_noise`` fits the synthetic heads again from copies 1..N of their renders
+    (the fits stubbed), and the report gives every draw's means and their ranges."""
+    import head360cli.bench.fit as bench
+    import head360cli.paths
+
+    calls = []
+
+    def fake_fit(n, preset, work, seed, device, noise=0):
+        calls.append((preset, noise))
+        return {"mean": {"psnr_all_views": 20.0 + noise / 4, "psnr_input_view": 23.0 - noise,
+                         "ssim_all_views": 0.8, "seconds": 1.0, "pitch_landmarks": 10.0,
+                         "pitch_refined": 1.0}}
+
+    monkeypatch.setattr(head360cli.paths, "shared_data_dir", lambda: None)
+    for name in ("_hair_style", "_hair_parse_no_face", "_known_geometry"):
+        monkeypatch.setattr(bench, name, lambda *args, **kwargs: {})
+    monkeypatch.setattr(bench, "_synthetic_fit", fake_fit)
+    monkeypatch.setattr(bench, "_markdown", lambda r: "md")
+    result, _ = bench.bench_fit(identities=1, presets=("quality",), synthetic_noise=2)
+    assert calls == [("quality", 0), ("quality", 1), ("quality", 2)]
+    d = result["synthetic_fit"]["quality"]["noise_draws"]
+    assert d["copies"] == 2 and d["psnr_all_views"] == [20.0, 20.25, 20.5]
+    assert d["range_psnr_all_views"] == 0.5 and d["range_psnr_input_view"] == 2.0
+    r = {"synthetic_fit": {"quality": {"mean": fake_fit(1, "quality", None, 0, "cpu")["mean"],
+                                       "noise_draws": d}},
+         "hair_style": {"true_mask": {"top1": 0.9, "top3": 1.0}, "parsed_iou": 0.9},
+         "hair_parse_no_face": {"back_view": {"mean_iou": 0.9, "views": 2},
+                                "close_up": {"mean_iou": 0.9, "views": 2}}}
+    assert ("quality: from the renders as they are and 2 copies with each value moved by "
+            "one grey level, PSNR over 72 views 20.00 / 20.25 / 20.50 dB (range 0.50), at "
+            "the input view 23.00 / 22.00 / 21.00 (range 2.00).") in _markdown(r)
+
+
 def test_markdown_names_a_development_seed():
     """A run on another corpus seed says its synthetic rows are not the bench's."""
     r = {"corpus_seed": 1,
