@@ -296,10 +296,16 @@ def _noise_draws(first: dict[str, float], copies: list[dict[str, float]]) -> dic
     draws = [first, *copies]
     out: dict[str, Any] = {"copies": len(copies)}
     for key in ("psnr_all_views", "psnr_input_view"):
-        values = [d[key] for d in draws]
-        out[key] = values
-        out[f"range_{key}"] = round(max(values) - min(values), 3)
+        out[key] = [d[key] for d in draws]
+        out[f"range_{key}"] = _spread(out[key], 3)
     return out
+
+
+def _spread(values: list[float | None], digits: int = 4) -> float | None:
+    """Largest less smallest of the values that are not ``None`` (``None`` if none is),
+    rounded to ``digits``: how far a result moved over the noise draws."""
+    values = [v for v in values if v is not None]
+    return round(max(values) - min(values), digits) if values else None
 
 
 def _known_geometry(identities: int, preset: str, every: int = 1, seed: int = 0
@@ -544,20 +550,16 @@ def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
                          "hair": s["hair_style"]["name"], "colour": s["hair_color_name"],
                          "distance_0": _distances(out, ref, device)["yaw_+0"]})
 
-    def spread(values):
-        values = [v for v in values if v is not None]
-        return round(max(values) - min(values), 4) if values else None
-
     fitted = [p.name for p in photos if p.name not in errors]
     rows_fitted = [r for r in rows if r["photo"] in fitted]  # every draw of the photo
     by_photo = []
     for name in fitted:
         mine = [r for r in rows if r["photo"] == name]
         by_photo.append({"photo": name,
-                         "range_psnr_face": round(spread([r["psnr_face"] for r in mine]), 2),
-                         "range_psnr_face_bald": round(
-                             spread([r["psnr_face_bald"] for r in mine]), 2),
-                         "range_distance_0": spread([r["distance_0"] for r in mine])})
+                         "range_psnr_face": _spread([r["psnr_face"] for r in mine], 2),
+                         "range_psnr_face_bald": _spread([r["psnr_face_bald"] for r in mine],
+                                                         2),
+                         "range_distance_0": _spread([r["distance_0"] for r in mine])})
     result: dict[str, Any] = {"photo": photos[0].name, "photos": [p.name for p in photos],
                               "draws": draws, "rows": rows, "errors": errors,
                               "by_photo": by_photo}
@@ -578,8 +580,8 @@ def _stability(photos: list[Path], work: Path, draws: int, device: str = "cpu"
         result["by_draw"] = by_draw
         result["by_draw_photos"] = {"psnr_face": len(fitted), "distance_0": len(seen)}
         result["range_by_draw"] = {
-            "psnr_face": round(spread([d["psnr_face"] for d in by_draw]), 3),
-            "distance_0": spread([d["distance_0"] for d in by_draw])}
+            "psnr_face": _spread([d["psnr_face"] for d in by_draw], 3),
+            "distance_0": _spread([d["distance_0"] for d in by_draw])}
     return result
 
 
