@@ -623,17 +623,15 @@ def bench_fit(identities: int = 2, presets: tuple[str, ...] = ("fast", "quality"
         result["synthetic_fit"] = {}
         for preset in presets:
             say(f"synthetic fit, {preset}")
-            result["synthetic_fit"][preset] = _synthetic_fit(identities, preset, work,
-                                                             corpus_seed, device)
+            fit = result["synthetic_fit"][preset] = _synthetic_fit(
+                identities, preset, work, corpus_seed, device)
             if synthetic_noise:
                 say(f"synthetic fit, {preset}, {synthetic_noise} noisy copies")
-                result["synthetic_fit"][preset]["noise_draws"] = _noise_draws(
-                    result["synthetic_fit"][preset]["mean"],
-                    [_synthetic_fit(identities, preset, work, corpus_seed, device,
-                                    noise=n)["mean"] for n in range(1, synthetic_noise + 1)])
+                fit["noise_draws"] = _noise_draws(fit["mean"], [
+                    _synthetic_fit(identities, preset, work, corpus_seed, device,
+                                   noise=n)["mean"] for n in range(1, synthetic_noise + 1)])
             say(f"synthetic heads, true mesh, camera and hair, {preset}")
-            result["synthetic_fit"][preset]["known_geometry"] = _known_geometry(
-                identities, preset, seed=corpus_seed)
+            fit["known_geometry"] = _known_geometry(identities, preset, seed=corpus_seed)
         if data is not None:
             photos = [data / "faces" / "astronaut.png",
                       data / "faces" / "Tom_Cruise_avp_2014_4.jpg",
