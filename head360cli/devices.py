@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 from head360cli.errors import BadInputError
@@ -65,3 +66,11 @@ def gpu_peak_mib(device) -> float | None:
     if device.type != "cuda":
         return None
     return round(torch.cuda.max_memory_allocated(device) / 2**20, 1)
+
+
+def usable_cpus() -> int:
+    """CPU cores this process may run on (its affinity mask, where the system has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1

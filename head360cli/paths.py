@@ -101,3 +101,14 @@ def cache_dir() -> Path | None:
         return Path.home() / ".cache" / "head360"
     except RuntimeError:  # no home folder to be found: no cache
         return None
+
+
+def generator_hash() -> str:
+    """SHA-256 of the installed generator's weights, which head files record.
+
+    Raises:
+        ModelNotFoundError: No weights installed (as :func:`installed_generator` says).
+    """
+    import hashlib
+
+    return hashlib.sha256(installed_generator().read_bytes()).hexdigest()

@@ -62,8 +62,8 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
         ``onnxruntime_telemetry`` (whether onnxruntime may keep and send usage events;
         ``None`` without onnxruntime).
     """
-    from head360cli import __version__
     from head360cli.paths import cache_dir, dlib_model_files, models_dir, shared_data_dir
+    from head360cli.version import __version__
 
     packages = {
         "torch": _version("torch"),

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from head360cli.errors import BadInputError
-from head360cli.io.video import GIF_MAX_FPS, check_gif_rate
+from head360cli.io.video import GIF_MAX_FPS, MAX_FPS, MIN_FPS, check_gif_rate
 
 __all__ = ["HEAD_PIVOT", "AnimateConfig", "animate", "head_motion", "head_pose_cameras",
            "prepare_stream"]
@@ -125,8 +125,6 @@ def head_pose_cameras(rotation: np.ndarray, c2w, pivot=HEAD_PIVOT):
     return torch.tensor(inverse @ base, dtype=torch.float32)
 
 
-MIN_FPS, MAX_FPS = 1.0, 240.0
-"""The frame rates a video is made at: ``--fps`` and a stream's own rate."""
 MAX_FRAMES = 2_000_000
 """The most frames one take may become (9 hours at 60 fps): resampling a stream whose
 times are far apart (a typo, seconds for milliseconds) would otherwise fill memory."""

@@ -235,7 +235,7 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
         hair_colours = None
     parts = _parts(renderer, texture, hair_colours, np.zeros(52), targets=kind == ".glb")
     if kind == ".glb":
-        from head360cli import __version__
+        from head360cli.version import __version__
 
         files = [write_glb(out, parts, generator=f"head360 {__version__}")]
     else:

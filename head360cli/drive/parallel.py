@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from head360cli.devices import usable_cpus
+
 __all__ = ["BLOCK", "MIN_FRAMES", "TAIL", "Workers", "auto_workers", "parallel_frames",
            "peak_rss_mib", "usable_cpus"]
 
@@ -53,14 +55,6 @@ def peak_rss_mib() -> float:
                         if line.startswith("VmHWM:"))
     except (OSError, StopIteration):
         return 0.0
-
-
-def usable_cpus() -> int:
-    """CPU cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def _threads(workers: int) -> int:

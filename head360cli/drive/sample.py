@@ -35,10 +35,10 @@ def sample_heads(n: int, seed: int = 0, scale: float = 1.0, bald: bool = False,
 
     from head360cli.errors import BadInputError
     from head360cli.fitting.lids import head_lids
-    from head360cli.fitting.pipeline import generator_hash
     from head360cli.io.headfile import HeadFile, lid_change_arrays
     from head360cli.mesh.bilinear import load_bilinear
     from head360cli.model.train import load_generator
+    from head360cli.paths import generator_hash
     from head360cli.synth.hair import HAIR_COLOURS, HAIRSTYLES
 
     if n < 1:

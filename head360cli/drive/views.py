@@ -206,8 +206,7 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
     """Render ``frames`` views turning once around a head (neutral expression unless one
     is given), starting at ``yaw`` degrees, with or without its ``hair``, into a video
     (mp4, GIF or PNG folder by name), streaming frames to the encoder."""
-    from head360cli.drive.animate import MAX_FPS, MIN_FPS
-    from head360cli.io.video import VideoWriter
+    from head360cli.io.video import MAX_FPS, MIN_FPS, VideoWriter
 
     if frames < 1:
         raise BadInputError(f"expected at least 1 frame, found {frames}")

@@ -19,8 +19,8 @@ onnxruntime covers exactly the pixels torch covers (a matrix product rounds diff
 each, and one flipped pixel on a silhouette changed images by 7e-3). Samples per ray and
 the image size are fixed at export. A fitted head's light (its ``colour_gain``) is
 applied to the graph's output with its ``alpha``, outside the graph, as torch applies it
-(:func:`~head360cli.model.render.lit`); graphs exported before stop 76 have no ``alpha``
-and cannot draw such a head.
+(:func:`~head360cli.model.render.lit`); graphs of format 1 (:data:`GRAPH_FORMAT`) have no
+``alpha`` and cannot draw such a head.
 
 :class:`OnnxFrameRunner` runs the graphs in onnxruntime with the same arguments as
 :class:`FrameModel` (numpy arrays instead of tensors); it imports neither torch nor the
@@ -39,12 +39,17 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["HAIR_FACES", "HAIR_VERTS", "NO_ALPHA", "OnnxFrameRunner", "export_onnx",
+__all__ = ["GRAPH_FORMAT", "HAIR_FACES", "HAIR_VERTS", "NO_ALPHA", "OnnxFrameRunner", "export_onnx",
            "head_inputs", "pad_hair"]
 
-NO_ALPHA = ("expected an ONNX graph with an alpha output to draw a fitted head's light "
-            "(graphs exported before head360 stop 76 have none), found only rgb: export it "
-            "again with head360 export-onnx")
+GRAPH_FORMAT = 2
+"""Format version of the graphs :func:`export_onnx` writes, stored in their metadata
+(``format_version``). Format 1 graphs (head360 0.1.0 before 2026-11, no version stored)
+give ``rgb`` alone; format 2 adds the coverage ``alpha``."""
+
+NO_ALPHA = ("expected an ONNX graph with an alpha output to draw a fitted head's light, "
+            "found a graph exported by an older head360 (graph format 1, rgb only): export "
+            "it again with head360 export-onnx")
 """The error for a head with a light of its own and a graph without ``alpha``."""
 
 META_KEY = "head360"
@@ -187,10 +192,10 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     """
     import importlib.util
 
-    from head360cli.drive.parallel import usable_cpus
+    from head360cli.devices import usable_cpus
     from head360cli.errors import BadInputError, ModelNotFoundError
-    from head360cli.fitting.pipeline import generator_hash
     from head360cli.io.atomic import atomic_paths, check_file_target
+    from head360cli.paths import generator_hash
 
     missing = [m for m in ("onnx", "onnxscript") if importlib.util.find_spec(m) is None]
     if missing:
@@ -209,7 +214,8 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
                             "head has no hair mesh to trace with)")
     gen = renderer.gen
     t0 = time.perf_counter()
-    meta = {"samples": renderer.samples, "size": renderer.size, "cull": bool(cull),
+    meta = {"format_version": GRAPH_FORMAT, "samples": renderer.samples,
+            "size": renderer.size, "cull": bool(cull),
             "generator_sha256": generator_hash(),
             "texture_channels": gen.cfg.texture_channels,
             "texture_res": gen.cfg.texture_res}
@@ -421,12 +427,19 @@ class OnnxFrameRunner:
         if meta is None:
             raise FileFormatError(f"{path}: expected head360 export metadata, found none")
         self.meta = json.loads(meta)
+        found = self.meta.get("format_version", 1)
+        if not isinstance(found, int) or found > GRAPH_FORMAT:
+            raise FileFormatError(f"{path}: expected an ONNX graph of format {GRAPH_FORMAT} "
+                                  f"or older, found format {found!r}: it was exported by a "
+                                  f"newer head360, upgrade head360 to run it")
+        self.format_version = found
+        """The graph's format version (1 for graphs that store none)."""
         self.size = int(self.meta["size"])
         self.provider = self.sessions[True].get_providers()[0]
         """The execution provider that runs the graph."""
         self.has_alpha = all(len(sess.get_outputs()) > 1 for sess in self.sessions.values())
-        """Whether the graphs give ``alpha`` beside ``rgb`` (those exported before stop 76
-        do not), which a head with a light of its own needs."""
+        """Whether the graphs give ``alpha`` beside ``rgb`` (those of graph format 1 do
+        not), which a head with a light of its own needs."""
 
     def __call__(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
                  intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,

@@ -241,8 +241,8 @@ def write_head(head: HeadFile, path: str | os.PathLike[str]) -> Path:
     Raises:
         BadInputError: When an array is not numeric, has the wrong rank or holds NaN.
     """
-    from head360cli import __version__
     from head360cli.io.atomic import atomic_path
+    from head360cli.version import __version__
 
     arrays = {k: np.asarray(v) for k, v in head.arrays.items()}
     if META_KEY in arrays:

@@ -507,7 +507,7 @@ def png_info():
     :func:`check_companion_png`)."""
     from PIL.PngImagePlugin import PngInfo
 
-    from head360cli import __version__
+    from head360cli.version import __version__
 
     info = PngInfo()
     info.add_text("Software", f"head360 {__version__}")

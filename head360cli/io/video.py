@@ -35,10 +35,13 @@ from head360cli.io.atomic import (
     write_target,
 )
 
-__all__ = ["GIF_MAX_FPS", "VIDEO_SUFFIXES", "VideoWriter", "check_gif_rate",
+__all__ = ["GIF_MAX_FPS", "MAX_FPS", "MIN_FPS", "VIDEO_SUFFIXES", "VideoWriter", "check_gif_rate",
            "check_video_target", "output_kind", "write_video"]
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov")
+
+MIN_FPS, MAX_FPS = 1.0, 240.0
+"""The frame rates head360 writes videos at (frames per second)."""
 
 GIF_MAX_FPS = 50.0
 """The fastest GIF that plays at its speed: a GIF frame lasts whole hundredths of a second,
