@@ -218,9 +218,8 @@ def test_inspect_model_files_without_running_their_code(run_cli, tmp_path):
     the model files are now described, read as data only."""
     import torch
 
-    from head360cli.fitting.pipeline import generator_hash
     from head360cli.mesh.bilinear import load_bilinear
-    from head360cli.paths import models_dir
+    from head360cli.paths import generator_hash, models_dir
 
     j = json.loads(run_cli("inspect", models_dir() / "generator.pt", "--json").out)
     weights = torch.load(models_dir() / "generator.pt", weights_only=True)

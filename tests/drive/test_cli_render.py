@@ -81,14 +81,14 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_head_loads(
     """A missing folder, a folder given for a file or a non-empty frame folder is refused
     before any work: the loaders here fail the test if they are reached (animating to a
     taken mesh folder used to load the head and bake its texture, 16 s, first)."""
-    import head360cli.cli_drive as cli_drive
+    import head360cli.cli.head as cli_head
     from head360cli.io.arkit import ArkitStream, write_arkit_csv
 
     def loaded(*args, **kwargs):
         raise AssertionError("the head was loaded before the output was checked")
 
-    monkeypatch.setattr(cli_drive, "_backend_renderer", loaded)
-    monkeypatch.setattr(cli_drive, "_renderer", loaded)
+    monkeypatch.setattr(cli_head, "_backend_renderer", loaded)
+    monkeypatch.setattr(cli_head, "_renderer", loaded)
     stream = tmp_path / "s.csv"
     write_arkit_csv(ArkitStream(np.zeros((2, 52), np.float32), np.arange(2) / 30, 30.0),
                     stream)

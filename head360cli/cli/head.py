@@ -1,8 +1,5 @@
-"""Subcommands that use a head: render, animate, swap-hair, sample, export-mesh.
-
-Registered on :data:`head360cli.cli.cli` (imported at the end of that module); like the
-rest of the command line they only parse options, call the library and print.
-"""
+"""The commands that use a head: ``render``, ``animate``, ``swap-hair``, ``sample``,
+``export-mesh`` and ``export-onnx``."""
 
 from __future__ import annotations
 
@@ -12,24 +9,21 @@ from pathlib import Path
 
 import click
 
-from head360cli.cli import (
+from head360cli.cli.base import (
     InputPath,
     OutputPath,
-    _cpu_only,
-    _drop_stdout,
-    _emit,
-    _progress_printer,
-    _settings,
-    _stdin_path,
-    _unused,
-    _warn,
-    bench,
     cli,
     common_options,
+    cpu_only_warning,
+    current_settings,
+    drop_stdout,
+    emit,
+    progress_printer,
+    stdin_path,
+    warn,
+    warn_unused,
 )
 from head360cli.errors import BadInputError
-
-__all__: list[str] = []
 
 _HEAD = InputPath(dir_okay=False)
 
@@ -54,7 +48,7 @@ def _renderer(head: str, samples: int | None, size: int | None, precision: str =
 
         raise missing(head, f"head file {head!r} does not exist")
     try:
-        return load_head_renderer(head, device or str(resolve_device(_settings().device)),
+        return load_head_renderer(head, device or str(resolve_device(current_settings().device)),
                                   samples=samples, size=size, precision=precision)
     except ValueError as exc:  # an image size the generator cannot make
         raise BadInputError(str(exc)) from None
@@ -92,7 +86,7 @@ def _backend_renderer(head: str, backend: str, onnx_path: str, samples: int | No
         return _renderer(head, samples, size, precision)
     from head360cli.errors import ModelMismatchError
     from head360cli.export.onnx import OnnxFrameRunner
-    from head360cli.fitting.pipeline import generator_hash
+    from head360cli.paths import generator_hash
 
     if not Path(onnx_path).is_file():
         raise BadInputError(f"ONNX graph {onnx_path!r} does not exist (run head360 "
@@ -125,7 +119,7 @@ def _check_stdout_image(turntable: bool) -> None:
     if turntable:
         raise BadInputError("expected a file or folder for a --turntable video, found '-' "
                             "(standard output takes one view or a grid, as PNG)")
-    if _settings().json:
+    if current_settings().json:
         raise BadInputError("expected -o FILE with --json, found '-': the image and the "
                             "JSON would both go to standard output")
     stdout = sys.stdout
@@ -153,13 +147,13 @@ def _write_stdout_png(image) -> None:
     except BrokenPipeError:
         raise  # a reader that stopped reading (| head -c 8): not an error, see cli._run
     except OSError as exc:
-        _drop_stdout()
+        drop_stdout()
         raise BadInputError(f"cannot write the image to standard output: "
                             f"{exc.strerror or exc}") from None
 
 
 @cli.command()
-@click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
+@click.argument("head", type=_HEAD, callback=stdin_path("a head file"))
 @click.option("-o", "--out", required=True, type=OutputPath(),
               help="Output: .png (or .jpg) for a view or a grid, or - for a PNG on "
               "standard output; .mp4, .gif or a folder for --turntable.")
@@ -214,7 +208,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
     if not turntable:
-        _unused(("frames", "fps"), "without --turntable")
+        warn_unused(("frames", "fps"), "without --turntable")
     to_stdout = out == "-"
     if to_stdout:
         _check_stdout_image(turntable)
@@ -235,8 +229,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
-                        progress=_progress_printer(), hair=not no_hair, yaw=yaw)
-        _emit({"out": out, "frames": frames}, f"wrote {out} ({frames} frames)")
+                        progress=progress_printer(), hair=not no_hair, yaw=yaw)
+        emit({"out": out, "frames": frames}, f"wrote {out} ({frames} frames)")
         return
     from PIL import Image
 
@@ -255,13 +249,13 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     with atomic_path(out) as tmp:
         Image.fromarray(image).save(tmp, format=image_format,
                                     **({"quality": 95} if image_format == "JPEG" else {}))
-    _emit({"out": out, "views": [list(p) for p in pairs]},
+    emit({"out": out, "views": [list(p) for p in pairs]},
           f"wrote {out} ({len(pairs)} view{'s' if len(pairs) > 1 else ''})")
 
 
 @cli.command()
 @click.argument("head", type=_HEAD, required=False,
-                callback=_stdin_path("a head file"))
+                callback=stdin_path("a head file"))
 @click.option("--arkit", required=True, type=InputPath(allow_dash=True),
               help="ARKit-52 CSV stream (Live Link Face, MediaPipe names, generic), or - "
               "for standard input.")
@@ -334,7 +328,7 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         out = f"{'stream' if arkit == '-' else input_stem(arkit)}.mp4"
         if Path(out).exists():  # a name the user did not choose never replaces a file
             raise BadInputError(f"expected -o OUT (the default {out} exists already)")
-    from head360cli.drive.animate import MAX_FPS, MIN_FPS
+    from head360cli.io.video import MAX_FPS, MIN_FPS
 
     if fps is not None and not MIN_FPS <= fps <= MAX_FPS:
         raise BadInputError(f"expected --fps between {MIN_FPS:g} and {MAX_FPS:g}, found {fps}")
@@ -353,14 +347,14 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
                                 f"more), found {value}")
     # a GPU named outright (--device auto is known only once torch is imported, which
     # the worker processes' start should not wait for)
-    on_gpu = _settings().device.strip().lower().startswith("cuda")
+    on_gpu = current_settings().device.strip().lower().startswith("cuda")
     if workers is not None and workers > 1:  # processes render one-frame batches on a CPU
         why = ("--batch above 1" if batch is not None and batch > 1 else
                "--backend onnx" if backend == "onnx" else
-               f"--device {_settings().device}" if on_gpu else
+               f"--device {current_settings().device}" if on_gpu else
                "no video (-o)" if out is None else None)
         if why is not None:
-            _warn(f"--workers {workers} is not used with {why}: this process renders "
+            warn(f"--workers {workers} is not used with {why}: this process renders "
                   "every frame")
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         from head360cli.io.sources import missing
@@ -372,12 +366,12 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         check_stdin("an ARKit stream")
     stream = read_arkit_csv(arkit, on_bad=on_bad)  # "-": standard input, decoded as a file
     for warning in stream.warnings:
-        _warn(warning)
+        warn(warning)
     scratch = None  # the mean head's file when no HEAD is given, removed at the end
     if head is None:
         import tempfile
 
-        _warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
+        warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
               "PHOTO and give the .h360)")
         scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
         head = str(_mean_head_file(Path(scratch.name)))
@@ -398,12 +392,12 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
     on_cpu = backend == "torch" and not on_gpu
     try:
         res = run(load if on_cpu else load(), stream, out, cfg, mesh_dir=mesh_dir,
-                  progress=_progress_printer())
+                  progress=progress_printer())
     finally:
         if scratch is not None:
             scratch.cleanup()
     for warning in res.get("warnings", []):
-        _warn(warning)
+        warn(warning)
     text = (f"animated {res['frames']} frames ({res['duration_s']:.2f} s at "
             f"{res['fps']:.2f} fps)")
     if "render_fps" in res:
@@ -412,12 +406,12 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
             text += f" by {res['workers']} processes"
     if "decoded_share" in res:
         text += f" ({100 * res['decoded_share']:.0f} % of the points decoded, the rest kept)"
-    _emit(res, text + "".join(f"\n  wrote {p}" for p in res["files"].values()))
+    emit(res, text + "".join(f"\n  wrote {p}" for p in res["files"].values()))
 
 
 @cli.command("swap-hair")
 @click.argument("head", type=_HEAD, required=False,
-                callback=_stdin_path("a head file"))
+                callback=stdin_path("a head file"))
 @click.option("--hair", "hair_style", default=None,
               help="Hairstyle name (bob, 'long wavy'...) or id 0-29.")
 @click.option("--color", "--colour", "colour", default=None,
@@ -444,7 +438,7 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
     from head360cli.drive.hair_swap import swap_hair as run
 
     if list_:
-        _unused(("hair_style", "colour"), "with --list")
+        warn_unused(("hair_style", "colour"), "with --list")
         styles = list_styles()
         result = {"styles": styles}
         text = "\n".join(f"{s['id']:2d}  {s['name']:18s} ({s['figaro']})" for s in styles)
@@ -455,10 +449,10 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
 
             check_file_target(out)  # before the head is loaded
             r = _mean_head_renderer() if head is None else _renderer(head, None, None)
-            style_sheet(r, out, progress=_progress_printer())
+            style_sheet(r, out, progress=progress_printer())
             result["sheet"] = out
             text += f"\nwrote {out}"
-        _emit(result, text)
+        emit(result, text)
         return
     if head is None:
         raise BadInputError("expected a head file (or --list), found none")
@@ -470,9 +464,9 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
     res = run(head, out, style, colour)
     was = int(res["from"]["hair_style"])
     if colour is not None and res["hair_style"]["id"] == 0:
-        _warn("the head is bald (style 0): --color shows once it wears a hairstyle "
+        warn("the head is bald (style 0): --color shows once it wears a hairstyle "
               "(swap-hair --hair NAME)")
-    _emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was "
+    emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was "
           f"{HAIRSTYLES[was].name}, style {was})")
 
 
@@ -492,7 +486,7 @@ def _mean_head_renderer(device: str | None = None):
     from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
 
-    device = device or str(resolve_device(_settings().device))
+    device = device or str(resolve_device(current_settings().device))
     head = sample_heads(1, scale=0.0, device=device, lids=False)[0]  # still views
     gen, _ = load_generator(device=device)
     import torch
@@ -565,7 +559,7 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
     sheet = out.with_suffix(".png") if one_file else out / "samples.png"
     if not _sampled_before(out if one_file else out / "sample_000.h360"):
         check_companion_png(sheet, "picture of the heads")  # NAME.png may be the user's photo
-    device = str(resolve_device(_settings().device))
+    device = str(resolve_device(current_settings().device))
     heads = sample_heads(count, seed, spread, bald, device, lids=not no_lid_fit)
     gen, _ = load_generator(device=device)
     cam = view_cameras(20.0, 0.0)
@@ -583,7 +577,7 @@ def sample(count: int | None, seed: int, spread: float, bald: bool, out_dir: str
             write_head(head, tmp)
         Image.fromarray(grid_image(np.stack(tiles), cols=min(count, 8))).save(
             tmps[-1], format="PNG", pnginfo=png_info())
-    _emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
+    emit({"heads": [str(p) for p in paths], "sheet": str(sheet)},
           f"wrote {out} and {sheet}" if one_file
           else f"wrote {count} heads into {out}/ and {sheet}")
 
@@ -603,7 +597,7 @@ def _sampled_before(head: Path) -> bool:
 
 
 @cli.command("export-mesh")
-@click.argument("head", type=_HEAD, callback=_stdin_path("a head file"))
+@click.argument("head", type=_HEAD, callback=stdin_path("a head file"))
 @click.option("-o", "--out", required=True, type=OutputPath(dir_okay=False),
               help=".glb (52 ARKit morph targets, baked texture) or .obj (+ .mtl, .png).")
 @click.option("--texture-size", default=512, show_default=True,
@@ -632,8 +626,8 @@ def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
 
     check_file_target(out)  # before the head is loaded
     r = _renderer(head, None, None)
-    res = export_head(r, out, texture_size, hair=not no_hair, progress=_progress_printer())
-    _emit(res, f"wrote {', '.join(res['files'])} ({res['vertices']} vertices, "
+    res = export_head(r, out, texture_size, hair=not no_hair, progress=progress_printer())
+    emit(res, f"wrote {', '.join(res['files'])} ({res['vertices']} vertices, "
           f"{res['morph_targets']} morph targets, parts {', '.join(res['parts'])})")
 
 
@@ -671,7 +665,7 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
     # the graph is the same for any device, and torch's exporter failed to trace a CUDA
     # renderer (a data-dependent size in the hair planes' grid_sample; torch 2.11 on an
     # H200) where it traced the same renderer on that machine's CPU in 51 s
-    _cpu_only("export-onnx", "traces")
+    cpu_only_warning("export-onnx", "traces")
     if head is not None:
         own = _renderer(head, samples, size, "fp32", device="cpu")  # read once: maybe a pipe
         # the bald graph needs no hair; a bald head traces the hair graph wearing bob
@@ -687,207 +681,6 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
     inputs = None  # the head's arrays for a torch-free runner, one set with the graphs
     if head is not None:
         inputs = (Path(out).with_name(f"{input_stem(head)}_inputs.npz"), head_inputs(own))
-    res = export_onnx(r, out, progress=_progress_printer(), inputs=inputs)
-    _emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
+    res = export_onnx(r, out, progress=progress_printer(), inputs=inputs)
+    emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
           f"{size}x{size}): " + ", ".join(res["files"]))
-
-
-@bench.command("animate")
-@click.option("--frames", default=120, show_default=True,
-              help="Frames per throughput measurement.")
-@click.option("--stride", default=3, show_default=True,
-              help="Every Nth frame of the capture for expression fidelity.")
-@click.option("--fidelity-size", type=int, default=None,
-              help="Image size of the expression-fidelity frames (default: the "
-                   "generator's, as head360 animate renders them).")
-@click.option("--stream", "stream_path", type=InputPath(exists=True, dir_okay=False),
-              default=None, help="ARKit CSV to drive the heads with (default: the longest "
-                                 "Live Link Face capture in ../shared/data).")
-@click.option("--no-memory", is_flag=True,
-              help="Skip the whole-capture peak-memory run (minutes).")
-@click.option("--head", "head_path", type=InputPath(exists=True, dir_okay=False),
-              default=None, help="Measure this head file instead of fitting the astronaut "
-                                 "photo (no fit, so no dlib unless fidelity is measured).")
-@click.option("--no-fidelity", is_flag=True,
-              help="Skip the expression-fidelity parts (dlib landmarks on frames).")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
-@common_options
-def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
-                      stream_path: str | None, no_memory: bool, head_path: str | None,
-                      no_fidelity: bool, out_dir: str) -> None:
-    """Animation: frames per second with and without reuse of decoded points between
-    frames, against samples and precision (with PSNR), peak memory over a whole capture,
-    a turning head (--head-pose), expression fidelity by dlib landmarks (fitted and
-    sampled heads, with bootstrap intervals, beside dlib on ground-truth SynHead-P
-    renders of the same frames), face PSNR across hair swaps.
-
-    With --device cuda the heads are rendered on the GPU, and frames per second against
-    frames per generator call (animate --batch) replace the reuse part, a CPU path.
-
-    \b
-    Examples:
-      head360 bench animate
-      head360 bench animate --frames 60 --stride 6 --no-memory
-      head360 bench animate --stride 6 --fidelity-size 512
-      head360 bench animate --stream examples/smile_blink_livelinkface.csv --stride 1
-      head360 bench animate --device cuda --head me.h360 --no-fidelity --frames 480
-    """
-    from head360cli.bench.animate import bench_animate
-    from head360cli.bench.report import save
-    from head360cli.devices import resolve_device
-
-    device = str(resolve_device(_settings().device))
-    if frames < 8 or stride < 1:
-        raise BadInputError(f"expected --frames >= 8 and --stride >= 1, found {frames}, "
-                            f"{stride}")
-    if no_fidelity and fidelity_size is not None:
-        raise BadInputError("--fidelity-size sets the size of the fidelity frames; "
-                            "expected it without --no-fidelity")
-    if fidelity_size is not None:
-        if not 64 <= fidelity_size <= 1024:
-            raise BadInputError(f"expected --fidelity-size between 64 and 1024, found "
-                                f"{fidelity_size}")
-        from head360cli.model.train import load_generator
-
-        try:  # refuse now a size the generator cannot make, not after minutes of work
-            load_generator()[0].image_size(fidelity_size)
-        except ValueError as exc:
-            raise BadInputError(f"--fidelity-size: {exc}") from None
-    if head_path is not None:
-        from head360cli.fitting.pipeline import generator_hash
-        from head360cli.io.headfile import read_head
-
-        if not Path(head_path).is_file():  # a pipe: every part opens the head again
-            raise BadInputError(f"--head: expected a regular file, found {head_path!r} (a "
-                                "pipe or device); the bench reads it once per part")
-        read_head(head_path, expected_model_hash=generator_hash())  # now, not after minutes
-    result, md = bench_animate(frames, stride, memory=not no_memory,
-                               fidelity_size=fidelity_size, stream_path=stream_path,
-                               device=device, head_path=head_path,
-                               fidelity=not no_fidelity,
-                               progress=None if _settings().quiet else
-                               (lambda t: click.echo(f"bench animate: {t}", err=True)))
-    result["files"] = save(result, md, out_dir, "animate")
-    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
-
-
-@bench.command("onnx")
-@click.option("--heads", default=100, show_default=True,
-              help="Random heads, expressions and cameras for parity.")
-@click.option("--size", default=256, show_default=True, help="Image size of the graph.")
-@click.option("--samples", default=8, show_default=True, help="Samples per ray.")
-@click.option("--repeats", default=10, show_default=True,
-              help="Timed frames per block.")
-@click.option("--rounds", default=3, show_default=True,
-              help="Timed blocks per row, the backends taking turns.")
-@click.option("--onnx", "graph", default=None, type=InputPath(dir_okay=False),
-              help="Use this exported graph (default: export one, about 80 seconds on "
-                   "2 CPU cores).")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
-@common_options
-def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: int,
-                   graph: str | None, out_dir: str) -> None:
-    """onnxruntime against torch: largest difference over random heads, and speed.
-
-    \b
-    Examples:
-      head360 bench onnx
-      head360 bench onnx --heads 10 --size 128 --samples 4
-      head360 bench onnx --device cuda --onnx generator.onnx   torch timed on the GPU
-    """
-    from head360cli.bench.onnx import bench_onnx
-    from head360cli.bench.report import save
-    from head360cli.devices import resolve_device
-
-    if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000 or not 1 <= rounds <= 100:
-        raise BadInputError(f"expected --heads in 1..10000, --repeats in 1..1000 and "
-                            f"--rounds in 1..100, found {heads}, {repeats} and {rounds}")
-    if not 1 <= samples <= 64 or not 32 <= size <= 2048:
-        raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
-                            f"{samples} and {size}")
-    if graph is not None and not Path(graph).is_file():
-        raise BadInputError(f"ONNX graph {graph!r} does not exist")
-    progress = None if _settings().quiet else (lambda t: click.echo(f"bench onnx: {t}",
-                                                                    err=True))
-    result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress,
-                            rounds=rounds, device=str(resolve_device(_settings().device)))
-    result["files"] = save(result, md, out_dir, "onnx")
-    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
-
-
-@bench.command("summary")
-@click.argument("folder", default="bench-results", type=InputPath(file_okay=False))
-@click.option("--out", "out_dir", default=None, type=OutputPath(file_okay=False),
-              help="Where bench.json, bench.md and bench.png go (default: FOLDER).")
-@common_options
-def bench_summary_cmd(folder: str, out_dir: str | None) -> None:
-    """Every stage's speed against error in one table and plot, from the stage results.
-
-    \b
-    Examples:
-      head360 bench summary
-      head360 bench summary bench-results --out docs/bench
-    """
-    from head360cli.bench.summary import summarize
-
-    if not Path(folder).is_dir():
-        raise BadInputError(f"results folder {folder!r} does not exist")
-    result, md = summarize(folder, out_dir)
-    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
-
-
-@bench.command("all")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where every result goes.")
-@click.option("--quick", is_flag=True,
-              help="Small versions of each stage (minutes, not an hour); noisier numbers.")
-@click.option("--skip", multiple=True,
-              type=click.Choice(["fit-shape", "fit", "generator", "animate", "onnx",
-                                 "synth"]), help="Leave a stage out (repeatable).")
-@common_options
-def bench_all_cmd(out_dir: str, quick: bool, skip: tuple[str, ...]) -> None:
-    """Run every stage's benchmark, then the summary table and plot.
-
-    Each stage runs in its own process; one that fails is reported and the others go on
-    (exit status 1 if any failed, after the summary of the rest).
-
-    \b
-    Examples:
-      head360 bench all
-      head360 bench all --quick --out bench-quick
-      head360 bench all --skip generator --skip synth
-      head360 bench all --device cuda     fit, generator, animate and onnx on the GPU
-    """
-    import subprocess
-    import time
-
-    from head360cli.bench.summary import STAGE_RUNS, summarize
-    from head360cli.devices import resolve_device
-
-    device = _settings().device
-    resolve_device(device)  # a device that is not there stops it before the first stage
-    # the stages that measure on a device take it; the CPU-only ones say they do not
-    on = ["--device", device] if device.strip().lower() != "cpu" else []
-    failed, timings = [], {}
-    for stage, (full, small) in STAGE_RUNS.items():
-        if stage in skip:
-            continue
-        cmd = [sys.executable, "-m", "head360cli", "bench", stage, "--out", out_dir,
-               *(small if quick else full), *on]
-        if not _settings().quiet:
-            click.echo(f"bench all: {stage}: {' '.join(cmd[3:])}", err=True)
-        t0 = time.perf_counter()
-        done = subprocess.run(cmd, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL if _settings().quiet else None)
-        timings[stage] = round(time.perf_counter() - t0, 1)
-        if done.returncode != 0:
-            failed.append(stage)
-            _warn(f"bench {stage} failed with exit status {done.returncode}")
-    result, md = summarize(out_dir)
-    result.update(failed=failed, seconds=timings)
-    _emit(result, md + f"\n\nwrote {', '.join(result['files'])}"
-          + (f"\nfailed: {', '.join(failed)}" if failed else ""))
-    if failed:
-        sys.exit(1)

@@ -1,0 +1,247 @@
+"""The commands that read a photo: ``fit``, ``parse-hair``, ``classify-hair`` and
+``demo``."""
+
+from __future__ import annotations
+
+import click
+
+from head360cli.cli.base import (
+    DETECTOR_HELP,
+    NO_PRIOR,
+    PHOTO,
+    OutputPath,
+    cli,
+    common_options,
+    cpu_only_warning,
+    current_settings,
+    emit,
+    progress_printer,
+    warn,
+    warn_unused,
+)
+from head360cli.errors import BadInputError
+
+
+@cli.command()
+@PHOTO
+@click.option("--stage", type=click.Choice(["all", "shape"]), default="all", show_default=True,
+              help="How far to go. all: every stage, writing a head file; shape: landmarks, "
+              "pose, identity and expression of the parametric head only.")
+@click.option("-o", "--out", default=None, type=OutputPath(),
+              help="The head file (default <photo stem>.h360); with --stage shape, the "
+              "output folder (default head360-out).")
+@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
+              show_default=True, help="Texture inversion effort.")
+@click.option("--hair", "hair_style", default=None,
+              help="Use this hairstyle (name such as bob or 'long wavy', or id 0-29; an "
+              "unknown name lists them all) instead of the classifier's choice.")
+@click.option("--face", default="0", show_default=True,
+              help="Which face: 0 = the largest, 1 = the next... ('all' with --stage shape).")
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+              show_default=True, help=DETECTOR_HELP)
+@click.option("--focal", type=float, default=None,
+              help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
+              "lens).")
+@click.option("--distance", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="The camera's distance to the head in metres, when known (a rig): fixes "
+              "the head's size, which landmarks alone hardly tell from its distance.")
+@click.option("--no-lid-fit", is_flag=True,
+              help="Keep the inversion's eyelids: skip refitting the texels a blink moves "
+              "(closed eyes then render as a dark smudge that hardly reads as closed).")
+@NO_PRIOR
+@common_options
+def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
+        face: str, detector: str, focal: float | None, distance: float | None,
+        no_lid_fit: bool, no_prior: bool) -> None:
+    """Fit a head to a photo.
+
+    Every stage: face and landmarks, shape fit, hair parsing, hairstyle and hair colour,
+    bald target, neural-texture inversion, closed eyelids. Writes the head file, a preview
+    PNG (photo | fitted front | three other views | back) and a JSON summary with timings
+    per stage.
+
+    With --stage shape: writes the mesh (OBJ with UVs), an overlay PNG (detected landmarks
+    green, fitted red, mesh wireframe) and the parameters as JSON.
+
+    \b
+    Examples:
+      head360 fit photo.jpg                      -> photo.h360, photo_preview.png, photo.json
+      head360 fit photo.jpg -o me.h360 --preset quality
+      head360 fit photo.jpg --hair bob --json
+      head360 fit profile.jpg --no-prior          hair parsed by colour and landmarks alone
+      head360 fit rig_photo.jpg --distance 1.0 --focal 2400
+      head360 fit photo.jpg --stage shape -o out/
+      curl -s URL | head360 fit - -o me.h360     a photo on standard input
+      head360 fit group.jpg --stage shape --face all --json > faces.json
+    """
+
+    if face != "all" and not face.isdigit():
+        raise BadInputError(f"expected --face N or all, found {face!r}")
+    if stage == "shape":
+        from head360cli.fitting.pipeline import fit_shape_photo
+
+        warn_unused(("preset", "hair_style", "no_lid_fit", "no_prior"), "with --stage shape")
+
+        result = fit_shape_photo(photo, out or "head360-out",
+                                 face=face if face == "all" else int(face),
+                                 detector=detector, focal=focal, distance=distance)
+        faces = result.get("faces", [result])
+        lines = []
+        for r in faces:
+            pose = r["pose"]
+            top = sorted(r["expression"].items(), key=lambda kv: -kv[1])[:3]
+            lines.append(
+                f"face {r['face']}: yaw {pose['yaw']:.1f}, pitch {pose['pitch']:.1f}, roll "
+                f"{pose['roll']:.1f} deg; strongest expressions "
+                + ", ".join(f"{n} {w:.2f}" for n, w in top)
+                + f"; fit {1000 * r['timings']['fit']:.1f} ms")
+            lines += [f"  wrote {p}" for p in r["files"].values()]
+        emit(result, "\n".join(lines))
+        return
+    if face == "all":
+        raise BadInputError("expected one face number for a full fit, found 'all' (use "
+                            "--stage shape for every face)")
+    from head360cli.devices import resolve_device
+    from head360cli.fitting.config import FitConfig
+    from head360cli.fitting.pipeline import fit_photo
+    from head360cli.io.sources import input_stem
+    from head360cli.synth.hair import style_index
+
+    config = FitConfig(preset=preset, face=int(face), detector=detector, focal=focal,
+                       distance=distance,
+                       hair_style=None if hair_style is None else style_index(hair_style),
+                       learned_prior=not no_prior, closed_lids=not no_lid_fit,
+                       device=str(resolve_device(current_settings().device)))
+    target = out or f"{input_stem(photo)}.h360"
+    result = fit_photo(photo, target, config, progress=progress_printer())
+    for warning in result["warnings"]:
+        warn(warning)
+    t = result["timings"]
+    text = (f"fitted {photo}: yaw {result['pose']['yaw']:.1f} deg, hair "
+            f"{result['hair_style']['name']} ({result['hair_color_name']}), face PSNR "
+            f"{result['psnr_face_input_view']:.2f} dB at the input view"
+            f"{' (in grey)' if result['inversion']['fitted_in'] == 'grey' else ''}, "
+            f"{t['total']:.1f} s (" + ", ".join(f"{k} {v:.1f}" for k, v in t.items()
+                                                 if k != "total") + ")\n"
+            + "\n".join(f"  wrote {p}" for p in result["files"].values()))
+    emit(result, text)
+
+
+@cli.command("parse-hair")
+@PHOTO
+@click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
+              type=OutputPath(file_okay=False), help="Output folder.")
+@click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Which face (0 = the largest).")
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+              show_default=True, help=DETECTOR_HELP)
+@NO_PRIOR
+@common_options
+def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
+                   no_prior: bool) -> None:
+    """Hair and face-skin masks of a photo.
+
+    Writes <stem>_hair.png and <stem>_face.png (single channel, the photo's size, 255
+    inside) and <stem>_parse.png (hair red, face blue). Without a detectable face the hair
+    is parsed from colour alone ("seeded": false), keeping out the skin of a face in
+    profile where OpenCV's profile cascade finds one ("profile_face": true). With a
+    face, a small network trained on the synthetic corpus (models/hair_prior.pt) says
+    where hair probably is first.
+
+    \b
+    Examples:
+      head360 parse-hair photo.jpg -o masks/
+      head360 parse-hair photo.jpg --no-prior  colour and landmarks only
+      head360 parse-hair photo.jpg --json     {"hair_mask": ..., "face_mask": ..., "overlay": ...}
+    """
+    from head360cli.fitting.pipeline import parse_photo
+
+    cpu_only_warning("parse-hair", "parses")
+    r = parse_photo(photo, out_dir, face=face, detector=detector, learned_prior=not no_prior)
+    for warning in r["warnings"]:
+        warn(warning)
+    emit(r, f"hair {100 * r['hair_fraction']:.1f}% and face {100 * r['face_fraction']:.1f}% "
+          f"of the image{'' if r['seeded'] else _unseeded(r)}; wrote "
+          f"{r['hair_mask']}, {r['face_mask']}, {r['overlay']}")
+
+
+def _unseeded(r: dict) -> str:
+    """How ``parse-hair``'s line names a parse without landmarks."""
+    return (" (no frontal face: colour and a face in profile)" if r["profile_face"]
+            else " (no face found: colour only)")
+
+
+@cli.command("classify-hair")
+@PHOTO
+@click.option("--top", default=3, show_default=True, help="How many styles to list.")
+@click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Which face (0 = the largest).")
+@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+              show_default=True, help=DETECTOR_HELP)
+@NO_PRIOR
+@common_options
+def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
+                      no_prior: bool) -> None:
+    """The SynHead-P hairstyles that best match a photo's hair, and its colour.
+
+    Each of the 30 styles is fitted to the photo's fitted head and rasterized from its
+    camera; the score is the overlap of that silhouette with the parsed hair, leaving out
+    the strip below the chin that the body hides. Styles that differ only behind the
+    head (ponytails, bun, braid) have the same silhouette from the front: the output says
+    which share the first one's.
+
+    \b
+    Examples:
+      head360 classify-hair photo.jpg
+      head360 classify-hair photo.jpg --top 5 --json
+    """
+    from head360cli.fitting.pipeline import classify_photo
+
+    if not 1 <= top <= 30:
+        raise BadInputError(f"expected --top between 1 and 30, found {top}")
+    r = classify_photo(photo, face=face, detector=detector, top=top,
+                       learned_prior=not no_prior)
+    for warning in r["warnings"]:
+        warn(warning)
+    lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "
+             f"overlap {c['iou']:.3f}"
+             + (" (the same silhouette as 1. from this view)"
+                if i and c["same_silhouette_as_first"] else "")
+             for i, c in enumerate(r["top"])]
+    if not r["hair_matches_a_style"]:
+        lines.append("the parsed hair matches no hairstyle: ranked as no hair")
+    lines.append(f"hair colour: {r['hair_color_name']} (linear RGB "
+                 + ", ".join(f"{c:.3f}" for c in r["hair_color"])
+                 + "; by the tone curve: head360 fit also compares renders)")
+    emit(r, "\n".join(lines))
+
+
+@cli.command()
+@click.option("-o", "--out", "out_dir", default="head360-demo", show_default=True,
+              type=OutputPath(file_okay=False), help="Output folder.")
+@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast",
+              show_default=True, help="Texture inversion effort.")
+@click.option("--frames", default=48, show_default=True, help="Turntable frames.")
+@common_options
+def demo(out_dir: str, preset: str, frames: int) -> None:
+    """Fit the astronaut photo that ships with scikit-image and render a turntable.
+
+    Writes astronaut.png, astronaut.h360, its preview and JSON summary, and turntable.mp4
+    (an animated GIF when no ffmpeg is installed) into the output folder.
+
+    \b
+    Examples:
+      head360 demo
+      head360 demo -o demo/ --preset quality --frames 96
+    """
+    from head360cli.devices import resolve_device
+    from head360cli.fitting.pipeline import run_demo
+
+    if not 4 <= frames <= 720:
+        raise BadInputError(f"expected --frames between 4 and 720, found {frames}")
+    r = run_demo(out_dir, preset=preset, frames=frames,
+                 device=str(resolve_device(current_settings().device)),
+                 progress=progress_printer())
+    emit(r, f"fitted the astronaut in {r['fit']['timings']['total']:.1f} s; hair "
+          f"{r['fit']['hair_style']['name']}; wrote "
+          + ", ".join([*r["fit"]["files"].values(), r["turntable"]]))
