@@ -17,13 +17,15 @@ from typing import Any
 import numpy as np
 
 from head360cli.errors import BadInputError
+from head360cli.fitting.config import FitConfig
 from head360cli.io.atomic import check_folder_name
 from head360cli.io.jsontext import dumps
 from head360cli.io.sources import input_stem
+from head360cli.paths import generator_hash
 
-__all__ = ["FIT_SUMMARY_KEYS", "check_fit_outputs", "check_head_sizes", "classify_photo",
-           "fit_outputs", "fit_photo", "fit_shape_photo", "load_head_renderer",
-           "parse_photo", "run_demo"]
+__all__ = ["FIT_SUMMARY_KEYS", "FitConfig", "FitSummary", "check_fit_outputs",
+           "check_head_sizes", "classify_photo", "fit_outputs", "fit_photo",
+           "fit_shape_photo", "load_head_renderer", "parse_photo", "run_demo"]
 
 
 def _timed(fn, *args, **kwargs) -> tuple[Any, float]:
@@ -167,108 +169,6 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     return results[0] if face != "all" else {"faces": results}
 
 
-PREVIEW_YAWS = (-45.0, 45.0, 90.0, 180.0)
-"""Yaw of the preview's other views (degrees, + = the subject's left), the back last."""
-
-
-MIN_FACE_PX = 40
-"""Faces narrower than this (pixels of the image as loaded) are refused: too few pixels
-to fit a texture to."""
-
-SMALL_FACE_PX = 60
-"""Faces narrower than this are fitted with a warning (blurry texture): the fit's 256-pixel
-crop shows a face about 90 pixels wide, so such a face is upsampled 1.5 times or more."""
-
-CONFIDENT_FACE = 0.5
-"""HOG detector score from which a face counts for the several-faces warning (the
-astronaut's mission patch scores 0.12; the faces of dlib's example photos 0.4 to 3)."""
-
-PROFILE_YAW = 40.0
-"""Beyond this fitted yaw (degrees) a warning says the head is turned: the far side comes
-from the model, and the pose and hairstyle may be off. It is the fit's yaw, which dlib's
-landmarks hold to about two thirds of the true one on turned heads (AFLW2000-3D's
-annotated 65.6 and -35.7 degrees fit as 42.9 and -24.3), so 40 stands for about 60 in
-truth. At 60 the profile image00475 got no warning; at 40, of the other 31 real photos
-with a face found in ../shared/data, one warns, a group photo whose largest face is
-turned (fitted 48 degrees); the rest fit at 38 degrees or less."""
-
-
-def _photo_stage(photo: str | Path, face: int, detector: str, focal: float | None,
-                 timings: dict[str, float], warnings: list[str] | None = None,
-                 distance: float | None = None,
-                 on_face: Callable[[Any, Any], None] | None = None):
-    """Load, detect and fit the shape; returns ``(image, found face, fit, model)``.
-
-    Warnings for the user (several faces, a small face, a greyscale photo, a profile view)
-    are appended to ``warnings``. ``on_face(image, found face)``, when given, is called
-    once the face has passed its checks, before the shape fit (the callers start the
-    hair parse there, which needs only the photo and its landmarks).
-
-    Raises:
-        NoFaceError: No face (by :func:`~head360cli.fitting.landmarks.find_faces`), or
-            fewer faces than ``face + 1``.
-        BadInputError: A face narrower than :data:`MIN_FACE_PX`.
-    """
-    from head360cli.errors import BadInputError
-    from head360cli.fitting.landmarks import find_faces, pick_face
-    from head360cli.fitting.shape import ShapeFitter, check_focal, default_focal
-    from head360cli.io.images import load_image
-    from head360cli.mesh.bilinear import load_bilinear
-
-    warnings = [] if warnings is None else warnings
-    t0 = time.perf_counter()
-    img = load_image(photo)
-    check_focal(focal, *img.source_size)
-    warnings += photo_warnings(img)
-    model = load_bilinear()
-    timings["load"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    faces = find_faces(img.pixels, detector, only=face)
-    timings["detect"] = time.perf_counter() - t0
-    found = pick_face(faces, face, detector, img.pixels)
-    confident = [f for f in faces if f.score >= CONFIDENT_FACE]
-    if len(confident) > 1:
-        warnings.append(f"{len(confident)} faces found; fitting face {face} "
-                        f"({'the largest' if face == 0 else 'by size'}), choose with --face N")
-    width = found.box[2] - found.box[0]
-    if width < MIN_FACE_PX:
-        raise BadInputError(f"expected a face at least {MIN_FACE_PX} pixels wide, found "
-                            f"{width:.0f}: use a larger photo")
-    if width < SMALL_FACE_PX:
-        warnings.append(f"the face is only {width:.0f} pixels wide: the texture will be "
-                        "blurry")
-    if _grey_face(img, found):
-        warnings.append("greyscale photo: the skin's colour comes from the model, the "
-                        "hair's is the named colour nearest its grey")
-    if on_face is not None:
-        on_face(img, found)
-    t0 = time.perf_counter()
-    full_w, full_h = img.source_size
-    f_disk = focal if focal else default_focal(full_w, full_h, img.focal_35mm)
-    fit = ShapeFitter(model).fit(found.landmarks, img.size, focal=f_disk * img.scale,
-                                 distance=distance, turn=found.turn)
-    timings["shape"] = time.perf_counter() - t0
-    yaw = fit.euler_degrees()["yaw"]
-    if abs(yaw) > PROFILE_YAW:
-        warnings.append(f"profile view (fitted yaw {yaw:.0f} degrees, likely turned further):"
-                        " the far side of the face comes from the model, and the pose and "
-                        "hairstyle may be off")
-    return img, found, fit, model
-
-
-def photo_warnings(img) -> list[str]:
-    """The warnings for a loaded photo: a file of several frames or pages (an animated
-    GIF, a TIFF stack), of which only the first is read; a colour profile that could not
-    be used, so that its values are taken as sRGB's."""
-    warnings = []
-    if img.frames > 1:
-        warnings.append(f"{Path(img.path).name} holds {img.frames} frames; the first is used")
-    if img.colour_profile == "unreadable":
-        warnings.append(f"{Path(img.path).name} has a colour profile head360 cannot use; "
-                        f"its colours are taken as sRGB")
-    return warnings
-
-
 def prior_missing(learned_prior: bool) -> list[str]:
     """The warning for a parse asked to use the learned hair prior when none is
     installed (it then parses by colour and landmarks alone), else none."""
@@ -319,6 +219,7 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     from PIL import Image
 
     from head360cli.fitting.hair_parse import MIN_SIDE, parse_hair
+    from head360cli.fitting.stages import photo_warnings
     from head360cli.io.atomic import atomic_paths, check_file_target, check_name_length
     from head360cli.io.images import MAX_SIDE, load_image
 
@@ -365,168 +266,28 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
             **{k: str(v) for k, v in paths.items()}}
 
 
-def _aligned(img, fit, model, res: int):
-    """Camera, crop and meshes of a shape fit: ``(c2w, K, affine, crop, posed, neutral)``."""
-    from head360cli.fitting.texture import crop_image, photo_camera
-
-    c2w, k, affine = photo_camera(fit.rotation, fit.translation, fit.focal, fit.centre, res)
-    crop = crop_image(img.pixels, affine, res)
-    posed = model.vertices(fit.shape, fit.expression)
-    neutral = model.vertices(fit.shape, np.zeros(52))
-    return c2w, k, affine, crop, posed, neutral
-
-
-INNER_EYES = np.isin(np.arange(17, 68), np.arange(36, 48))
-"""``(51,)`` bool: the eyes (iBUG 36-47) among :func:`_inner_landmarks`' points, which
-the inversion's camera refinement holds closer than the rest
-(:attr:`~head360cli.fitting.texture.InvertConfig.held_slack`)."""
-
-
-def _inner_landmarks(model, posed: np.ndarray, detected: np.ndarray, affine: np.ndarray,
-                     device) -> tuple:
-    """The inner-face landmarks (17-67: brows, nose, eyes, mouth; not the jaw contour,
-    which slides with the view) as ``(points on the posed mesh (51, 3), detected pixels
-    in the crop (51, 2))``, the anchors of the inversion's camera refinement."""
-    import torch
-
-    points = model.landmark_points(posed)[17:]
-    pixels = detected[17:] @ affine[:, :2].T + affine[:, 2]
-    return (torch.tensor(points, dtype=torch.float32, device=device),
-            torch.tensor(pixels, dtype=torch.float32, device=device))
-
-
-def _outside_body(landmarks: np.ndarray, affine: np.ndarray, res: int) -> np.ndarray:
-    """``(res, res)`` bool: the crop (``affine`` from the photo) without the strip below
-    the chin that a body hides (:func:`~head360cli.fitting.hair_class.hidden_by_body`),
-    from the detected ``landmarks (68, 2)``: where a hairstyle's silhouette is scored."""
-    from head360cli.fitting.hair_class import hidden_by_body
-
-    return ~hidden_by_body(landmarks @ affine[:, :2].T + affine[:, 2], (res, res))
-
-
-CLASSIFY_RES = 128
-"""Side in pixels of the crop the hairstyles' silhouettes are compared in."""
-
-
-def _silhouettes(img, fit, model, res: int = CLASSIFY_RES) -> np.ndarray:
-    """``(30, res, res)`` the hairstyles' silhouettes on the fitted head, seen from the
-    photo's camera in its ``res``-pixel crop (they do not need the parse)."""
-    from head360cli.fitting.hair_class import style_silhouettes
-
-    c2w, k, _, _, posed, neutral = _aligned(img, fit, model, res)
-    return style_silhouettes(neutral, posed, model.faces, c2w, k, res)
-
-
-def _hair_guess(img, parse, fit, model, landmarks: np.ndarray,
-                silhouettes: np.ndarray | None = None, res: int = CLASSIFY_RES):
-    """Hairstyle ranking and hair colour of a parsed photo with its detected
-    ``landmarks (68, 2)`` (and the styles' ``silhouettes`` when already made by
-    :func:`_silhouettes`): ``(guess, colour estimate, nearest corpus colour name, its
-    RGB)``."""
-    from head360cli.fitting.hair_class import (
-        HAIR_AREA_CM2,
-        classify_hair,
-        hair_colour,
-        nearest_colour_name,
-    )
-    from head360cli.fitting.texture import crop_mask, photo_camera
-    from head360cli.synth.hair import HAIR_COLOURS
-
-    # the crop's affine only (no crop image or meshes: the silhouettes have them)
-    affine = photo_camera(fit.rotation, fit.translation, fit.focal, fit.centre, res)[2]
-    hair = crop_mask(parse.hair, affine, res)
-    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
-    valid &= _outside_body(landmarks, affine, res)
-    if silhouettes is None:
-        silhouettes = _silhouettes(img, fit, model, res)
-    guess = classify_hair(hair, silhouettes, valid, crop_mask(parse.face, affine, res),
-                          HAIR_AREA_CM2)
-    estimate = hair_colour(img.pixels, parse.hair)
-    # The hair branch learnt the corpus' named colours: the head wears the nearest one.
-    name = nearest_colour_name(estimate)
-    return guess, estimate, name, np.asarray(HAIR_COLOURS[name], np.float32)
-
-
-COLOUR_RENDER_SIZE = 128
-"""Image size of the renders that compare candidate hair colours with the photo."""
-
-COLOUR_CANDIDATES = 3
-"""How many SynHead-P colours, nearest the tone curve's estimate first, are rendered and
-compared with the photo. All 10 (0.8 s a fit instead of 0.2) named the same colours on 5
-held-out synthetic heads of corpus seed 1 (all 5 right) and scored within 0.05 dB of 3 on
-`bench fit`'s real photos, so the neighbours of the estimate are enough."""
-
-
-def _colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
-                      crop: np.ndarray, hair: np.ndarray, estimate: np.ndarray,
-                      gain=None) -> tuple[str, np.ndarray, str]:
-    """The hair colour the fitted head wears: of the :data:`COLOUR_CANDIDATES` SynHead-P
-    colours nearest the tone curve's ``estimate``, the one whose render in ``style`` from
-    the photo's camera (``cam (4, 4)``, ``k (3, 3)`` for ``crop``) differs least from the
-    photo's hair pixels (``crop (R, R, 3)`` uint8, ``hair (R, R)`` bool): ``(name, linear
-    RGB, "render" or "tone curve")``. The generator renders a named colour close to, but
-    not exactly as, the corpus renderer whose look the tone curve was fitted to. With
-    ``gain (3,)`` (the photo's light, a tensor) the renders are drawn under it."""
-    import dataclasses
-
-    import cv2
-    import torch
-
-    from head360cli.fitting.hair_class import nearest_colour_names, pick_colour_by_render
-    from head360cli.model.generator import hair_for
-    from head360cli.model.render import lit
-    from head360cli.synth.hair import HAIR_COLOURS
-
-    size = COLOUR_RENDER_SIZE
-    small_k = k.clone()
-    small_k[:2] *= size / crop.shape[0]
-    photo = cv2.resize(crop, (size, size), interpolation=cv2.INTER_AREA) / 255.0
-    small_hair = cv2.resize(hair.astype(np.uint8), (size, size),
-                            interpolation=cv2.INTER_NEAREST) > 0
-
-    with torch.no_grad():
-        texture = gen.texture(code[None])  # the same head under every candidate
-    # the same hair mesh too: fitted to the head once, each candidate only recoloured
-    shape = hair_for(neutral, [style], np.asarray(estimate, np.float32)[None]).to(verts.device)
-
-    def render(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        h = gen.prepare_hair(dataclasses.replace(shape, colour=torch.as_tensor(
-            np.asarray(rgb, np.float32)[None], device=verts.device)))
-        with torch.no_grad(), gen.image_size(size):
-            out = gen(verts[None], cam[None], small_k[None], texture=texture, hair=h)
-        rgb = out["rgb"].clamp(0, 1)
-        if gain is not None:
-            rgb = lit(rgb, out["alpha"], gain.to(rgb)).clamp(0, 1)
-        return (rgb[0].permute(1, 2, 0).cpu().numpy(),
-                out["hair_alpha"][0, 0].cpu().numpy() > 0.5)
-
-    candidates = nearest_colour_names(estimate, COLOUR_CANDIDATES)
-    name, scores = pick_colour_by_render(render, photo, small_hair, candidates)
-    return (name, np.asarray(HAIR_COLOURS[name], np.float32),
-            "render" if scores else "tone curve")
-
-
 def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
                    focal: float | None = None, top: int = 3,
                    learned_prior: bool = True) -> dict[str, Any]:
     """``head360 classify-hair``: the ``top`` SynHead-P hairstyles for a photo's hair, and
     its hair colour (``learned_prior=False``: the hair parsed without the learned prior)."""
+    from head360cli.fitting import stages
     from head360cli.fitting.hair_parse import parse_hair
 
+    cfg = FitConfig(face=face, detector=detector, focal=focal,
+                    learned_prior=learned_prior).check()
     timings: dict[str, float] = {}
+    warnings: list[str] = []
     with ThreadPoolExecutor(max_workers=1) as pool:  # the parse beside the shape fit
-        jobs = []
-
-        def start_parse(img, found) -> None:
-            jobs.append(pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
-                                    prior="learned" if learned_prior else None))
-
-        warnings: list[str] = []
-        img, found, fit, model = _photo_stage(photo, face, detector, focal, timings,
-                                              warnings, on_face=start_parse)
-        parse, timings["parse"] = jobs[0].result()
+        img, timings["load"] = _timed(stages.load_photo, photo, cfg, warnings)
+        seen, timings["detect"] = _timed(stages.detect_face, img, cfg, warnings)
+        job = pool.submit(_timed, parse_hair, seen.image.pixels, seen.face.landmarks,
+                          prior="learned" if learned_prior else None)
+        shape, timings["shape"] = _timed(stages.fit_shape, seen, cfg, warnings)
+        parse, timings["parse"] = job.result()
     t0 = time.perf_counter()
-    guess, estimate, name, colour = _hair_guess(img, parse, fit, model, found.landmarks)
+    guess, estimate, name, colour = stages.guess_hair(seen.image, parse, shape.fit,
+                                                      shape.model, seen.face.landmarks)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
             "warnings": warnings + prior_missing(learned_prior),
@@ -594,80 +355,115 @@ def check_fit_outputs(photo: Any, out: str | Path) -> None:
         check_companion_png(paths["preview"], "preview")
 
 
-def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face: int = 0,
-              detector: str = "hog", focal: float | None = None, device: str = "cpu",
-              hair_style: int | None = None, distance: float | None = None,
-              progress: Any = None, learned_prior: bool = True,
-              hair_placement: bool = True, closed_lids: bool = True,
-              own_folder: bool = False) -> dict[str, Any]:
+@dataclasses.dataclass
+class FitSummary:
+    """What a fit did, as ``head360 fit --json`` prints it and ``<stem>.json`` keeps it
+    (:meth:`to_dict`; the keys are the fields', in this order)."""
+
+    photo: str
+    """The photo as given."""
+    preset: str
+    """The inversion preset."""
+    face: int
+    """Which face of the photo (0 the largest)."""
+    pose: dict[str, float]
+    """``yaw``, ``pitch``, ``roll`` (degrees) and ``distance`` (metres) of the shape fit."""
+    hair_style: dict[str, Any]
+    """``id``, ``name``, ``chosen_by``, the placement's ``offset_mm`` (up, forward) and
+    its silhouette's IoU with the parsed hair before and after (``iou_unplaced``,
+    ``iou_placed``)."""
+    hair_candidates: list
+    """The classifier's top three hairstyles with their scores."""
+    hair_color: list[float]
+    """Linear RGB of the colour worn."""
+    hair_color_name: str
+    """Its SynHead-P name."""
+    hair_color_chosen_by: str
+    """``tone curve`` or ``render``."""
+    hair_color_estimate: list[float]
+    """Linear RGB the parsed hair reads as."""
+    hair_parse: dict[str, Any]
+    """``seeded``, ``learned_prior`` and the photo's ``hair_fraction``."""
+    inversion: dict[str, Any]
+    """``steps``, ``loss_first``, ``loss_last``, the lips' ``mouth_opening``,
+    ``mouth_inside`` (``generated`` or ``fitted``) and ``fitted_in`` (``colour`` or
+    ``grey``)."""
+    light: list[float] | None
+    """The photo's light: the gain per channel on the head's pixels (``None``: none)."""
+    closed_lids: dict[str, Any] | None
+    """The lid fit's ``loss_first``, ``loss_last`` and ``texels`` (``None``: skipped)."""
+    psnr_face_input_view: float
+    """PSNR (dB) of the render with hair on the photo's face."""
+    psnr_face_input_view_bald: float
+    """...and of the bald render."""
+    image_size: list[int]
+    """Width and height of the photo on disk."""
+    face_width: float
+    """The face box's width in pixels of the photo on disk."""
+    face_detector: str
+    """The detector that found the face."""
+    face_turn_degrees: float | None
+    """The face's turn as the detector saw it."""
+    warnings: list[str]
+    """What the user should know (several faces, a profile view, ...)."""
+    device: str
+    """Where the generator ran: the timings depend on it."""
+    timings: dict[str, float]
+    """Seconds per stage, and ``total``; the parse overlaps the stages before the
+    classification, so the stages add up to more than the total."""
+    files: dict[str, str]
+    """``head``, ``preview`` and ``summary`` paths."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON-ready summary."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = None, *,
+              progress: Callable[[str, int, int], None] | None = None,
+              own_folder: bool = False, **options: Any) -> dict[str, Any]:
     """``head360 fit``: every stage, from a photo to a head file.
 
-    Stages: detection and shape fit; hair parsing; hairstyle classification and hair
-    colour; the bald target (hair replaced by the model's bald render, Poisson-blended);
-    neural-texture inversion; closed lids (a texture change that the blinks bring in, so
-    closed eyes show a lid: :func:`~head360cli.fitting.lids.close_lids`); hair placement
-    (the style's mesh shifted to match the parsed hair from the fitted camera); preview.
-    The parse runs in a second thread from the moment the landmarks are found, while the
-    shape is fitted, the generator loaded, and the hairstyles' silhouettes, the
-    inversion's mirror grid and the bald render of the starting code are made, so the
-    summary's stage times add up to more than its total by that overlap. Writes ``out``
-    (``.h360``), ``<out stem>_preview.png`` (photo crop | fitted front | three other
-    views | back) and ``<out stem>.json``.
+    The stages (:mod:`head360cli.fitting.stages`) run in order: load, face and landmarks,
+    shape fit, hair parsing, hairstyle classification, bald target, texture inversion,
+    hair colour, closed lids, hair placement, preview. The parse runs in a second thread
+    from the moment the landmarks are found, while the shape is fitted, the generator
+    loaded, and the hairstyles' silhouettes, the inversion's mirror grid and the bald
+    render of the starting code are made, so the summary's stage times add up to more
+    than its total by that overlap. Writes ``out`` (``.h360``),
+    ``<out stem>_preview.png`` (photo crop | fitted front | three other views | back) and
+    ``<out stem>.json``, renamed into place together once all three are written.
 
     Args:
         photo: The image.
-        out: Head file path.
-        preset: ``fast`` or ``quality`` (:data:`head360cli.fitting.texture.PRESETS`).
-        face: Face number (0 = largest).
-        detector: ``hog`` (for photos up to 2000 pixels, again at twice the size when
-            it finds none), ``cnn``, or ``auto``: ``hog``, then the CNN detector on a
-            copy at most ``FALLBACK_SIDE`` pixels long (not the default: see
-            :mod:`head360cli.fitting.landmarks`).
-        focal: Focal length in pixels of the photo on disk (default: EXIF or 50 mm).
-        device: Torch device for the generator.
-        hair_style: Force a hairstyle id instead of the classifier's choice.
-        distance: The camera's distance to the head in metres, when known (fixes the
-            head's size; see :meth:`~head360cli.fitting.shape.ShapeFitter.fit`).
+        out: Head file path (``.h360``).
+        config: What the fit does (default :class:`FitConfig`'s defaults).
         progress: Callable ``(stage, step, total)`` for progress display.
-        learned_prior: Parse the hair with the learned hair prior (when installed).
-        hair_placement: Shift the hairstyle's mesh to the parsed hair
-            (:func:`~head360cli.fitting.hair_class.place_hair`); ``False`` leaves it
-            where the style's fit to the head puts it.
-        closed_lids: Fit the texture change that closed eyes show as a lid (stored in
-            the head file as ``lid_index``/``lid_change``); ``False``: none.
         own_folder: The outputs' folder is the caller's own (``head360 demo``'s): skip
             :func:`check_fit_outputs`, which keeps a fit from replacing other programs'
             files beside the photo.
+        **options: :class:`FitConfig` fields that replace ``config``'s (``preset="quality"``).
 
     Returns:
-        The JSON summary (also written to ``<out stem>.json``).
+        The JSON summary (:class:`FitSummary`, also written to ``<out stem>.json``).
     """
     import torch
     from PIL import Image
 
-    from head360cli.errors import BadInputError
+    from head360cli.fitting import stages
     from head360cli.fitting.hair_parse import parse_hair
-    from head360cli.fitting.landmarks import mouth_opening
-    from head360cli.fitting.shape import check_camera
-    from head360cli.fitting.texture import (
-        LUMA,
-        PRESETS,
-        bald_target,
-        crop_mask,
-        invert_texture,
-        mirror_grid,
-        region_texels,
-    )
+    from head360cli.fitting.texture import PRESETS, mirror_grid
     from head360cli.io.atomic import atomic_paths, check_file_target
     from head360cli.io.headfile import HeadFile, lid_change_arrays, write_head
     from head360cli.io.images import png_info
-    from head360cli.model.head_render import HeadRenderer, to_uint8
+    from head360cli.model.head_render import HeadRenderer
     from head360cli.model.train import load_generator
     from head360cli.synth.hair import HAIRSTYLES
 
-    if preset not in PRESETS:
-        raise BadInputError(f"expected preset {' or '.join(PRESETS)}, found {preset!r}")
-    check_camera(focal, distance)  # before any work
+    unknown = sorted(set(options) - {f.name for f in dataclasses.fields(FitConfig)})
+    if unknown:
+        raise TypeError(f"fit_photo() got unexpected options {', '.join(unknown)}")
+    cfg = dataclasses.replace(config or FitConfig(), **options).check()  # before any work
     out = Path(out)
     if out.suffix.lower() != ".h360":
         raise BadInputError(f"expected an output name ending in .h360, found {str(out)!r}")
@@ -675,9 +471,6 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         check_file_target(target)
     if not own_folder:
         check_fit_outputs(photo, out)
-    if hair_style is not None and not 0 <= hair_style < len(HAIRSTYLES):
-        raise BadInputError(f"expected a hairstyle id 0..{len(HAIRSTYLES) - 1}, found "
-                            f"{hair_style}")
     say = progress or (lambda *a: None)
     timings: dict[str, float] = {}
     warnings: list[str] = []
@@ -689,249 +482,149 @@ def fit_photo(photo: str | Path, out: str | Path, *, preset: str = "fast", face:
         # shape fit, the generator, the hairstyles' silhouettes, the inversion's mirror
         # grid, and the bald render of the starting code that the bald target fills the
         # hair from (the stages' times overlap by as much)
-        jobs = []
-
-        def start_parse(img, found) -> None:
-            jobs.append(pool.submit(_timed, parse_hair, img.pixels, found.landmarks,
-                                    prior="learned" if learned_prior else None))
-
-        img, found, fit, model = _photo_stage(photo, face, detector, focal, timings,
-                                              warnings, distance, on_face=start_parse)
-        t0 = time.perf_counter()
-        gen, codes = load_generator(device=device)
+        img, timings["load"] = _timed(stages.load_photo, photo, cfg, warnings)
+        seen, timings["detect"] = _timed(stages.detect_face, img, cfg, warnings)
+        job = pool.submit(_timed, parse_hair, img.pixels, seen.face.landmarks,
+                          prior="learned" if cfg.learned_prior else None)
+        shape, timings["shape"] = _timed(stages.fit_shape, seen, cfg, warnings)
+        (gen, codes), load_s = _timed(load_generator, device=cfg.device)
+        timings["load"] += load_s
         res = gen.cfg.image_res
-        timings["load"] += time.perf_counter() - t0
         say("parse", 0, 1)
-        dev = torch.device(device)
+        dev = torch.device(cfg.device)
+        silhouettes, classify_s = _timed(stages.style_silhouettes, img, shape.fit,
+                                         shape.model)
+        _, mirror_s = _timed(mirror_grid, gen.cfg.texture_res)
         t0 = time.perf_counter()
-        silhouettes = _silhouettes(img, fit, model)
-        classify_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        mirror_grid(gen.cfg.texture_res)
-        mirror_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        c2w, k, affine, crop, posed, neutral = _aligned(img, fit, model, res)
-        verts = torch.tensor(posed, dtype=torch.float32, device=dev)
-        cam = torch.tensor(c2w, device=dev)
-        kk = torch.tensor(k, device=dev)
+        frame = stages.frame_photo(img, shape.fit, shape.model, res)
         start = codes.mean(0)
         with torch.no_grad():
-            first = gen(verts[None], cam[None], kk[None], code=start[None])
+            first = gen(torch.tensor(frame.posed, dtype=torch.float32, device=dev)[None],
+                        torch.tensor(frame.c2w, device=dev)[None],
+                        torch.tensor(frame.k, device=dev)[None], code=start[None])
         first_s = time.perf_counter() - t0
-        parse, timings["parse"] = jobs[0].result()
-    t0 = time.perf_counter()
-    guess, estimate, colour_name, colour = _hair_guess(img, parse, fit, model,
-                                                       found.landmarks, silhouettes)
-    style = guess.ranking[0] if hair_style is None else int(hair_style)
-    warnings += prior_missing(learned_prior)
-    if hair_style is None and not guess.matched:
-        warnings.append(f"the parsed hair matches no hairstyle (best overlap "
-                        f"{guess.iou.max():.3f}): fitted bald; choose a style with --hair")
-    timings["classify"] = classify_s + time.perf_counter() - t0
+        parse, timings["parse"] = job.result()
+    warnings += prior_missing(cfg.learned_prior)
+    hair, t = _timed(stages.choose_hairstyle, seen, shape, parse, cfg, silhouettes, warnings)
+    timings["classify"] = classify_s + t
 
-    t0 = time.perf_counter()
-    hair_crop = crop_mask(parse.hair, affine, res)
-    face_crop = crop_mask(parse.face, affine, res)
-    target = bald_target(crop, hair_crop, to_uint8(first["rgb"])[0])
-    alpha = first["alpha"][0, 0].cpu().numpy() > 0.5
-    weight = face_crop & alpha
-    if weight.sum() < 50:
-        raise BadInputError("expected a visible face region to fit the texture to, found "
-                            f"{int(weight.sum())} pixels (is the face covered?)")
-    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
-    mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair_crop & valid)
-    timings["bald_target"] = first_s + time.perf_counter() - t0
-    cfg = PRESETS[preset]
-    if _grey_face(img, found):  # no light's colour, no skin's: its grey is fitted
-        cfg = dataclasses.replace(cfg, gain=False, grey=True)
-    # lips closed or nearly: the inside of the mouth keeps the generated texture
-    lips = mouth_opening(found.landmarks)  # NaN for eye corners on one point: not closed
-    keep = region_texels(gen.cfg.texture_res).to(dev) if lips < cfg.closed_mouth else None
-    inv = invert_texture(
-        gen, verts, cam, kk,
-        torch.tensor(target, dtype=torch.float32, device=dev).permute(2, 0, 1) / 255.0,
-        torch.tensor(mask, device=dev)[None], start, cfg,
-        progress=lambda s, n, loss: say("texture", s, n),
-        landmarks=_inner_landmarks(model, posed, found.landmarks, affine, dev),
-        held=torch.as_tensor(INNER_EYES, device=dev), keep=keep)
+    bald, t = _timed(stages.make_bald_target, seen, frame, parse, first)
+    timings["bald_target"] = first_s + t
+    invert_cfg = PRESETS[cfg.preset]
+    if seen.grey:  # no light's colour, no skin's: its grey is fitted
+        invert_cfg = dataclasses.replace(invert_cfg, gain=False, grey=True)
+    inv, lips, kept_inside = stages.invert(gen, seen, shape, frame, bald, start, invert_cfg,
+                                           progress=say)
     timings["invert"] = inv.seconds + mirror_s  # its mirror grid was made beside the parse
 
-    # The hair's colour as it would look under white light: the photo's pixels without the
-    # light the inversion found, and the candidates rendered under it (timed with the
-    # classification, which it completes).
-    t0 = time.perf_counter()
-    colour_by = "tone curve"
-    if inv.gain is not None:
-        from head360cli.fitting.hair_class import hair_colour, nearest_colour_name
-        from head360cli.synth.hair import HAIR_COLOURS
-
-        # the hair pixels only: a 4096-pixel photo as float64 would take 400 MB
-        gain = inv.gain.cpu().numpy().astype(np.float64)
-        unlit = np.clip(img.pixels[parse.hair] / gain, 0, 255).round().astype(np.uint8)
-        estimate = hair_colour(unlit[None], np.ones((1, len(unlit)), bool))
-        colour_name = nearest_colour_name(estimate)
-        colour = np.asarray(HAIR_COLOURS[colour_name], np.float32)
-    if style != 0:
-        colour_name, colour, colour_by = _colour_by_render(
-            gen, verts, cam, kk, start, neutral, style, crop, hair_crop, estimate, inv.gain)
-    timings["classify"] += time.perf_counter() - t0
+    # timed with the classification, which it completes
+    hair, t = _timed(stages.choose_hair_colour, gen, seen, frame, parse, bald, hair, inv,
+                     start)
+    timings["classify"] += t
     lids = None
-    if closed_lids:
-        from head360cli.fitting.lids import head_lids
-
+    if cfg.closed_lids:
         say("lids", 0, 1)
-        lids = head_lids(gen, model, fit.shape, inv.texture)
+        lids = stages.fit_closed_lids(gen, shape, inv)
     timings["lids"] = 0.0 if lids is None else lids.seconds
 
+    placement = stages.HairPlacement(np.zeros(3), None, None)
     t0 = time.perf_counter()
-    offset, placed_iou, plain_iou = np.zeros(3), None, None
-    if style != 0 and hair_placement:
-        from head360cli.fitting.hair_class import place_hair
-
-        offset, placed_iou, plain_iou = place_hair(
-            neutral, posed, model.faces, inv.c2w.cpu().numpy(), k, style, hair_crop,
-            valid & _outside_body(found.landmarks, affine, res),
-            face=face_crop)
+    if hair.style != 0 and cfg.hair_placement:
+        placement = stages.place_hairstyle(seen, shape, frame, bald, hair.style, inv)
     timings["hair_placement"] = time.perf_counter() - t0
 
     say("preview", 0, 1)
     t0 = time.perf_counter()
-    head = HeadRenderer(gen, fit.shape, inv.texture, style, colour, fit.expression,
-                        samples=cfg.preview_samples, precision="fp32", hair_offset=offset,
+    head = HeadRenderer(gen, shape.fit.shape, inv.texture, hair.style, hair.colour,
+                        shape.fit.expression, samples=invert_cfg.preview_samples,
+                        precision="fp32", hair_offset=placement.offset,
                         lid_change=None if lids is None else lids.change,
                         colour_gain=inv.gain)
-    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
-
-    others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
-                              RIG_DISTANCE)
-    rig_k = _rig_intrinsics(res)
-    front = to_uint8(head.render(inv.c2w[None], kk))[0]
-    views = to_uint8(head.render(others, rig_k, expression=np.zeros(52)))
-    # With its hair, as the user will see it: hair over the forehead counts as error.
-    # A grey photo is compared in grey, the values it has (its colour is the model's).
-    seen = (lambda x: x.astype(np.float64) @ np.array(LUMA)) if cfg.grey else (lambda x: x)
-    psnr_face = _masked_psnr(seen(front), seen(crop), weight)
-    # Bald, as the inversion saw it: the texture alone.
-    bald = to_uint8(head.render(inv.c2w[None], kk, hair=False))[0]
-    psnr_bald = _masked_psnr(seen(bald), seen(crop), weight)
+    preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
     timings["preview"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     paths = fit_outputs(out)
-    model_hash = generator_hash()
     head_file = HeadFile(
-        arrays={"shape": fit.shape.astype(np.float32),
-                "expression": fit.expression.astype(np.float32),
-                "pose": inv.c2w.cpu().numpy().astype(np.float32), "intrinsics": k,
+        arrays={"shape": shape.fit.shape.astype(np.float32),
+                "expression": shape.fit.expression.astype(np.float32),
+                "pose": inv.c2w.cpu().numpy().astype(np.float32), "intrinsics": frame.k,
                 "texture": inv.texture.cpu().numpy().astype(np.float32),
                 "texture_code": inv.code.cpu().numpy().astype(np.float32),
-                "hair_style": np.array(style, np.int64),
-                "hair_color": colour.astype(np.float32),
-                "hair_offset": offset.astype(np.float32),
-                "vertices": neutral.astype(np.float32),
+                "hair_style": np.array(hair.style, np.int64),
+                "hair_color": hair.colour.astype(np.float32),
+                "hair_offset": placement.offset.astype(np.float32),
+                "vertices": frame.neutral.astype(np.float32),
                 **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy())),
                 **({} if inv.gain is None else
                    {"colour_gain": inv.gain.cpu().numpy().astype(np.float32)})},
-        model_hash=model_hash,
-        info={"photo": Path(photo).name, "preset": preset, "face": face,
-              "hair_style_name": HAIRSTYLES[style].name,
-              "bilinear_model": model.meta["sha256"]})
-    sheet = np.concatenate([crop, front, *views], 1)
+        model_hash=generator_hash(),
+        info={"photo": Path(photo).name, "preset": cfg.preset, "face": cfg.face,
+              "hair_style_name": HAIRSTYLES[hair.style].name,
+              "bilinear_model": shape.model.meta["sha256"]})
     # The head file, its preview and its summary are renamed into place together once all
     # three are written, so a full disk leaves an earlier fit's set as it was.
     with atomic_paths(paths["head"], paths["preview"], paths["summary"]) as (
             tmp_head, tmp_preview, tmp_summary):
         write_head(head_file, tmp_head)
-        Image.fromarray(sheet).save(tmp_preview, format="PNG", pnginfo=png_info())
+        Image.fromarray(preview.sheet).save(tmp_preview, format="PNG", pnginfo=png_info())
         timings["write"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
-        euler = fit.euler_degrees()
-        summary = {
-            "photo": str(photo), "preset": preset, "face": face,
-            "pose": {**{k_: round(v, 2) for k_, v in euler.items()},
-                     "distance": round(fit.distance(), 4)},
-            "hair_style": {"id": style, "name": HAIRSTYLES[style].name,
-                           "chosen_by": "classifier" if hair_style is None else "user",
-                           # the placement: mm up and forward, and its silhouette's IoU
-                           # with the parsed hair before and after
-                           "offset_mm": {"up": round(float(offset[1]) * 1e3, 1),
-                                         "forward": round(float(offset[2]) * 1e3, 1)},
-                           "iou_unplaced": None if plain_iou is None else round(plain_iou, 4),
-                           "iou_placed": None if placed_iou is None else round(placed_iou, 4)},
-            "hair_candidates": guess.top(3),
-            "hair_color": [round(float(c), 4) for c in colour],
-            "hair_color_name": colour_name,
-            "hair_color_chosen_by": colour_by,
-            "hair_color_estimate": [round(float(c), 4) for c in estimate],
-            "hair_parse": {"seeded": parse.seeded,
-                           "learned_prior": parse.prior,
-                           "hair_fraction": round(float(parse.hair.mean()), 4)},
-            "inversion": {"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
-                          "loss_last": round(inv.losses[-1], 5),
-                          # the lips' gap, and whether the mouth's inside was fitted
-                          "mouth_opening": round(lips, 4) if np.isfinite(lips) else None,
-                          "mouth_inside": "generated" if keep is not None else "fitted",
-                          # a grey photo's grey is fitted; the colour is the model's
-                          "fitted_in": "grey" if cfg.grey else "colour"},
-            # the photo's light: the gain per channel on the head's pixels in every render
-            "light": None if inv.gain is None else [round(float(g), 4) for g in inv.gain],
-            "closed_lids": None if lids is None else {
-                "loss_first": round(lids.loss_first, 5), "loss_last": round(lids.loss_last, 5),
-                "texels": lids.texels},
-            "psnr_face_input_view": round(psnr_face, 2),
-            "psnr_face_input_view_bald": round(psnr_bald, 2),
-            "image_size": list(img.source_size),
-            "face_width": round(float(found.box[2] - found.box[0]) / img.scale, 1),
-            "face_detector": found.detector,
-            "face_turn_degrees": found.turn,
-            "warnings": warnings,
-            "device": str(dev),  # where the generator ran: the timings depend on it
-            "timings": {k_: round(v, 3) for k_, v in timings.items()},
-            "files": {k_: str(v) for k_, v in paths.items()},
-        }
-        tmp_summary.write_text(dumps(summary, indent=1))
-    return summary
+        summary = _summary(photo, cfg, seen, shape, parse, hair, placement, inv, lips,
+                           kept_inside, lids, preview, warnings, dev, timings, paths)
+        tmp_summary.write_text(dumps(summary.to_dict(), indent=1))
+    return summary.to_dict()
 
 
-def _rig_intrinsics(res: int):
-    from head360cli.geometry.cameras import RIG_FOV_DEG, intrinsics_from_fov
+def _summary(photo, cfg: FitConfig, seen, shape, parse, hair, placement, inv, lips: float,
+             kept_inside: bool, lids, preview, warnings: list[str], dev,
+             timings: dict[str, float], paths: dict[str, Path]) -> FitSummary:
+    """The :class:`FitSummary` of a fit's stages' results, rounded for reading."""
+    from head360cli.synth.hair import HAIRSTYLES
 
-    return intrinsics_from_fov(RIG_FOV_DEG, res, res)
+    def rounded(values, digits: int = 4) -> list[float]:
+        return [round(float(v), digits) for v in values]
 
-
-def _grey_face(img, found) -> bool:
-    """Whether the photo (a :class:`~head360cli.io.images.LoadedImage`) is greyscale and
-    so is the found face's box in it (:func:`~head360cli.io.images.is_greyscale`): a
-    small face in a photo of grey and black and white is under 1 % of its pixels."""
-    from head360cli.io.images import is_greyscale
-
-    if not img.greyscale:
-        return False
-    h, w = img.pixels.shape[:2]
-    x0, y0, x1, y1 = (int(np.rint(c)) for c in found.box)
-    box = img.pixels[max(0, y0):min(h, y1), max(0, x0):min(w, x1), :3]
-    return box.size == 0 or is_greyscale(box)
-
-
-def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR in dB of images of values 0 to 255 (``(H, W[, 3])``) inside a boolean mask
-    ``(H, W)``."""
-    d = (a.astype(np.float64) - b.astype(np.float64))[mask] / 255.0
-    mse = float(np.mean(d ** 2)) if d.size else 0.0
-    return 10 * np.log10(1.0 / max(mse, 1e-10))
-
-
-def generator_hash() -> str:
-    """SHA-256 of the installed generator's weights, which head files record.
-
-    Raises:
-        ModelNotFoundError: No weights installed (as :func:`load_generator` says).
-    """
-    import hashlib
-
-    from head360cli.paths import installed_generator
-
-    return hashlib.sha256(installed_generator().read_bytes()).hexdigest()
+    euler = shape.fit.euler_degrees()
+    offset = placement.offset
+    return FitSummary(
+        photo=str(photo), preset=cfg.preset, face=cfg.face,
+        pose={**{k: round(v, 2) for k, v in euler.items()},
+              "distance": round(shape.fit.distance(), 4)},
+        hair_style={"id": hair.style, "name": HAIRSTYLES[hair.style].name,
+                    "chosen_by": hair.chosen_by,
+                    # the placement: mm up and forward, and its silhouette's IoU with the
+                    # parsed hair before and after
+                    "offset_mm": {"up": round(float(offset[1]) * 1e3, 1),
+                                  "forward": round(float(offset[2]) * 1e3, 1)},
+                    "iou_unplaced": None if placement.iou_unplaced is None
+                    else round(placement.iou_unplaced, 4),
+                    "iou_placed": None if placement.iou_placed is None
+                    else round(placement.iou_placed, 4)},
+        hair_candidates=hair.guess.top(3),
+        hair_color=rounded(hair.colour), hair_color_name=hair.colour_name,
+        hair_color_chosen_by=hair.colour_by, hair_color_estimate=rounded(hair.estimate),
+        hair_parse={"seeded": parse.seeded, "learned_prior": parse.prior,
+                    "hair_fraction": round(float(parse.hair.mean()), 4)},
+        inversion={"steps": inv.steps, "loss_first": round(inv.losses[0], 5),
+                   "loss_last": round(inv.losses[-1], 5),
+                   # the lips' gap, and whether the mouth's inside was fitted
+                   "mouth_opening": round(lips, 4) if np.isfinite(lips) else None,
+                   "mouth_inside": "generated" if kept_inside else "fitted",
+                   # a grey photo's grey is fitted; the colour is the model's
+                   "fitted_in": "grey" if seen.grey else "colour"},
+        light=None if inv.gain is None else rounded(inv.gain),
+        closed_lids=None if lids is None else {
+            "loss_first": round(lids.loss_first, 5), "loss_last": round(lids.loss_last, 5),
+            "texels": lids.texels},
+        psnr_face_input_view=round(preview.psnr_face, 2),
+        psnr_face_input_view_bald=round(preview.psnr_bald, 2),
+        image_size=list(seen.image.source_size),
+        face_width=round(float(seen.face.box[2] - seen.face.box[0]) / seen.image.scale, 1),
+        face_detector=seen.face.detector, face_turn_degrees=seen.face.turn,
+        warnings=warnings, device=str(dev),
+        timings={k: round(v, 3) for k, v in timings.items()},
+        files={k: str(v) for k, v in paths.items()})
 
 
 def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:

@@ -413,11 +413,16 @@ def test_demo_writes_a_turntable(run_cli, tmp_path):
 
 
 def _stage(path):
-    from head360cli.fitting.pipeline import _photo_stage
+    """The photo's stages up to the shape fit: ``((image, face, shape fit, model),
+    warnings)``."""
+    from head360cli.fitting import stages
+    from head360cli.fitting.config import FitConfig
 
     warnings: list[str] = []
-    out = _photo_stage(path, 0, "hog", None, {}, warnings)
-    return out, warnings
+    cfg = FitConfig()
+    seen = stages.detect_face(stages.load_photo(path, cfg, warnings), cfg, warnings)
+    shape = stages.fit_shape(seen, cfg, warnings)
+    return (seen.image, seen.face, shape.fit, shape.model), warnings
 
 
 def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
@@ -505,12 +510,12 @@ def test_profile_view_is_fitted_with_a_warning(shared_data):
     image00050 (0.9 degrees) gets no warning; image00251 (-54.7 degrees, pitched) is not
     found by HOG: a clear no-face error with a hint."""
     from head360cli.errors import NoFaceError
-    from head360cli.fitting import pipeline
+    from head360cli.fitting import stages
 
     folder = shared_data / "landmarks68" / "aflw2000"
     (_, _, fit, _), warnings = _stage(folder / "image00475.jpg")
     yaw = fit.euler_degrees()["yaw"]
-    assert pipeline.PROFILE_YAW < abs(yaw) < 60
+    assert stages.PROFILE_YAW < abs(yaw) < 60
     assert [w for w in warnings if "profile view" in w] == [
         f"profile view (fitted yaw {yaw:.0f} degrees, likely turned further): the far side "
         "of the face comes from the model, and the pose and hairstyle may be off"]
@@ -584,13 +589,13 @@ def test_an_exif_focal_no_lens_has_falls_back_to_50_mm():
 def test_the_fit_holds_the_eyes_landmarks():
     """The camera refinement's held landmarks are iBUG 36-47 (the eyes) among the 51
     inner-face points ``fit`` anchors it with."""
-    from head360cli.fitting.pipeline import INNER_EYES, _inner_landmarks
+    from head360cli.fitting.stages import INNER_EYES, inner_landmarks
     from head360cli.mesh.bilinear import load_bilinear
 
     model = load_bilinear()
     posed = model.vertices(np.zeros(model.rank), np.zeros(52))
     detected = np.arange(136, dtype=np.float64).reshape(68, 2)
-    points, pixels = _inner_landmarks(model, posed, detected, np.eye(2, 3), "cpu")
+    points, pixels = inner_landmarks(model, posed, detected, np.eye(2, 3), "cpu")
     assert INNER_EYES.shape == (51,) and INNER_EYES.sum() == 12
     np.testing.assert_allclose(points.numpy()[INNER_EYES],
                                model.landmark_points(posed)[36:48], atol=1e-6)
