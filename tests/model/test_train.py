@@ -181,7 +181,9 @@ def test_train_config_refuses_settings_no_run_trains_with(field, value, expected
     with pytest.raises(BadInputError, match=re.escape(
             f"expected TrainConfig.{field} {expected}, found {value!r}")):
         TrainConfig(**{field: value})
-    assert TrainConfig(steps=0, minutes=0.0, code_prior=0.0, final_lr=1.0) is not None
+    # the edges of the ranges are settings a run can train with
+    edge = TrainConfig(steps=0, minutes=0.0, code_prior=0.0, final_lr=1.0)
+    assert (edge.steps, edge.minutes, edge.code_prior, edge.final_lr) == (0, 0.0, 0.0, 1.0)
 
 
 class _Payload:
