@@ -5,13 +5,13 @@
 - ``examples/figures/parse_astronaut.png``: ``head360 parse-hair``'s overlay (hair red,
   face blue), downscaled to 256 pixels;
 - ``examples/figures/texture_grid.png``: the fitted face at its own expression, neutral,
-  jaw open and eyes closed, with the neural texture fitted texel by texel (top, as before
-  stop 31) and on the coarse grid with a smooth fine layer (bottom, the default);
+  jaw open and eyes closed, with the neural texture fitted texel by texel (top, as head360
+  did before 2026-12-03) and on the coarse grid with a smooth fine layer (bottom, the default);
 - ``examples/figures/light_astronaut.png``: the photo under a bluish light (its channels
-  times 0.7, 0.85 and 1.2), the head fitted to it without the light's colour (as before
-  stop 76) and with it;
+  times 0.7, 0.85 and 1.2), the head fitted to it without the light's colour (as head360
+  did before 2026-12-05) and with it;
 - ``examples/figures/grey_astronaut.png``: the photo in greyscale, the head fitted to its
-  colours (as before stop 79: a grey face) and to its grey (the skin's colour the
+  colours (as head360 did before 2026-12-05: a grey face) and to its grey (the skin's colour the
   model's), each from the front and turned 45 degrees.
 
 Run from the repository root (about a minute on 2 CPU cores):
@@ -108,7 +108,7 @@ def grey_figure(work: Path) -> None:
     invert = texture.invert_texture
     tiles = []
     for name in ("colour", "grey"):
-        if name == "colour":  # as before stop 79: the grey photo's RGB fitted
+        if name == "colour":  # as before 2026-12-05: the grey photo's RGB fitted
             texture.invert_texture = lambda *a, **k: invert(
                 *a[:7], dataclasses.replace(a[7], grey=False), *a[8:], **k)
         try:

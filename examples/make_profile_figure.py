@@ -3,7 +3,7 @@
 Five held-out heads of corpus seed 1 (development heads, not the bench's), seen from 65
 or 90 degrees to either side on a plain backdrop at 256 pixels; each row shows the
 render, the parse without looking for a face in profile (the face taken for hair), the
-parse with OpenCV's profile cascade (hair red, face blue; the default since stop 65) and
+parse with OpenCV's profile cascade (hair red, face blue; the default since 2026-12-04) and
 the true hair. The last row is a miss: the cascade finds about half of the faces turned
 90 degrees, and where it finds none the parse is as before. Tiles at 160 pixels; the
 hair IoUs are printed.

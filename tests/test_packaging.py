@@ -15,7 +15,7 @@ from tests.conftest import REPO
 
 def readme_commands() -> list[str]:
     text = (REPO / "README.md").read_text()
-    section = text.split("## Set up", 1)[1].split("\n## ", 1)[0]
+    section = text.split("## Install", 1)[1].split("\n## ", 1)[0]
     return re.findall(r"```bash\n(.+?)\n```", section, flags=re.S)
 
 
@@ -82,9 +82,11 @@ def _slug(heading: str) -> str:
 
 
 def test_readme_links_resolve():
-    """Every relative link and picture in the README, the model card and the history names a file
+    """Every relative link and picture in the README, the model card and the docs names a file
     that exists, and every #anchor one of that file's headings."""
-    pages = [REPO / "README.md", REPO / "models" / "MODEL_CARD.md", REPO / "docs" / "HISTORY.md"]
+    pages = [REPO / "README.md", REPO / "models" / "MODEL_CARD.md",
+             *sorted((REPO / "docs").glob("*.md"))]
+    assert len(pages) >= 5  # the README, the card, benchmarks, architecture, decisions
     checked = 0
     for page in pages:
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
@@ -97,7 +99,7 @@ def test_readme_links_resolve():
                 slugs = {_slug(h) for h in re.findall(r"^#+ (.+)$", dest.read_text(), re.M)}
                 assert anchor in slugs, f"{page.name}: no heading for #{anchor} in {dest.name}"
             checked += 1
-    assert checked >= 20  # the README's pictures alone are more
+    assert checked >= 15  # the pictures and the links between the pages
 
 
 def test_onnxruntime_keeps_no_telemetry_in_the_users_home(tmp_path):

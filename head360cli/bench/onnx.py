@@ -2,8 +2,8 @@
 
 - Parity: one graph pair is exported (the mean head wearing a bob traces it), then ``heads``
   random heads (:func:`~head360cli.drive.sample.sample_heads`: random shape, texture,
-  hairstyle and colour; every fifth rendered bald, by the bald graph; every third, since
-  stop 76, under a random light, a fit's ``colour_gain``), each with a random
+  hairstyle and colour; every fifth rendered bald, by the bald graph; every third under a
+  random light, a fit's ``colour_gain``), each with a random
   ARKit expression (a few weights up to 1, some extreme) and a random camera (any yaw,
   pitch within +-75 degrees), are rendered by torch in float32 and by onnxruntime from the
   same mesh; the largest absolute difference per image and over all.
@@ -96,7 +96,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     rows, worst = [], 0.0
     for i, head in enumerate(sample_heads(heads, seed=seed + 1, lids=False)):
         a = head.arrays
-        # every third head under a light of its own, as a fit's (stop 76)
+        # every third head under a light of its own, as a fit's
         light = lights.uniform(0.6, 1.5, 3) if i % 3 == 2 else None
         r = HeadRenderer(gen, a["shape"], torch.as_tensor(a["texture"]),
                          int(a["hair_style"]), a["hair_color"], samples=samples, size=size,

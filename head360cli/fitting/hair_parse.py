@@ -60,7 +60,7 @@ one (0.45 to 2.4 s at 384 pixels on development photos), and ``fit`` waits for i
 astronaut), their hair masks agreeing with the full-size pass at IoU 0.72 to 1.0 (five
 of eight at 0.98 or more; the lowest, 01322, where both find only a patch of her
 forehead); on 19 held-out synthetic heads of corpus seed 1 rendered at 512 pixels the
-hair IoU went 0.9686 -> 0.9656 (stop 64). Measured afterwards on ``bench fit``'s real
+hair IoU went 0.9686 -> 0.9656 (2026-12-04). Measured afterwards on ``bench fit``'s real
 masks: CelebAMask 0.721 -> 0.711 (one photo 0.801 -> 0.714), Figaro 0.742 -> 0.741."""
 
 

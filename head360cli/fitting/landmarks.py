@@ -5,7 +5,7 @@ tilted, partly hidden, dark) at about 50 times the cost. ``auto`` runs HOG and, 
 it finds no face, the CNN detector on a copy of the image at most :data:`FALLBACK_SIDE`
 pixels on its longer side. Faces are returned largest first.
 
-The commands default to HOG (stop 60). On development close-ups that cut the face at the
+The commands default to HOG. On development close-ups that cut the face at the
 frame's edge (corpus seed 1, 10 held-out heads, three views each, cropped to 0.56 of the
 head's extent, over plain and photographic backdrops) HOG found 14 of 27 faces and the
 CNN detector the other 13, whose hair IoU went from 0.067 (parsed without a face, the
@@ -67,7 +67,7 @@ LOW_CONTRAST_SPREAD = 128.0
 faces are searched on a copy stretched to the full range (:func:`stretched`). Development
 photos span 167 to 252 levels (VOC, AFLW2000-3D, ``bald_guys``, ``camera``; SynHead-P
 renders 173 and more), so none of them is stretched. On the five AFLW2000-3D development
-photos with ground truth (``head360`` stop 76), darkened to half, 0.3, 0.15 and 0.08 of
+photos with ground truth, darkened to half, 0.3, 0.15 and 0.08 of
 their brightness, dlib's landmark error (NME, % of the face's size, averaged landmarks)
 read 4.01 / 4.42 / 4.82 / 3.81 % on the faces it found (5, 5, 3 and 1 of 5) and 3.80 /
 3.79 / 3.79 / 3.83 % on the stretched copies, every face found (3.82 % on the photos as
@@ -230,8 +230,7 @@ def find_profile(gray: np.ndarray, min_size: float = PROFILE_MIN) -> ProfileFace
     right. About 60 ms for both on a 384-pixel image. On development renders of held-out
     synthetic heads (corpus seed 1, 19 heads with hair, 256 pixels) it found 36 of 38
     turned 65 degrees and 17 of 38 turned 90, and one false face in 38 back views and
-    close-ups of hair, which the skin check of the hair parse that uses it turns down
-    (stop 65).
+    close-ups of hair, which the skin check of the hair parse that uses it turns down.
 
     Args:
         gray: ``(H, W)`` uint8 image.

@@ -63,7 +63,7 @@ class LidConfig:
     heads 0 and 1: -0.85 and -0.69 (-0.79, -0.66 at 1.0)."""
     lash: float = 0.1
     """Brightness of the lash line as a fraction of the skin's colour. The dark line is
-    what dlib reads as a closed lid: at stop 58, on eight development heads (fast-preset
+    what dlib reads as a closed lid: on eight development heads (fast-preset
     fits of AFLW2000-3D 01322, 02283, 02545, 03614, VOC 2008_001322, 2008_002506,
     2009_004587 and bald_guys; front view, blink ramps of 21 frames, dlib's eye opening
     against the blink, both eyes) the mean correlation over blinks 0 to 0.6 was -0.81 /

@@ -53,38 +53,14 @@ class InvertConfig:
 
     code_steps: int = 20
     """Steps fitting the texture code ``t`` (and refining the camera) before the texture
-    itself. 5 -> 20 with ``lr_rotation`` 0.01 -> 0.02 took held-out synthetic fits from
-    16.8 to 17.9 dB over 72 views (6 heads, fast preset), for about 2 s more. The quality
-    preset takes 60. First 40: on three held-out heads of corpus seed 1 (not the bench's
-    seed 0) 20 -> 40 took its fits from 17.73 to 18.71 dB over 72 views (every head up: +1.05,
-    +1.81, +0.10) and 21.52 to 21.99 at the input view, and five development photos' bald
-    face PSNR from 29.46 to 29.68 dB (every photo up), for 5-10 s more a fit: the camera
-    refinement had not settled in 20 steps. Then 60 (stop 80), four held-out heads of
-    corpus seed 1, 40 / 60 / 80 steps, 18.53 / 19.15 / 19.29 dB over 72 views (every
-    head up at 60), 20.97 / 21.52 / 21.48 at the input view, the pitch left after the
-    refinement 5.1 / 3.3 / 2.2 degrees, for 29.7 / 34.5 / 40.8 s a fit; on the nine
-    development photos 40 -> 60 moved face PSNR 27.09 -> 27.10 dB, bald 30.41 -> 30.46,
-    the descriptor distance at 0 degrees 0.407 -> 0.393 and at +-30 0.474 either way,
-    35.4 -> 40.9 s a fit. The fast preset takes 30 at ``code_samples`` 4 (see there)."""
+    itself: the fast preset's 30 (at ``code_samples`` 4), the quality preset's 60. More
+    steps let the camera refinement settle (``docs/decisions.md``, the inversion's code
+    steps)."""
     steps: int = 24
     """Most steps optimising the neural texture (the fast preset's count). The stopping
     rule rarely ends a fast fit early, so more steps cost time in proportion (about
-    0.14 s a step on a 2-core CPU).
-
-    Stop 57 (nine development photos: five AFLW2000-3D, three VOC, dlib's bald_guys)
-    measured 16 -> 20 -> 24 as face PSNR 24.87 -> 25.42 -> 25.82 dB and the frontal
-    render's dlib descriptor distance 0.446 -> 0.424 -> 0.420, but kept 16: the eyes'
-    detail cost the blinks (dlib's eye opening over a 0-to-1 blink ramp, eight heads,
-    mean r -0.90 -> -0.86). The closed lids fitted since (``fit``'s lid change) took
-    that cost away: at stop 80 the same nine photos read, at 16 / 20 / 24 steps, face
-    PSNR 25.48 / 25.91 / 26.18 dB (every photo up at 24), bald 27.95 / 28.55 / 28.92,
-    descriptor distance at 0 degrees 0.418 / 0.398 / 0.392 (the same eight renders;
-    six closer at 24) and 0.510 / 0.508 / 0.502 at +-30, the blink ramps -0.66, -0.64 /
-    -0.67, -0.66 / -0.74, -0.79 and the jaw ramp 0.83 / 0.86 / 0.87, for 1.1 s more a
-    fit at 24 (9.6 -> 10.7 s, three photos fitted twice each way). Six held-out
-    synthetic heads of corpus seed 1 hardly move (17.85 -> 17.88 dB over 72 views).
-    Fewer code steps to pay for them (24 and 24) lost the descriptor gain (0.418). A
-    faster rate at 16 steps (``lr_texture`` 0.4, stop 57) gained nothing."""
+    0.14 s a step on a 2-core CPU); 24 is where the face's fidelity stopped gaining
+    (``docs/decisions.md``, the inversion's texture steps)."""
     samples: int = 6
     """Samples per ray while fitting (the generator's own count is used for output)."""
     code_samples: int | None = None
@@ -180,14 +156,8 @@ class InvertConfig:
     pixels (the backdrop stays white), their geometric mean 1, with the code and then
     with the texture: :class:`Inversion` ``gain``, which a head file keeps as
     ``colour_gain`` and every render applies. The generator draws skin in the corpus'
-    colours, and the texture's change from the generated one could not leave them. Fast
-    preset, face PSNR at the input view, development photos only (stop 76): nine under a
-    coloured light (four photos with their channels times 0.7 / 0.85 / 1.2 and 0.85 / 1.1
-    / 0.85, one with the first) 22.12 -> 27.70 dB, eight of nine better (up to 10.1 dB,
-    one 0.19 worse); the nine as they are 23.95 -> 25.29 dB, all nine better (0.07 to
-    3.6 dB). A gain free in brightness too scored the same on them (27.95 / 25.31 dB, one
-    photo as it is 0.56 dB worse) but, below 1 in every channel, capped the brightest
-    skin the RefineNet can draw (a well-lit test photo lost 3.2 dB)."""
+    colours, and the texture's change from the generated one could not leave them
+    (``docs/decisions.md``, the photo's light)."""
     lr_gain: float = 0.02
     """Adam learning rate of the gain's logarithm."""
     gain_prior: float = 0.1
@@ -209,17 +179,10 @@ class InvertConfig:
     """The photo's lips count as closed below this gap (:func:`~head360cli.fitting.
     landmarks.mouth_opening`: the inner lips' gap over the outer eye corners' distance);
     ``fit`` then keeps the generated texture on the inside of the mouth
-    (:data:`MOUTH_INSIDE`, the ``keep`` of :func:`invert_texture`). Through a narrow
-    gap the photo shows a few pixels of it, and the texture fitted to them painted teeth
-    and lips over the dark inside, which then filled the mouth at every jawOpen: dlib
-    read the open mouth as less open. Fast preset, development data only (stop 78): the
-    correlation of jawOpen with dlib's mouth opening on four fitted heads driven by a
-    Live Link capture (180 frames) 0.54 -> 0.82 (AFLW2000-3D 02545 0.42 -> 0.58, 03614
-    0.92 -> 0.94, VOC 2009_004587 -0.11 -> 0.82; ``bald_guys``, whose smile shows the
-    teeth at 0.110, fitted as before: 0.95); face PSNR on nine photos 24.58 -> 24.56 dB,
-    dlib descriptor distance at 0 / +-30 degrees 0.426 / 0.536 -> 0.422 / 0.536. Kept
-    on every photo, ``bald_guys`` lost 4.5 dB. The nine photos' gaps: 0.010 to 0.077
-    (five), then 0.097, 0.110, 0.122, 0.144. ``0``: always fitted."""
+    (:data:`MOUTH_INSIDE`, the ``keep`` of :func:`invert_texture`): the few pixels a
+    narrow gap shows had painted teeth and lips over the dark inside, which then filled
+    the mouth at every jawOpen (``docs/decisions.md``, the closed mouth). ``0``: always
+    fitted."""
     grey: bool = False
     """The photo is greyscale: the photometric loss compares the render's grey
     (:data:`LUMA`, as a greyscale conversion weighs the channels) with the photo's, so

@@ -180,7 +180,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         The temporary path to write to. It does not exist yet.
     """
     target = write_target(target)
-    _check_file_name(target)  # no probe: making the temporary name below is one
+    _check_file_name(target)  # no test file: making the temporary name below is the test
     try:
         tmp = temp_name_beside(target)
     except OSError as exc:
@@ -225,7 +225,7 @@ def check_writable(folder: Path) -> None:
         BadInputError: A file cannot be created there.
     """
     try:
-        fd, name = tempfile.mkstemp(prefix=".head360-probe.", dir=folder)
+        fd, name = tempfile.mkstemp(prefix=".head360-check.", dir=folder)
     except OSError as exc:
         raise _unwritable(folder, exc) from None
     os.close(fd)

@@ -104,7 +104,7 @@ cast of 4 to 5 % 21-24; the colour development photos 58 to 178 and the corpus' 
 66 and over (a skin-coloured head on white), so none comes near it. A sepia print
 (AFLW2000-3D's 00251: 42; the astronaut toned 1.1 / 1.0 / 0.8: 68) is fitted as a colour
 photo under a light: its tone cannot be told from a one-coloured subject's
-(``docs/HISTORY.md``, stop 79)."""
+(``docs/decisions.md``, greyscale photos)."""
 
 
 def is_greyscale(pixels: np.ndarray) -> bool:
@@ -385,8 +385,8 @@ def _srgb_transform(icc: bytes, mode: str):  # -> (ImageCmsTransform | None, str
         grid = np.stack(np.meshgrid(levels, levels, levels), -1).reshape(1, -1, 3)
         if mode == "RGBA":
             grid = np.concatenate([grid, np.full((*grid.shape[:2], 1), 255, np.uint8)], -1)
-        probe = Image.fromarray(grid, mode)
-        moved = np.asarray(transform.apply(probe), np.int16) - grid
+        sample = Image.fromarray(grid, mode)
+        moved = np.asarray(transform.apply(sample), np.int16) - grid
         if np.abs(moved).max() <= 1:
             return None, description
     return transform, description

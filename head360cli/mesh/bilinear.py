@@ -168,7 +168,7 @@ class BilinearModel:
 def _widen(a: np.ndarray) -> np.ndarray:
     """``a`` as float64, the same values as ``a.astype(np.float64)``. A float16 array goes
     through torch: numpy widens float16 one value at a time (the model's expression basis,
-    5.6 M values, took 0.50 s against torch's 0.02 on 2 cores; stop 61)."""
+    5.6 M values, took 0.50 s against torch's 0.02 on 2 cores)."""
     if a.dtype != np.float16:
         return a.astype(np.float64)
     import warnings
@@ -200,7 +200,7 @@ def content_hash(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> str:
 _LOADED: dict[tuple[str, int, int, int], tuple[dict[str, np.ndarray], dict[str, Any], dict]] = {}
 """The latest model file read, by (resolved path, inode, modification time in ns, size): its
 arrays (the :data:`_SHARED` ones read-only), metadata and float64 cache. A fit loads the
-model in four places (0.22 s each on 2 cores, stop 61)."""
+model in four places (0.22 s each on 2 cores)."""
 
 
 _SHARED = ("neutral_basis", "expr_basis")

@@ -268,7 +268,7 @@ class RefineNet(nn.Module):
             # step, 112 -> 70 ms); the same function, rounded apart by 2e-5 at most.
             # The texture inversion's camera refinement turns on such rounding (its test
             # once ended 2.2, 5.2 or 6.1 degrees from the truth for it), so fits were
-            # measured again with it (stop 43, `bench fit`)
+            # measured again with it (2026-12-01, `bench fit`)
             x = x.contiguous(memory_format=torch.channels_last)
         res = self.net(x).contiguous()
         up = F.interpolate(torch.cat([rgb, alpha], 1), scale_factor=self.scale,

@@ -312,7 +312,7 @@ def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp
                                                                   signame, code, says):
     """SIGTERM (kill, timeout, a batch system) killed head360 at once: the video's
     temporary file stayed beside the output and the spawned process kept running. So did
-    SIGHUP (a closed terminal or ssh session) until stop 73."""
+    SIGHUP (a closed terminal or ssh session) before 2026-12-05."""
     import signal
     import subprocess
     import sys

@@ -109,7 +109,7 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
 
 
 def test_a_graph_without_alpha_cannot_draw_a_heads_light(head_file):
-    """Graphs exported before stop 76 give only rgb: a head with a light is refused with
+    """Graphs of format 1 (no format version stored) give only rgb: a head with a light is refused with
     what to do, before any frame; a head without one renders from them as before."""
     from head360cli.errors import FileFormatError
     from head360cli.fitting.pipeline import load_head_renderer
@@ -289,7 +289,7 @@ def test_export_without_the_export_extra_says_what_to_install(run_cli, monkeypat
 
 
 def test_export_traces_on_the_cpu_whatever_the_device(run_cli, monkeypatch, tmp_path):
-    """torch's exporter failed to trace a CUDA renderer (torch 2.11 on an H200, stop 69)
+    """torch's exporter failed to trace a CUDA renderer (torch 2.11 on an H200, 2026-12-04)
     and traced the same head on that machine's CPU: ``--device cuda`` is not used, and
     the command says so (here, with no GPU, it would otherwise fail to find one)."""
     import head360cli.export.onnx as onnx_export

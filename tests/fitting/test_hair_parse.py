@@ -267,7 +267,7 @@ def test_walls_above_bald_heads_are_not_hair(shared_data):
 def test_a_dark_photo_is_parsed_as_its_bright_self(shared_data):
     """AFLW2000-3D 03614 (a development photo) at a tenth of its brightness: parsed as it
     was, its hair agreed with the bright photo's parse at IoU 0.847; on the stretched
-    copy 0.989 (face 0.991, measured at stop 76)."""
+    copy 0.989 (face 0.991, measured 2026-12-05)."""
     from head360cli.fitting.landmarks import LandmarkDetector
     from head360cli.io.images import load_image
 

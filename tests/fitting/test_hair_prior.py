@@ -46,7 +46,7 @@ def test_net_keeps_the_crop_size(levels):
 
 
 def test_shipped_width_has_the_probe_size():
-    """Width 16, 4 levels: 0.84 M parameters, the network measured at stop 34."""
+    """Width 16, 4 levels: 0.84 M parameters, the network as shipped."""
     n = sum(p.numel() for p in HairPriorNet(HairPriorConfig()).parameters())
     assert n == pytest.approx(0.84e6, rel=0.01)
 
@@ -100,7 +100,7 @@ def test_checkpoint_round_trip(tmp_path):
 
 def test_load_refuses_missing_and_foreign_files(tmp_path):
     """A missing file is bad input (exit 3); one that is no hair prior is a file-format
-    error (exit 5), as for the generator and checkpoints (before stop 73 it was exit 3)."""
+    error (exit 5), as for the generator and checkpoints (before 2026-12-05 it was exit 3)."""
     from head360cli.errors import FileFormatError
 
     with pytest.raises(BadInputError, match="does not exist"):
@@ -253,7 +253,7 @@ def test_training_can_start_from_a_checkpoint(tmp_path):
     junk = HairPriorTrainConfig(steps=1, batch=2, init=str(tmp_path / "junk.pt"))
     from head360cli.errors import FileFormatError
 
-    # before any rendering (data=None would render); exit 5 since stop 73, as for the
+    # before any rendering (data=None would render); exit 5 since 2026-12-05, as for the
     # other model files (it was BadInputError, exit 3)
     with pytest.raises(FileFormatError, match=r"junk\.pt: expected a head360-hair-prior/1"):
         train_hair_prior(junk, TINY, progress=False)

@@ -177,7 +177,7 @@ def test_a_renderer_adds_each_eyes_change_as_far_as_it_is_closed(head):
 def test_a_renderer_takes_the_lid_change_as_a_fit_hands_it_over(head):
     """``fit`` passes its lid change as a tensor on the fit's device, maybe still tied to
     the optimiser's graph: the renderer must not read it through numpy (which fails for a
-    GPU's tensors: every ``fit --device cuda`` failed so until stop 69, and for tensors
+    GPU's tensors: every ``fit --device cuda`` failed so before 2026-12-04, and for tensors
     that require grad), and holds the same change as from the head file's array."""
     from head360cli.model.head_render import HeadRenderer
 

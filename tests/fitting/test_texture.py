@@ -178,8 +178,8 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
     truth = batch.c2w[0]
     points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
     seen, _ = project(points[None], truth[None], batch.intrinsics[None])
-    # Without the photo's light (stop 76), which this render has none of: with it the
-    # -6 degree pitch start ended 0.667 of the way on a 2-core Intel Xeon (stop 77), 0.49
+    # Without the photo's light (fitted since 2026-12-05), which this render has none of: with it the
+    # -6 degree pitch start ended 0.667 of the way on a 2-core Intel Xeon, 0.49
     # without; the other three starts moved by at most 0.1 either way.
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4,
                               gain=False)
@@ -198,7 +198,7 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
         ratios.append(angle(inv.c2w) / angle(start))
         assert abs(float(inv.c2w[:3, 3].norm() - start[:3, 3].norm())) < 0.005  # metres
     # measured 0.47, 0.53, 0.28, 0.20 (the earlier weights: 0.31, 0.43, 0.23, 0.43); on
-    # stop 77's Intel Xeon 0.32, 0.49, 0.45, 0.28
+    # an Intel Xeon 0.32, 0.49, 0.45, 0.28
     assert max(ratios) < 0.65 and sum(ratios) / 4 < 0.5, ratios
 
 
@@ -304,7 +304,7 @@ def test_inversion_is_deterministic_and_restores_the_torch_setting(scene):
 
 def test_no_deterministic_kernel_warning_reaches_the_user():
     """On a GPU, CUDA's grid_sample backward has no deterministic kernel, and torch warned
-    on every ``fit --device cuda`` (seen on an H200, stop 69): the fit silences that
+    on every ``fit --device cuda`` (seen on an H200, 2026-12-04): the fit silences that
     warning, the text torch gives it, and only that one, and only inside."""
     import warnings
 

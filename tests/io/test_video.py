@@ -78,9 +78,9 @@ def test_mp4_says_how_its_colours_are_encoded(tmp_path):
     frame = np.repeat(np.repeat(colours[None], 32, 0), 32, 1)  # four 32-pixel blocks
     out = tmp_path / "colours.mp4"
     write_video([frame] * 3, out, fps=10, quality=10)
-    probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(out)],
+    ffmpeg = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(out)],
                            capture_output=True, text=True)
-    assert "yuv420p(tv, smpte170m/bt709/iec61966-2-1" in probe.stderr, probe.stderr
+    assert "yuv420p(tv, smpte170m/bt709/iec61966-2-1" in ffmpeg.stderr, ffmpeg.stderr
     reader = imageio_ffmpeg.read_frames(str(out))
     next(reader)
     got = np.frombuffer(next(reader), np.uint8).reshape(32, 128, 3)
