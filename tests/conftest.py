@@ -64,6 +64,42 @@ def head_file(tmp_path_factory) -> Path:
     return write_samples([head], tmp_path_factory.mktemp("head"))[0]
 
 
+@dataclass
+class FittedHead:
+    """A whole fit of scikit-image's astronaut photo by ``head360 fit --json``."""
+
+    photo: Path
+    head: Path
+    summary: dict
+    """The JSON the command printed."""
+    code: int
+    err: str
+
+
+@pytest.fixture(scope="session")
+def fitted_astronaut(tmp_path_factory) -> FittedHead:
+    """One whole fit (fast preset, about 12 s), made once per test run for the tests that
+    need a fitted head or check what a fit writes; they are marked ``slow``."""
+    import contextlib
+    import io
+    import json
+
+    from PIL import Image
+    from skimage import data
+
+    from head360cli.cli import main
+
+    folder = tmp_path_factory.mktemp("fitted")
+    photo = folder / "astronaut.png"
+    Image.fromarray(data.astronaut()).save(photo)
+    head = folder / "me.h360"
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["fit", str(photo), "-o", str(head), "--json", "--quiet"])
+    summary = json.loads(out.getvalue()) if code == 0 else {}
+    return FittedHead(photo, head, summary, code, err.getvalue())
+
+
 @pytest.fixture
 def pipe(tmp_path):
     """``pipe(data, name)``: a named pipe that a thread fills with ``data`` once and then

@@ -254,6 +254,7 @@ def test_inspect_model_files_without_running_their_code(run_cli, tmp_path):
     assert r.code == 3 and "a model file (.pt, .npz, .onnx) or mesh (.glb, .obj)" in r.err
 
 
+@pytest.mark.slow
 def test_inspect_meshes_glb_and_obj(run_cli, head_file, tmp_path):
     """An exported GLB's meshes, morph targets and texture, read back as trimesh reads
     them; an OBJ's record counts."""
@@ -427,6 +428,7 @@ def test_cpu_benches_say_that_device_is_not_used(run_cli):
     assert r.code == 3 and "warning" not in r.err  # --quiet silences warnings
 
 
+@pytest.mark.slow
 def test_commands_that_run_on_the_cpu_say_that_device_is_not_used(run_cli, tmp_path):
     """synth, build-model and parse-hair run on the CPU whatever --device says (on a
     machine without CUDA they used to succeed without a word, where every command that
@@ -519,6 +521,7 @@ def test_bench_animate_refuses_a_stream_shorter_than_its_frames(run_cli, tmp_pat
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_train_hair_prior_writes_a_loadable_checkpoint(run_cli, tmp_path):
     from head360cli.fitting.hair_prior import load_hair_prior
 
@@ -616,6 +619,7 @@ def test_reading_a_terminal_as_standard_input_is_refused(run_cli, monkeypatch, t
     assert not (tmp_path / "o.mp4").exists()
 
 
+@pytest.mark.slow
 def test_a_name_the_terminal_cannot_print_is_escaped_not_an_error(head_file, tmp_path):
     """With a Latin-1 terminal, 'wrote v\U0001f600.png' was an internal error (exit 1) after
     the view was written, so a batch script took the run for a failure."""
@@ -663,6 +667,7 @@ def test_a_full_standard_output_is_one_line_exit_3(head_file):
                              "No space left on device"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(os.name != "posix", reason="closing descriptors with pass_fds")
 def test_closed_standard_streams_do_not_stop_the_work(head_file, tmp_path):
     """``head360 animate ... 2>&-`` (a cron job, a daemon): Python sets sys.stderr to None

@@ -67,6 +67,7 @@ def test_fit_folder_keeps_going_and_counts_failures(tmp_path):
                                   "wall.webp", "scan.tif", "IMG_0001.HEIC"))
 
 
+@pytest.mark.slow
 def test_animate_heads_one_stream_many_heads(tmp_path, head_file):
     heads = tmp_path / "heads"
     heads.mkdir()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 
 import numpy as np
+import pytest
 
 from tests.conftest import REPO
 
@@ -18,6 +19,7 @@ def _example():
     return module
 
 
+@pytest.mark.slow
 def test_python_api_example_renders_animates_swaps_and_exports(head_file, tmp_path):
     import imageio.v3 as iio
     import imageio_ffmpeg

@@ -102,6 +102,7 @@ def test_readme_links_resolve():
     assert checked >= 15  # the pictures and the links between the pages
 
 
+@pytest.mark.slow
 def test_onnxruntime_keeps_no_telemetry_in_the_users_home(tmp_path):
     """onnxruntime 1.32 wrote a device identifier and a SQLite queue of usage events to
     ~/.cache/Microsoft on its first import, to upload when online, each time head360

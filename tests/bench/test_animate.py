@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from head360cli.bench.animate import (
     _fidelity,
@@ -18,6 +19,7 @@ from head360cli.bench.animate import (
 )
 
 
+@pytest.mark.slow
 def test_resolution_sweep_scores_each_size_twice(head_file):
     weights = np.zeros((3, 52), np.float32)
     weights[1, 24] = 1.0  # jawOpen on one frame
@@ -70,6 +72,7 @@ def test_mesh_openings_follow_jaw_and_blinks(head_file):
     assert np.allclose(o[:4, 1:], o[0, 1:], atol=0.02)  # the jaw leaves the eyes alone
 
 
+@pytest.mark.slow
 def test_run_cli_reports_the_child_s_own_peak_memory():
     """A parent holding 600 MB does not lend its size to the command it runs (Linux's
     ru_maxrss would: it carries the parent's resident size across fork and exec)."""
@@ -171,6 +174,7 @@ def test_reference_fidelity_reads_the_corpus_renderer_s_own_blinks():
     assert f["jaw_open_range"] == [0.0, 1.0]
 
 
+@pytest.mark.slow
 def test_frames_per_call_rows_time_each_batch_with_and_without_hair(head_file):
     """The GPU part (``--device cuda``), run here on the CPU at a tiny size: a row per
     precision, hair and batch, each timed, float32's frames its own reference."""

@@ -19,6 +19,7 @@ from head360cli.bench.fit import (
 )
 
 
+@pytest.mark.slow
 def test_hairstyle_accuracy_on_three_heads():
     r = _hair_style(views=3)
     assert r["heads"] == 3
@@ -34,6 +35,7 @@ def test_hairstyle_accuracy_on_three_heads():
     assert 0.5 < r["parsed_iou_no_prior"] <= 1.0
 
 
+@pytest.mark.slow
 def test_hair_parse_without_a_face_on_three_heads():
     """Heads 1 and 2 (buzz, crew; head 0 is bald and skipped), from behind, close up and
     in profile (two views each)."""
@@ -49,6 +51,7 @@ def test_hair_parse_without_a_face_on_three_heads():
     assert r["profile_no_cascade"]["mean_iou"] < r["profile"]["mean_iou"]
 
 
+@pytest.mark.slow
 def test_known_geometry_inverts_the_texture_alone():
     """Held-out head 0 (bald) with its true mesh and camera: the fast preset's texture
     inversion from the frontal render, scored on 6 rig views and the input view."""

@@ -37,6 +37,7 @@ def test_psnr_and_ssim_golden_values():
     assert ssim(pred, truth) < 0.99
 
 
+@pytest.mark.slow
 def test_fit_code_lowers_the_image_error(tiny_weights):
     gen, codes = load_generator(tiny_weights)
     views = Views(1, "test", 0, TINY.image_res)
@@ -54,6 +55,7 @@ def test_fit_code_lowers_the_image_error(tiny_weights):
     assert not any(p.requires_grad for p in gen.parameters())
 
 
+@pytest.mark.slow
 def test_bench_rows_for_two_weights_and_the_sweep(tiny_weights, tmp_path):
     other = tmp_path / "other.pt"
     other.write_bytes(tiny_weights.read_bytes())

@@ -64,6 +64,7 @@ def test_mesh_sequence_shares_one_texture(head_file, tmp_path, run_cli):
     assert "o hair" not in (tmp_path / "p" / "frame_00000.obj").read_text()
 
 
+@pytest.mark.slow
 def test_a_mesh_sequence_the_disk_has_no_room_for_stops_after_its_first_frame(
         head_file, tmp_path, monkeypatch):
     """A 3046-frame take is about 3.9 GB of OBJs; on a disk with less it ran minutes

@@ -187,6 +187,7 @@ def test_unwritable_folders_and_a_full_disk_are_clear_errors(run_cli, head_file,
     assert list(tmp_path.iterdir()) == []  # the temporary file is gone too
 
 
+@pytest.mark.slow
 def test_a_file_size_limit_is_a_clear_error(run_cli, head_file, tmp_path, monkeypatch):
     """EFBIG (a FAT32 stick's 4 GiB, or ``ulimit -f``) was an internal error; a turntable
     whose encoder the limit stopped was reported written, cut off, exit 0."""
@@ -233,6 +234,7 @@ def test_a_name_too_long_for_the_file_system_is_exit_3(run_cli, head_file, tmp_p
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists("/dev/stdin"), reason="no /dev/stdin")
 def test_a_head_on_standard_input_is_given_as_dash(head_file, tmp_path):
     """``cat me.h360 | head360 render -`` was "no such file: '-'"; with the stream on
@@ -309,6 +311,7 @@ def test_inputs_and_outputs_without_permission_are_one_line_exit_3(run_cli, head
         f"and its folder's permissions"], r.err
 
 
+@pytest.mark.slow
 def test_a_view_goes_to_standard_output_with_dash(head_file, tmp_path):
     """``render -o -`` writes the PNG of the view to standard output, the same pixels as
     ``-o view.png``, and nothing else there (no "wrote ..." line)."""

@@ -121,6 +121,7 @@ def test_cli_swap_hair(run_cli, head_file, tmp_path):
     assert r.code == 3 and "does not exist" in r.err
 
 
+@pytest.mark.slow
 def test_contact_sheet_shows_the_30_styles(head_file, tmp_path):
     from PIL import Image
 

@@ -45,6 +45,7 @@ def _turning(renderer, n, spread, pitch):
     return w, k, cams, _one_process(renderer, cams, w, k)
 
 
+@pytest.mark.slow
 def test_spawned_processes_give_the_frames_of_one_process_in_order(renderer):
     from head360cli.drive.views import view_cameras
 
@@ -81,6 +82,7 @@ class _LoadsNowhereElse:
         return (_explode, ())
 
 
+@pytest.mark.slow
 def test_a_process_that_fails_leaves_its_frames_to_this_one(renderer):
     import copy
 
@@ -106,6 +108,7 @@ def test_a_process_that_fails_leaves_its_frames_to_this_one(renderer):
     assert type(alone.value).__name__ in counts["warnings"][0]
 
 
+@pytest.mark.slow
 def test_animate_starts_the_processes_before_it_loads_the_head(renderer, tmp_path):
     import multiprocessing
 
@@ -243,6 +246,7 @@ def test_auto_workers():
     assert auto_workers(1000, "cuda", cpus=16) == 1  # a GPU batches frames instead
 
 
+@pytest.mark.slow
 def test_cli_animate_with_two_processes(run_cli, head_file, tmp_path):
     import imageio.v3 as iio
 
@@ -306,6 +310,7 @@ def test_a_spawned_process_ends_when_its_parent_is_killed(tmp_path):
     assert _gone(int(out.read_text().split()[0]), 60), "the orphaned process still runs"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("signame", "code", "says"), [("SIGTERM", 143, "terminated"),
                                                        ("SIGHUP", 129, "hung up")])
 def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp_path,

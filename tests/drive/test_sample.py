@@ -9,6 +9,7 @@ from head360cli.drive.sample import sample_heads
 from head360cli.errors import BadInputError
 
 
+@pytest.mark.slow
 def test_samples_are_reproducible_and_varied():
     a = sample_heads(3, seed=4)
     b = sample_heads(3, seed=4)
@@ -24,6 +25,7 @@ def test_samples_are_reproducible_and_varied():
             sample_heads(**bad)
 
 
+@pytest.mark.slow
 def test_cli_sample_writes_heads_and_a_sheet(run_cli, tmp_path):
     from head360cli.io.headfile import read_head
 
@@ -34,6 +36,7 @@ def test_cli_sample_writes_heads_and_a_sheet(run_cli, tmp_path):
     assert read_head(heads[0]).arrays["texture"].ndim == 3
 
 
+@pytest.mark.slow
 def test_a_full_disk_at_the_picture_leaves_no_sampled_heads(run_cli, tmp_path, monkeypatch):
     """The heads were renamed into place before their picture was written, so a full disk
     at the picture left them without it (or beside an earlier run's)."""

@@ -39,7 +39,7 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     r, out, code, res = exported
     assert code == 0
     assert [p.split("/")[-1] for p in res["files"]][:2] == ["gen.onnx", "gen_bald.onnx"]
-    from head360cli.drive.parallel import usable_cpus
+    from head360cli.devices import usable_cpus
 
     # with two cores the bald graph was traced by a spawned process, not by the fallback
     assert res["parallel"] is (usable_cpus() >= 2)
@@ -56,6 +56,10 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
         assert OnnxFrameRunner(out, providers=["CUDAExecutionProvider"]).provider == \
             "CPUExecutionProvider"
     assert runner.size == 48 and runner.meta["samples"] == 3
+    from head360cli.export.onnx import GRAPH_FORMAT
+
+    assert runner.format_version == runner.meta["format_version"] == GRAPH_FORMAT
+    assert runner.has_alpha
     inputs = head_inputs(r)
     rng = np.random.default_rng(0)
     worst = 0.0
@@ -109,8 +113,8 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
 
 
 def test_a_graph_without_alpha_cannot_draw_a_heads_light(head_file):
-    """Graphs of format 1 (no format version stored) give only rgb: a head with a light is refused with
-    what to do, before any frame; a head without one renders from them as before."""
+    """Graphs of format 1 (no format version stored) give only rgb: a head with a light is
+    refused with what to do, before any frame; a head without one renders from them as before."""
     from head360cli.errors import FileFormatError
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.model.head_render import HeadRenderer
@@ -127,6 +131,49 @@ def test_a_graph_without_alpha_cannot_draw_a_heads_light(head_file):
     with pytest.raises(FileFormatError, match="export it again with head360 export-onnx"):
         lit.use_runner(OldRunner())
     r.use_runner(OldRunner())
+
+
+def _tiny_graph_pair(folder, meta: dict | None, outputs: int):
+    """``g.onnx`` and ``g_bald.onnx``: identity graphs with ``outputs`` outputs and, when
+    ``meta`` is given, head360's export metadata."""
+    import json
+
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    from head360cli.export.onnx import META_KEY
+
+    x = helper.make_tensor_value_info("verts", TensorProto.FLOAT, [1, 3])
+    names = ["rgb", "alpha"][:outputs]
+    outs = [helper.make_tensor_value_info(n, TensorProto.FLOAT, [1, 3]) for n in names]
+    nodes = [helper.make_node("Identity", ["verts"], [n]) for n in names]
+    model = helper.make_model(helper.make_graph(nodes, "g", [x], outs),
+                              opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 8
+    if meta is not None:
+        helper.set_model_props(model, {META_KEY: json.dumps(meta)})
+    for name in ("g.onnx", "g_bald.onnx"):
+        onnx.save(model, folder / name)
+    return folder / "g.onnx"
+
+
+def test_graph_format_versions_are_read_and_newer_ones_refused(tmp_path):
+    """Graphs store their format version; one without it is format 1 (rgb only), and a
+    graph of a newer format is refused with what to do."""
+    pytest.importorskip("onnxruntime")
+    from head360cli.errors import FileFormatError
+    from head360cli.export.onnx import GRAPH_FORMAT, OnnxFrameRunner
+
+    old = OnnxFrameRunner(_tiny_graph_pair(tmp_path, {"size": 8}, outputs=1))
+    assert (old.format_version, old.has_alpha, old.size) == (1, False, 8)
+    now = OnnxFrameRunner(_tiny_graph_pair(
+        tmp_path, {"size": 8, "format_version": GRAPH_FORMAT}, outputs=2))
+    assert (now.format_version, now.has_alpha) == (GRAPH_FORMAT, True)
+    newer = _tiny_graph_pair(tmp_path, {"size": 8, "format_version": GRAPH_FORMAT + 1}, 2)
+    with pytest.raises(FileFormatError, match=r"newer head360, upgrade head360"):
+        OnnxFrameRunner(newer)
+    with pytest.raises(FileFormatError, match="export metadata, found none"):
+        OnnxFrameRunner(_tiny_graph_pair(tmp_path, None, outputs=2))
 
 
 def test_pad_hair_refuses_oversized_meshes():

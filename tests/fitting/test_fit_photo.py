@@ -38,6 +38,7 @@ def _inside_changed(head) -> bool:
     return bool((head.arrays["texture"][:, inside] != generated[:, inside]).any())
 
 
+@pytest.mark.slow
 def test_lips_counted_closed_keep_the_generated_inside_of_the_mouth(
         run_cli, astronaut, tmp_path, monkeypatch):
     """With every gap counted as closed, the astronaut's fit keeps the code's texture on
@@ -58,13 +59,14 @@ def test_lips_counted_closed_keep_the_generated_inside_of_the_mouth(
     assert s["psnr_face_input_view"] > 20.0
 
 
-def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
+@pytest.mark.slow
+def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     from head360cli.io.headfile import read_head
 
-    out = tmp_path / "me.h360"
-    r = run_cli("fit", astronaut, "-o", out, "--json", "--quiet")
-    assert r.code == 0, r.err
-    s = json.loads(r.out)
+    out = fitted_astronaut.head
+    tmp_path = out.parent
+    assert fitted_astronaut.code == 0, fitted_astronaut.err
+    s = fitted_astronaut.summary
     assert set(s["timings"]) >= {"detect", "shape", "parse", "classify", "bald_target",
                                  "invert", "preview", "write", "total"}
     assert s["files"] == {"head": str(out), "preview": str(tmp_path / "me_preview.png"),
@@ -116,6 +118,7 @@ def test_full_fit_writes_head_preview_and_summary(run_cli, astronaut, tmp_path):
     assert preview.size == (6 * 256, 256)
 
 
+@pytest.mark.slow
 def test_fit_errors_leave_nothing_behind(run_cli, tmp_path):
     from skimage import data
 
@@ -132,6 +135,7 @@ def test_fit_errors_leave_nothing_behind(run_cli, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["coffee.png", "wall.png"]
 
 
+@pytest.mark.slow
 def test_a_full_disk_at_the_last_file_leaves_no_part_of_the_set(run_cli, astronaut, tmp_path,
                                                                monkeypatch):
     """Each command's files were renamed into place one by one, so a full disk at the last
@@ -216,6 +220,7 @@ def test_a_fit_does_not_replace_its_photo_or_a_json_it_did_not_write(run_cli, as
         assert not empty_file(tmp_path / "pipe.json")
 
 
+@pytest.mark.slow
 def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     r = run_cli("parse-hair", astronaut, "-o", tmp_path, "--json")
     assert r.code == 0, r.err
@@ -265,6 +270,7 @@ def test_parse_and_classify_hair(run_cli, astronaut, tmp_path):
     assert r.code == 3 and "found 1x40000 (1x4096 once its longer side" in r.err, r.err
 
 
+@pytest.mark.slow
 def test_parse_hair_of_a_pipe_names_its_masks_pipe(run_cli, astronaut, tmp_path, pipe):
     """A photo from ``<(...)`` (``/dev/fd/63``) is parsed as the file is, and its masks are
     called ``pipe_*`` rather than after the descriptor's number."""
@@ -279,6 +285,7 @@ def test_parse_hair_of_a_pipe_names_its_masks_pipe(run_cli, astronaut, tmp_path,
                           np.array(Image.open(from_file["hair_mask"])))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/dev/stdin").exists(), reason="no /dev/stdin")
 def test_a_photo_on_standard_input_is_given_as_dash(astronaut, tmp_path):
     """``curl URL | head360 parse-hair -`` was "no such file: '-'" (streams and inspect
@@ -307,6 +314,7 @@ def test_a_photo_on_standard_input_is_given_as_dash(astronaut, tmp_path):
     assert run.returncode == 5 and "empty" in run.stderr, run.stderr
 
 
+@pytest.mark.slow
 def test_parse_hair_says_it_found_a_face_in_profile(run_cli, tmp_path):
     """A held-out corpus head turned 65 degrees: no face for dlib, a face in profile for
     the cascade, whose skin is the face mask (before, the face was parsed as hair)."""
@@ -327,6 +335,7 @@ def test_parse_hair_says_it_found_a_face_in_profile(run_cli, tmp_path):
     assert r.code == 0 and "no frontal face: colour and a face in profile" in r.out
 
 
+@pytest.mark.slow
 def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):
     """The astronaut cut off below the nose, as hair close-ups cut faces: HOG (the
     default) finds no face and parses by colour alone, which agrees with the whole
@@ -359,6 +368,7 @@ def test_parse_hair_finds_a_cut_face_with_the_cnn_fallback(run_cli, tmp_path):
     assert mask_iou(found, ref[:140, 80:360]) > 0.9
 
 
+@pytest.mark.slow
 def test_a_face_lying_on_its_side_fits_like_the_upright_one(run_cli, astronaut, tmp_path):
     """The astronaut turned a quarter turn (the same square image): HOG finds no face as
     it lies, the fit finds it in a turned copy and fits it in that frame, so its yaw and
@@ -394,6 +404,7 @@ def test_a_face_lying_on_its_side_fits_like_the_upright_one(run_cli, astronaut, 
     assert mask_iou(masks[1], np.rot90(masks[0], -1)) > 0.9
 
 
+@pytest.mark.slow
 def test_demo_writes_a_turntable(run_cli, tmp_path):
     import imageio
 
@@ -425,6 +436,7 @@ def _stage(path):
     return (seen.image, seen.face, shape.fit, shape.model), warnings
 
 
+@pytest.mark.slow
 def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
     """A 50-megapixel greyscale JPEG: decoded at reduced size, fitted, warned about."""
     from skimage import data
@@ -450,6 +462,7 @@ def test_greyscale_fifty_megapixel_photo_fits_with_a_warning(run_cli, tmp_path):
     assert (face[..., 0] - face[..., 2]).mean() > 45, face.mean((0, 1))
 
 
+@pytest.mark.slow
 def test_a_colour_face_in_a_grey_scene_is_not_a_grey_photo(tmp_path):
     """A colour face on under 1 % of a grey photo: the photo passes as greyscale, but
     the face's box does not, so no greyscale warning (nor a grey fit)."""
@@ -641,6 +654,7 @@ def test_a_parse_without_the_installed_hair_prior_says_so(run_cli, astronaut, tm
     assert r.code == 0 and "not installed" not in r.err
 
 
+@pytest.mark.slow
 def test_classify_hair_and_parse_hair_pass_on_the_photo_s_warnings(run_cli, astronaut,
                                                                    tmp_path):
     """classify-hair dropped the photo stage's warnings (greyscale, several faces, a

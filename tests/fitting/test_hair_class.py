@@ -281,6 +281,7 @@ def test_fit_colour_map_recovers_a_tone_curve():
     assert fit_colour_map(pixels, albedos) == (1.3, 0.6)
 
 
+@pytest.mark.slow
 def test_held_out_corpus_hair_colours_are_named_right():
     """Corpus heads not among those the map was fitted on (seed 1's test split), each in
     all 10 colours: the tone curve names 17 of 20 right, where one gain of 4 named 9."""

@@ -494,6 +494,7 @@ def test_unseeded_profile_needs_skin_colour_and_the_cascade(monkeypatch):
     assert not r.profile and np.array_equal(r.hair, plain.hair)
 
 
+@pytest.mark.slow
 def test_a_grey_photo_with_a_faint_cast_is_parsed_as_its_grey_self():
     """A black-and-white photo with a faint cast and noise (red and blue times 1.02 and
     0.98, noise of 2 grey levels) is greyscale to the fit and to the parse alike: its

@@ -344,6 +344,7 @@ def test_hair_loss_prefers_the_right_mask():
     assert hair_loss(-right, target) > 1.5
 
 
+@pytest.mark.slow
 def test_training_lowers_the_loss_on_a_toy_task():
     cfg = HairPriorTrainConfig(steps=150, batch=8, lr=5e-3, seed=0)
     canon = np.zeros((41, 2), np.float32)
@@ -384,6 +385,7 @@ def test_shipped_prior_is_the_documented_network(shipped):
     assert shipped.canon.shape == (41, 2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("index", "iou"), [(5, 0.961), (24, 0.935), (27, 0.868)])
 def test_shipped_prior_alone_reads_held_out_corpus_heads(shipped, index, iou):
     """The network alone on development heads it never saw (corpus seed 1, test split):

@@ -170,6 +170,7 @@ def test_a_negative_face_number_is_refused_not_taken_from_the_end():
         pick_face(faces, 1.5, "hog")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("degrees, turn", [(60.0, -60.0), (-90.0, 90.0), (45.0, -30.0)])
 def test_a_tilted_face_is_found_in_a_turned_copy(degrees, turn):
     """The astronaut tilted 45 to 90 degrees: HOG finds no face as it lies;
@@ -298,6 +299,7 @@ def test_profile_cascade_finds_either_side_and_not_a_back_view():
     assert find_profile(np.zeros((8, 8), np.uint8)) is None
 
 
+@pytest.mark.slow
 def test_an_upside_down_photo_is_named_as_such_when_no_face_is_found(run_cli, tmp_path):
     """HOG finds no face upside down, nor in the turned copies (up to 90 degrees): the fit
     said only "no face found" of a photo whose EXIF orientation was lost."""

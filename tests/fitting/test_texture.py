@@ -161,6 +161,7 @@ def _turned(c2w: torch.Tensor, degrees: float, axis: str) -> torch.Tensor:
     return turn @ c2w
 
 
+@pytest.mark.slow
 def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene):
     """Started 6 degrees off in pitch or yaw, and held by the inner-face landmarks where
     the true camera sees them (what a detector reports), the refinement ends nearer the
@@ -178,8 +179,8 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
     truth = batch.c2w[0]
     points = torch.tensor(load_bilinear().landmark_points(batch.verts[0].numpy())[17:])
     seen, _ = project(points[None], truth[None], batch.intrinsics[None])
-    # Without the photo's light (fitted since 2026-12-05), which this render has none of: with it the
-    # -6 degree pitch start ended 0.667 of the way on a 2-core Intel Xeon, 0.49
+    # Without the photo's light (fitted since 2026-12-05), which this render has none of:
+    # with it the -6 degree pitch start ended 0.667 of the way on a 2-core Intel Xeon, 0.49
     # without; the other three starts moved by at most 0.1 either way.
     cfg = dataclasses.replace(PRESETS["fast"], code_steps=10, steps=0, samples=4,
                               gain=False)
@@ -202,6 +203,7 @@ def test_camera_refinement_turns_towards_the_truth_and_keeps_the_distance(scene)
     assert max(ratios) < 0.65 and sum(ratios) / 4 < 0.5, ratios
 
 
+@pytest.mark.slow
 def test_landmarks_hold_the_refinement_where_they_were_seen(scene):
     """Told by the landmarks that the (6 degrees wrong) start camera is right, the
     refinement keeps every inner-face landmark within the slack of where it was seen,
@@ -228,6 +230,7 @@ def test_landmarks_hold_the_refinement_where_they_were_seen(scene):
     assert held < cfg.anchor_slack
 
 
+@pytest.mark.slow
 def test_held_landmarks_stay_within_the_held_slack(scene):
     """Landmarks marked ``held`` (the eyes, in ``fit``) stay within ``cfg.held_slack``
     of where they were seen, where with the others' slack the photo moves them further
@@ -279,6 +282,7 @@ def test_held_landmarks_are_checked(scene):
         dataclasses.replace(PRESETS["fast"], held_slack=0.03)
 
 
+@pytest.mark.slow
 def test_inversion_is_deterministic_and_restores_the_torch_setting(scene):
     """Two inversions of the same photo give the same losses to the last bit (with two
     CPU threads some backward kernels accumulated in a varying order), and the caller's
@@ -350,6 +354,7 @@ print(sorted(name for name in ("torch._dynamo", "torch._inductor") if name in sy
 """
 
 
+@pytest.mark.slow
 def test_inversion_does_not_import_the_compiler():
     """torch.optim and torch.use_deterministic_algorithms import torch's compiler on first
     use (1.0-1.5 s of a 15 s fast fit on a 2-core CPU); the inversion avoids both."""
@@ -368,6 +373,7 @@ def _roughness(delta: torch.Tensor) -> float:
     return float(steps / (2 * delta.abs().mean()))
 
 
+@pytest.mark.slow
 def test_texture_change_is_fitted_on_a_coarser_grid(scene):
     """The planes read the texture about once per 1.5-3 texels, so a change fitted texel
     by texel comes out striped (only the texels read move), and other expressions, whose
@@ -465,6 +471,7 @@ def test_mirror_grid_read_from_the_cache_is_the_one_made(tmp_path, monkeypatch):
     mirror_grid.cache_clear()
 
 
+@pytest.mark.slow
 def test_the_light_of_a_photo_is_fitted(scene):
     """The held-out head's render with its pixels' red and blue scaled (0.7, 1, 1.35; a
     photo under a bluish light): the gain fitted to it, over the one fitted to the render
@@ -533,6 +540,7 @@ def test_kept_texels_keep_the_codes_texture_and_the_rest_are_fitted(scene):
         dataclasses.replace(PRESETS["fast"], closed_mouth=-0.1)
 
 
+@pytest.mark.slow
 def test_a_grey_photo_is_fitted_in_grey_and_keeps_the_generated_colour(scene):
     """``grey`` (``fit``'s greyscale photo): the held-out head's render made grey. Fitted
     in colour, the texture turns the head grey; fitted in grey, its render's grey matches

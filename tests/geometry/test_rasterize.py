@@ -154,6 +154,7 @@ def test_backface_culling_changes_nothing_on_closed_meshes(yaw, pitch):
     assert (inside_out.depth[m] > full.depth[m]).all()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("yaw", [0.0, 100.0, 215.0])
 def test_agrees_with_ray_casting_on_the_head(yaw):
     """The synthetic head, with eyes, ears, teeth and the folded mouth, from three sides."""

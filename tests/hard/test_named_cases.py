@@ -4,6 +4,7 @@ an oversized image, a very long stream."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 
@@ -39,6 +40,7 @@ def test_smallest_image_renders_and_oversized_is_refused(run_cli, head_file, tmp
     assert r.code == 3 and not (tmp_path / "o.png").exists()
 
 
+@pytest.mark.slow
 def test_very_long_stream_reads_and_resamples(tmp_path):
     """An hour at 10 frames per second (36,000 rows) reads, cuts and resamples."""
     from head360cli.drive.animate import AnimateConfig, prepare_stream

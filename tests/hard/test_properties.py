@@ -98,6 +98,7 @@ def tiny_renderer(head_file):
     return load_head_renderer(head_file, samples=2, size=32, precision="fp32")
 
 
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.floats(-720, 720), st.floats(-90, 90), st.floats(0.0, 1.0), st.floats(-8, 8),

@@ -24,6 +24,7 @@ def _weights(run):
     return torch.load(run / CHECKPOINT, weights_only=False)["model"]
 
 
+@pytest.mark.slow
 def test_same_seed_same_run_and_resume_continues_it(tmp_path):
     a = train(tmp_path / "a", CFG, TINY, progress=False)
     b = train(tmp_path / "b", CFG, TINY, progress=False)
@@ -77,6 +78,7 @@ def test_init_starts_a_new_run_from_exported_weights(tmp_path):
               progress=False, stop_at=1)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("torchrun") is None and not os.path.exists(
     os.path.join(os.path.dirname(sys.executable), "torchrun")), reason="torchrun missing")
 def test_two_process_data_parallel_on_cpu(tmp_path):
@@ -247,6 +249,7 @@ def _log_steps(run):
     return [json.loads(x)["step"] for x in (run / "log.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_ctrl_c_checkpoints_the_step_it_is_on_and_resuming_ends_as_one_run(tmp_path,
                                                                           monkeypatch):
     """Ctrl-C used to lose every step since the last checkpoint (up to 199 by default)."""

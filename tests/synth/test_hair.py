@@ -21,6 +21,7 @@ def test_thirty_named_styles_and_lookup():
     assert len(HAIR_COLOURS) >= 8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 6])
 def test_every_style_is_closed_and_clears_the_scalp(seed):
     import trimesh
