@@ -13,8 +13,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parent.parent
 STREAM = REPO / "examples" / "smile_blink_livelinkface.csv"
 
@@ -23,17 +21,10 @@ def main(source: str | Path, out_dir: str | Path, size: int = 256,
          end: float | None = None) -> dict[str, str]:
     from PIL import Image
 
-    from head360cli.drive.animate import AnimateConfig, animate
+    import head360cli as h
     from head360cli.drive.bake import export_head
     from head360cli.drive.hair_swap import swap_hair
-    from head360cli.drive.views import (
-        grid_image,
-        parse_expression,
-        view_cameras,
-        view_intrinsics,
-    )
-    from head360cli.fitting.pipeline import fit_photo, load_head_renderer
-    from head360cli.io.arkit import read_arkit_csv
+    from head360cli.drive.views import grid_image
     from head360cli.synth.hair import style_index
 
     out = Path(out_dir)
@@ -43,23 +34,20 @@ def main(source: str | Path, out_dir: str | Path, size: int = 256,
     # 1. a head: fit the photo (landmarks, shape, hair, texture) unless a head is given
     head = Path(source)
     if head.suffix.lower() != ".h360":
-        summary = fit_photo(head, out / "me.h360", preset="fast")
+        summary = h.fit(head, out / "me.h360", preset="fast")
         print(f"fitted {head.name}: hair {summary['hair_style']['name']}, "
               f"face PSNR {summary['psnr_face_input_view']:.1f} dB")
         head = files["head"] = out / "me.h360"
 
-    # 2. views: cameras by yaw and pitch (degrees), one ARKit expression for all of them
-    renderer = load_head_renderer(head, size=size)
-    cams = view_cameras([0.0, 45.0, 90.0, 180.0], 10.0)
-    smile = np.broadcast_to(parse_expression("MouthSmileLeft=0.8,MouthSmileRight=0.8"),
-                            (len(cams), 52))
-    frames = np.concatenate(list(renderer.frames(cams, smile, view_intrinsics(size))))
+    # 2. views by yaw (degrees, 180 the back) and pitch, one ARKit expression for all
+    renderer = h.load_head(head, size=size)
+    smile = {"mouthSmileLeft": 0.8, "mouthSmileRight": 0.8}
+    frames = h.render(renderer, yaws=[0.0, 45.0, 90.0, 180.0], pitch=10.0, expression=smile)
     Image.fromarray(grid_image(frames)).save(out / "views.png")
     files["views"] = out / "views.png"
 
     # 3. animation: an ARKit stream (any CSV the commands read), its timing kept
-    stream = read_arkit_csv(STREAM, on_bad="hold")
-    result = animate(renderer, stream, out / "talk.mp4", AnimateConfig(end=end))
+    result = h.animate(renderer, STREAM, out / "talk.mp4", end=end)
     print(f"animated {result['frames']} frames at {result['render_fps']:.1f} frames/s")
     files["video"] = out / "talk.mp4"
 
