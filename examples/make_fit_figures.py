@@ -1,4 +1,5 @@
-"""Regenerate the README's fitting pictures from scikit-image's astronaut photo:
+"""Regenerate the fitting pictures of the README and docs/decisions.md from scikit-image's
+astronaut photo:
 
 - ``examples/figures/fit_astronaut.png``: ``head360 demo``'s preview (photo crop, fitted
   front view, views at -45, 45 and 90 degrees yaw, the back);
