@@ -283,6 +283,7 @@ def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_fil
     assert r.code == 3 and "export-onnx" in r.err
 
 
+@pytest.mark.slow
 def test_runner_names_the_graph_to_give_for_the_bald_one_or_a_lone_one(exported, tmp_path):
     """--onnx gen_bald.onnx was refused as 'gen_bald_bald.onnx: expected an exported
     head360 generator ([ONNXRuntimeError] ... NO_SUCHFILE ...)'."""
@@ -357,6 +358,7 @@ def test_export_traces_on_the_cpu_whatever_the_device(run_cli, monkeypatch, tmp_
     assert r.code == 0 and seen == ["cpu", "cpu"] and "traces on the CPU" not in r.err
 
 
+@pytest.mark.slow
 def test_export_reads_the_head_once_so_a_pipe_works(run_cli, monkeypatch, tmp_path, pipe,
                                                     head_file):
     """``export-onnx --head <(...)``: the head is read once (it was read again for its
@@ -384,6 +386,7 @@ def test_export_reads_the_head_once_so_a_pipe_works(run_cli, monkeypatch, tmp_pa
         np.testing.assert_array_equal(got[key], value)
 
 
+@pytest.mark.slow
 def test_export_writes_the_graphs_and_inputs_as_one_set(head_file, tmp_path, monkeypatch):
     """The two graphs and the head's inputs are renamed together: a failure at the last
     one (a full disk) left the new graphs beside an older export's inputs. Names made

@@ -495,6 +495,7 @@ def test_small_faces_are_refused_or_warned(tmp_path):
     assert any("pixels wide" in w for w in warnings)
 
 
+@pytest.mark.slow
 @pytest.mark.shared_data
 def test_hair_that_matches_no_style_classifies_as_no_hair(run_cli, shared_data):
     """A development VOC photo (not the bench's) whose parse finds a patch of the

@@ -32,6 +32,7 @@ def _front_view(index: int):
     return views, batch, c2w[0].numpy()
 
 
+@pytest.mark.slow
 def test_silhouette_of_the_true_style_ranks_first():
     from head360cli.mesh.bilinear import load_bilinear
 
@@ -73,6 +74,7 @@ def test_place_hair_finds_the_shift_of_the_hair():
     assert not offset.any() and iou == iou_plain == 1.0
 
 
+@pytest.mark.slow
 def test_place_hair_lifts_hair_off_the_parsed_face():
     """The hair matches the unshifted silhouette exactly, but the strip it alone covers
     (not the silhouette lifted 12 mm) is parsed as face: with the face mask the placement

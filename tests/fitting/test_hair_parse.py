@@ -228,6 +228,7 @@ def test_a_featureless_photo_has_no_hair(noise):
     assert hair.mean() > 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.shared_data
 def test_real_masks_mean_iou_floor(shared_data):
     """A regression floor on the real masks (measured 0.64 on CelebAMask); the goal of
@@ -328,6 +329,7 @@ def _corpus_portrait(index: int):
             batch.alpha[0, 0].numpy() > 0.5)
 
 
+@pytest.mark.slow
 def test_seeded_parse_keeps_light_hair_that_falls_past_the_face(prior):
     """Blond shoulder-length hair on a white backdrop: when only the face and neck
     seeded the person, GrabCut gave the hair to the backdrop and the parse was empty

@@ -280,6 +280,7 @@ def test_an_image_without_a_face_does_not_load_the_predictor():
     assert _predictor.cache_info().misses == 1
 
 
+@pytest.mark.slow
 def test_profile_cascade_finds_either_side_and_not_a_back_view():
     """A held-out corpus head (1) turned 65 degrees: found looking to the image's left;
     its mirror image, looking right, with the mirrored box; seen from behind, nothing."""

@@ -104,6 +104,7 @@ def test_close_lids_fits_a_change_on_the_lid_texels_only(head):
     assert gen.cfg.samples == 12 and gen.cfg.image_res == 256  # settings restored
 
 
+@pytest.mark.slow
 def test_the_change_closes_the_eyes_for_dlib(head):
     """The closed eyes of the mean head with a generated texture: dlib's eye opening of
     a frontal render, 0.44 open, is 0.28 closed without the change and 0.23 with it (0.15

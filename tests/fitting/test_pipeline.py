@@ -44,6 +44,7 @@ def test_fit_writes_mesh_overlay_and_params(run_cli, shared_data, tmp_path):
     assert json.loads(Path(out["files"]["params"]).read_text())["face"] == 0
 
 
+@pytest.mark.slow
 def test_landmarks_are_in_pixels_of_the_image_on_disk(run_cli, shared_data, tmp_path):
     """A 6x upscaled copy is downscaled on load; results map back to its own pixels."""
     photo = shared_data / "faces" / "Tom_Cruise_avp_2014_4.jpg"
@@ -69,6 +70,7 @@ def test_no_face_and_bad_face_numbers(run_cli, shared_data, tmp_path):
     assert list(tmp_path.iterdir()) == []  # nothing half-written
 
 
+@pytest.mark.slow
 def test_several_faces(run_cli, shared_data, tmp_path):
     r = run_cli("fit", "--stage", "shape", shared_data / "faces" / "bald_guys.jpg", "--face",
                 "all", "-o", tmp_path, "--json")

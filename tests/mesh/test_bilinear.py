@@ -208,6 +208,7 @@ def test_ict_facekit_reader(shared_data):
     assert (topo["vertex_mirror"][topo["vertex_mirror"]] == np.arange(26719)).mean() > 0.95
 
 
+@pytest.mark.slow
 @pytest.mark.shared_data
 def test_shipped_model_is_what_its_command_builds(shared_data, tmp_path):
     """models/bilinear.npz must match its model card's command with the current code (a
