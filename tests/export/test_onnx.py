@@ -464,6 +464,7 @@ def test_no_room_in_shared_memory_traces_both_graphs_here(head_file, monkeypatch
         onnx_export._export_pair(r, Path("g.onnx"), Path("g_bald.onnx"), True, {}, None)
 
 
+@pytest.mark.slow
 def test_inspect_tells_what_an_exported_graph_takes(run_cli, exported):
     """``head360 inspect gen.onnx``: the graph's inputs and head360's export metadata, as
     the runner reads them."""
