@@ -259,6 +259,19 @@ DETECTOR_HELP = ("dlib face detector: hog is fast; cnn finds harder and smaller 
                  "2 s) only if hog finds no face.")
 """The help of ``--detector`` (fit, parse-hair, classify-hair)."""
 
+DETECTOR = click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+                        show_default=True, help=DETECTOR_HELP)
+"""The ``--detector`` option of fit, parse-hair and classify-hair."""
+
+FACE_NUMBER = click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
+                           help="Which face (0 = the largest).")
+"""The ``--face`` option of parse-hair and classify-hair (fit's also takes ``all``)."""
+
+BENCH_OUT = click.option("--out", "out_dir", default="bench-results", show_default=True,
+                         type=OutputPath(file_okay=False),
+                         help="Where the JSON and Markdown go.")
+"""The ``--out`` folder of the ``bench`` commands."""
+
 
 def progress_printer():
     """Progress of a fit's stages: one tqdm bar per stage on stderr, shown only on a

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from head360cli.cli.base import (
+    BENCH_OUT,
     InputPath,
     OutputPath,
     cli,
@@ -37,8 +38,7 @@ def bench_group() -> None:
 @bench_group.command("synth")
 @click.option("--identities", "-n", default=100, show_default=True,
               help="Identities in the timed corpus subset.")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
+@BENCH_OUT
 @common_options
 def bench_synth_cmd(identities: int, out_dir: str) -> None:
     """Corpus renderer: ms per 256x256 view by antialiasing samples and batch size, and
@@ -59,8 +59,7 @@ def bench_synth_cmd(identities: int, out_dir: str) -> None:
 @bench_group.command("fit-shape")
 @click.option("--trials", default=200, show_default=True,
               help="Synthetic faces (random identity, expression and pose).")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
+@BENCH_OUT
 @common_options
 def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
     """Landmark shape fit: vertex and pose error on synthetic faces by yaw, NME of dlib's
@@ -94,8 +93,7 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--corpus-seed", default=0, show_default=True,
               help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
                    "for development).")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
+@BENCH_OUT
 @common_options
 def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
                   stability: int, stability_photos: int, synthetic_noise: int,
@@ -153,8 +151,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
 @click.option("--cameras", default=8, show_default=True,
               help="Held-out cameras per head (of 24 around it).")
 @click.option("--no-speed", is_flag=True, help="Skip the timing and the speed sweep.")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
+@BENCH_OUT
 @click.option("--name", default="generator", show_default=True,
               help="File name of the results (<name>.json, <name>.md).")
 @common_options
@@ -204,8 +201,7 @@ def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
                                  "photo (no fit, so no dlib unless fidelity is measured).")
 @click.option("--no-fidelity", is_flag=True,
               help="Skip the expression-fidelity parts (dlib landmarks on frames).")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
+@BENCH_OUT
 @common_options
 def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
                       stream_path: str | None, no_memory: bool, head_path: str | None,
@@ -278,8 +274,7 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
 @click.option("--onnx", "graph", default=None, type=InputPath(dir_okay=False),
               help="Use this exported graph (default: export one, about 80 seconds on "
                    "2 CPU cores).")
-@click.option("--out", "out_dir", default="bench-results", show_default=True,
-              type=OutputPath(file_okay=False), help="Where the JSON and Markdown go.")
+@BENCH_OUT
 @common_options
 def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: int,
                    graph: str | None, out_dir: str) -> None:

@@ -6,7 +6,8 @@ from __future__ import annotations
 import click
 
 from head360cli.cli.base import (
-    DETECTOR_HELP,
+    DETECTOR,
+    FACE_NUMBER,
     NO_PRIOR,
     PHOTO,
     OutputPath,
@@ -37,8 +38,7 @@ from head360cli.errors import BadInputError
               "unknown name lists them all) instead of the classifier's choice.")
 @click.option("--face", default="0", show_default=True,
               help="Which face: 0 = the largest, 1 = the next... ('all' with --stage shape).")
-@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
-              show_default=True, help=DETECTOR_HELP)
+@DETECTOR
 @click.option("--focal", type=float, default=None,
               help="Focal length in pixels (default: from EXIF, else a 50 mm-equivalent "
               "lens).")
@@ -131,10 +131,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
 @PHOTO
 @click.option("-o", "--out", "out_dir", default="head360-out", show_default=True,
               type=OutputPath(file_okay=False), help="Output folder.")
-@click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
-              help="Which face (0 = the largest).")
-@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
-              show_default=True, help=DETECTOR_HELP)
+@FACE_NUMBER
+@DETECTOR
 @NO_PRIOR
 @common_options
 def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
@@ -174,10 +172,8 @@ def _unseeded(r: dict) -> str:
 @cli.command("classify-hair")
 @PHOTO
 @click.option("--top", default=3, show_default=True, help="How many styles to list.")
-@click.option("--face", default=0, show_default=True, type=click.IntRange(min=0),
-              help="Which face (0 = the largest).")
-@click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
-              show_default=True, help=DETECTOR_HELP)
+@FACE_NUMBER
+@DETECTOR
 @NO_PRIOR
 @common_options
 def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
