@@ -780,3 +780,25 @@ def test_an_input_of_the_wrong_kind_or_missing_is_one_line_exit_3(run_cli, head_
         r = run_cli(*args)
         assert r.code == 3 and r.err.strip().splitlines() == [f"head360: error: {said}"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_option_values_exit_as_the_readme_s_table_says(run_cli, head_file, tmp_path):
+    """The README's table puts values the command-line parser refuses (a wrong type, a
+    choice not listed) under 2 and values head360 checks under 3; each example it gives
+    exits so."""
+    import re
+
+    table = {int(code): text for code, text in re.findall(
+        r"^\| (\d+) \| (.+) \|$", (REPO / "README.md").read_text(), flags=re.M)}
+    out = tmp_path / "x.png"
+    cases = {2: [("--size big", ["render", head_file, "--size", "big", "-o", out]),
+                 ("--preset best", ["fit", head_file, "--preset", "best"])],
+             3: [("--size 0", ["render", head_file, "--size", "0", "-o", out]),
+                 ("--device tpu", ["--device", "tpu", "info"])]}
+    for code, examples in cases.items():
+        for shown, args in examples:
+            assert f"`{shown}`" in table[code], (code, shown)
+            r = run_cli(*args)
+            assert r.code == code, (shown, r.code, r.err)
+            assert r.err.count("\n") == 1 or code == 2, r.err  # one line of ours
+    assert not out.exists()

@@ -200,8 +200,8 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     missing = [m for m in ("onnx", "onnxscript") if importlib.util.find_spec(m) is None]
     if missing:
         raise ModelNotFoundError(f"exporting needs the optional packages onnx and "
-                                 f"onnxscript, found {', '.join(missing)} missing: pip "
-                                 f"install 'head360[export]'")
+                                 f"onnxscript, found {' and '.join(missing)} not installed: "
+                                 f"pip install 'head360[export]'")
     out = Path(out)
     if out.suffix.lower() != ".onnx":
         raise BadInputError(f"expected an .onnx output, found {out.name!r}")

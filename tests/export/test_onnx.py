@@ -329,11 +329,14 @@ def test_export_without_the_export_extra_says_what_to_install(run_cli, monkeypat
     import importlib.util
 
     real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec",
-                        lambda name, *a: None if name == "onnxscript" else real(name, *a))
-    r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "g.onnx")
-    assert r.code == 7 and "head360[export]" in r.err
-    assert not (tmp_path / "g.onnx").exists()
+    for gone, said in ((("onnxscript",), "found onnxscript not installed"),
+                       (("onnx", "onnxscript"), "found onnx and onnxscript not installed")):
+        monkeypatch.setattr(importlib.util, "find_spec",
+                            lambda name, *a, gone=gone: None if name in gone else real(name, *a))
+        r = run_cli("export-onnx", "--samples", "2", "--size", "32", "-o", tmp_path / "g.onnx")
+        assert r.code == 7 and "head360[export]" in r.err, r.err
+        assert said in r.err, r.err  # both named when both are missing
+        assert not (tmp_path / "g.onnx").exists()
 
 
 def test_export_traces_on_the_cpu_whatever_the_device(run_cli, monkeypatch, tmp_path):
