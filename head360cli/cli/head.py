@@ -627,8 +627,9 @@ def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
     check_file_target(out)  # before the head is loaded
     r = _renderer(head, None, None)
     res = export_head(r, out, texture_size, hair=not no_hair, progress=progress_printer())
-    emit(res, f"wrote {', '.join(res['files'])} ({res['vertices']} vertices, "
-          f"{res['morph_targets']} morph targets, parts {', '.join(res['parts'])})")
+    parts = ", ".join(f"{name} {n} vertices" for name, n in res["part_vertices"].items())
+    emit(res, f"wrote {', '.join(res['files'])} ({parts}; {res['faces']} head triangles, "
+          f"{res['morph_targets']} morph targets)")
 
 
 @cli.command("export-onnx")

@@ -218,7 +218,9 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
     (+ ``.mtl`` and PNG texture; the neutral mesh).
 
     Returns:
-        ``{"files": [...], "vertices": V, "faces": F, "morph_targets": 52 or 0}``.
+        ``{"files": [...], "vertices": V, "faces": F, "morph_targets": 52 or 0, "parts":
+        [...], "part_vertices": {part: V}}``: the head's vertices and triangles as the
+        file holds them (a GLB's split at the UV seams).
     """
     from head360cli.io.atomic import check_file_target
     from head360cli.io.mesh import obj_companions, write_glb, write_obj
@@ -240,10 +242,23 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
         files = [write_glb(out, parts, generator=f"head360 {__version__}")]
     else:
         files = write_obj(out, parts)
-    return {"files": [str(f) for f in files], "vertices": len(parts[0].verts),
+    written = {p.name: _written_vertices(p, kind) for p in parts}
+    return {"files": [str(f) for f in files], "vertices": written[parts[0].name],
             "faces": len(parts[0].faces),
             "morph_targets": 52 if kind == ".glb" else 0,
-            "parts": [p.name for p in parts]}
+            "parts": [p.name for p in parts], "part_vertices": written}
+
+
+def _written_vertices(part, kind: str) -> int:
+    """How many vertices ``part`` has in the file: a GLB splits a textured mesh's
+    vertices where its UV layout has seams (one vertex per position and UV pair), an OBJ
+    keeps the positions and indexes the UVs apart."""
+    from head360cli.io.mesh import split_seams
+
+    if kind != ".glb" or part.uv is None:
+        return len(part.verts)
+    faces_uv = part.faces if part.faces_uv is None else part.faces_uv
+    return len(split_seams(part.faces, faces_uv)[0])
 
 
 def write_mesh_sequence(renderer, weights: np.ndarray, folder: str | Path,

@@ -136,6 +136,16 @@ def test_exported_head_has_the_52_arkit_targets(head_file, tmp_path, run_cli):
     scene = trimesh.load(out)
     head = scene.geometry["head"]
     assert head.metadata["targetNames"] == list(ARKIT52)
+    # the counts reported are the file's: the GLB splits the head at its UV seams (6,399
+    # vertices from the template's 5,968)
+    import json
+
+    res = json.loads(r.out)
+    g = _glb_json(out)
+    in_file = {m["name"]: g["accessors"][m["primitives"][0]["attributes"]["POSITION"]]["count"]
+               for m in g["meshes"]}
+    assert res["part_vertices"] == in_file and res["vertices"] == in_file["head"]
+    assert res["faces"] == len(head.faces)
     g = _glb_json(out)
     prim = g["meshes"][0]["primitives"][0]
     assert len(prim["targets"]) == 52 and g["meshes"][0]["weights"] == [0.0] * 52
