@@ -802,3 +802,33 @@ def test_option_values_exit_as_the_readme_s_table_says(run_cli, head_file, tmp_p
             assert r.code == code, (shown, r.code, r.err)
             assert r.err.count("\n") == 1 or code == 2, r.err  # one line of ours
     assert not out.exists()
+
+
+def test_fit_says_where_it_wrote_a_head_named_after_a_photo_elsewhere(
+        run_cli, tmp_path, monkeypatch):
+    """`fit some/dir/tom.jpg` writes tom.h360 into the current folder: the text gives
+    the full paths and says so; with -o, or a photo in the current folder, no note."""
+    from pathlib import Path
+
+    import head360cli.fitting.pipeline as pipeline
+
+    def fake_fit(photo, out, config=None, **kwargs):
+        out = Path(out)
+        return {"warnings": [], "timings": {"total": 1.0}, "pose": {"yaw": 0.0},
+                "hair_style": {"name": "bob"}, "hair_color_name": "brown",
+                "psnr_face_input_view": 25.0, "inversion": {"fitted_in": "colour"},
+                "files": {"head": str(out), "preview": str(out.with_suffix(".png"))}}
+
+    monkeypatch.setattr(pipeline, "fit_photo", fake_fit)
+    photos = tmp_path / "some" / "dir"
+    photos.mkdir(parents=True)
+    (photos / "tom.jpg").write_bytes(b"not read by the stub")
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    r = run_cli("fit", photos / "tom.jpg")
+    assert r.code == 0, r.err
+    assert f"wrote {here / 'tom.h360'}" in r.out
+    assert "in the current folder, not the photo's: -o PATH writes elsewhere" in r.out
+    r = run_cli("fit", photos / "tom.jpg", "-o", "me.h360")
+    assert f"wrote {here / 'me.h360'}" in r.out and "current folder" not in r.out

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from head360cli.cli.base import (
@@ -123,7 +125,11 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
             f"{' (in grey)' if result['inversion']['fitted_in'] == 'grey' else ''}, "
             f"{t['total']:.1f} s (" + ", ".join(f"{k} {v:.1f}" for k, v in t.items()
                                                  if k != "total") + ")\n"
-            + "\n".join(f"  wrote {p}" for p in result["files"].values()))
+            + "\n".join(f"  wrote {Path(p).resolve()}" for p in result["files"].values()))
+    if out is None and Path(photo).is_file() and \
+            Path(photo).parent.resolve() != Path.cwd().resolve():
+        text += ("\n  (named after the photo, in the current folder, not the photo's: "
+                 "-o PATH writes elsewhere)")
     emit(result, text)
 
 
