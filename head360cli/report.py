@@ -416,12 +416,15 @@ def _describe_obj(data: bytes, shown: str) -> dict[str, Any]:
             "objects": counts["o"] + counts["g"], "material_libraries": libraries}
 
 
-def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> dict[str, Any]:
+def inspect_file(path: str, on_bad: str = "error", plot: str | None = None,
+                 fps: float | None = None) -> dict[str, Any]:
     """Describe a file: ARKit stream, image or head file.
 
     Args:
         path: The file, or ``-`` for an ARKit stream on standard input.
         on_bad: Bad-cell policy for streams (``error``, ``skip``, ``hold``).
+        fps: A stream's own frame rate, when its time column cannot tell it
+            (:func:`~head360cli.io.arkit.read_arkit_csv`).
         plot: For a stream, also draw its curves into this PNG.
 
     Returns:
@@ -470,7 +473,7 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None) -> d
         }
     from head360cli.io.arkit import read_arkit_csv
 
-    stream = read_arkit_csv(path, on_bad=on_bad)  # type: ignore[arg-type]
+    stream = read_arkit_csv(path, on_bad=on_bad, fps=fps)  # type: ignore[arg-type]
     out: dict[str, Any] = {
         "kind": "arkit_stream",
         "path": shown,

@@ -184,11 +184,14 @@ def _format_mesh(r: dict[str, Any]) -> str:
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="error",
               show_default=True, help="ARKit streams: what to do with NaN, empty or "
               "non-numeric cells and malformed rows.")
+@click.option("--stream-fps", type=float, default=None,
+              help="The stream's own frame rate, for Live Link Face timecodes that cannot "
+              "tell it (a take shorter than a second) or a frame-numbered CSV.")
 @click.option("--plot", type=OutputPath(dir_okay=False), default=None,
               help="ARKit streams: also draw the most active blendshapes and the head "
               "rotation over time into this PNG.")
 @common_options
-def inspect(file: str, on_bad: str, plot: str | None) -> None:
+def inspect(file: str, on_bad: str, stream_fps: float | None, plot: str | None) -> None:
     """Tell what FILE is and holds: an ARKit stream, an image, a head file, a model file
     or an exported mesh.
 
@@ -213,11 +216,11 @@ def inspect(file: str, on_bad: str, plot: str | None) -> None:
     """
     from head360cli.report import inspect_file
 
-    result = inspect_file(file, on_bad=on_bad, plot=plot)
+    result = inspect_file(file, on_bad=on_bad, plot=plot, fps=stream_fps)
     if result["kind"] != "arkit_stream":
         what = {"image": "an image", "head": "a head", "model": "a model file",
                 "mesh": "a mesh"}[result["kind"]]
-        warn_unused(("on_bad",), f"for {what}")
+        warn_unused(("on_bad", "stream_fps"), f"for {what}")
     for w in result.get("warnings", []):
         warn(w)
     formatter = {"arkit_stream": _format_stream, "image": _format_image,

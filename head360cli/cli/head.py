@@ -276,6 +276,9 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="hold",
               show_default=True, help="Bad cells in the stream: stop, drop the row, or "
               "hold the last good value.")
+@click.option("--stream-fps", type=float, default=None,
+              help="The stream's own frame rate, for Live Link Face timecodes that cannot "
+              "tell it (a take shorter than a second) or a frame-numbered CSV.")
 @click.option("--exact", is_flag=True,
               help="Decode every point of every frame. By default, with a still camera "
               "(no --head-pose), points whose inputs moved by at most 1e-3 since the "
@@ -295,7 +298,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
             head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
-            yaw: float, pitch: float, on_bad: str, workers: int | None, batch: int | None,
+            yaw: float, pitch: float, on_bad: str, stream_fps: float | None,
+            workers: int | None, batch: int | None,
             samples: int | None, size: int | None, exact: bool, precision: str,
             no_hair: bool, backend: str, onnx_path: str) -> None:
     """Drive a head with an ARKit-52 blendshape stream.
@@ -364,7 +368,8 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         from head360cli.io.sources import check_stdin
 
         check_stdin("an ARKit stream")
-    stream = read_arkit_csv(arkit, on_bad=on_bad)  # "-": standard input, decoded as a file
+    # "-": standard input, decoded as a file
+    stream = read_arkit_csv(arkit, on_bad=on_bad, fps=stream_fps)
     for warning in stream.warnings:
         warn(warning)
     scratch = None  # the mean head's file when no HEAD is given, removed at the end

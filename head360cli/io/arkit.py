@@ -244,6 +244,29 @@ def _parse_timecode(cell: str) -> tuple[int, float] | None:
     return h * 3600 + mi * 60 + s, ff + frac
 
 
+def _unsure_rate(parsed: list[tuple[int, float]], nominal: float) -> str | None:
+    """The warning for Live Link Face timecodes that cannot tell their rate, else None.
+
+    The rate is read off the largest frame number, which tells it only once the take
+    passes a whole second (its frame numbers then reach the top of the rate). A take
+    shorter than that whose rows step by whole frames (30 rows cut from a 60 fps take:
+    frames 0 to 29) reads as the smallest standard rate above its largest frame, which
+    may be too slow. Rows that step by fractions of a frame (head360's own short takes,
+    numbered at a rate the reader gives back) keep their times and are not warned about.
+    """
+    if len(parsed) < 2 or len({whole for whole, _ in parsed}) > 1:
+        return None
+    frames = np.array([frame for _, frame in parsed], np.float64)
+    steps = np.diff(frames)
+    if not (np.abs(steps - np.round(steps)) < 0.02).all() or np.median(steps) < 0.5:
+        return None
+    top = int(frames.max())
+    return (f"the stream's timecodes stay within one second (frames {int(frames.min())} to {top}), "
+            f"which does not tell its frame rate: read at {nominal:g} fps, the smallest "
+            f"standard rate above frame {top}; if it was recorded at another rate (Live "
+            f"Link Face records at 60), give it with --stream-fps")
+
+
 def _to_float(cell: str) -> float:
     try:
         return float(cell)
@@ -350,7 +373,9 @@ def read_arkit_csv(
     del buf
     bad = ~np.isfinite(values)
 
-    times, time_bad, nominal = layout.parse_times(time_cells, fps)
+    times, time_bad, nominal, rate_note = layout.parse_times(time_cells, fps)
+    if rate_note:
+        warnings.append(rate_note)
     if time_bad is not None and time_bad.any():
         r = int(np.argmax(time_bad))
         if first_bad is None or lines[r] < first_bad[0]:
@@ -637,31 +662,35 @@ class _Layout:
 
     def parse_times(
         self, cells: list[str], fps: float | None
-    ) -> tuple[np.ndarray | None, np.ndarray | None, float | None]:
-        """Times in seconds per row, a bad-cell mask for them, and the nominal rate."""
+    ) -> tuple[np.ndarray | None, np.ndarray | None, float | None, str | None]:
+        """Times in seconds per row, a bad-cell mask for them, the nominal rate, and a
+        warning when timecodes cannot tell the rate (:func:`_unsure_rate`)."""
         if self.time_column is None:
-            return None, None, None
+            return None, None, None, None
         if self.time_kind == "timecode":
             parsed = [_parse_timecode(c) for c in cells]
             bad = np.array([p is None for p in parsed], dtype=bool)
             good = [p for p in parsed if p is not None]
             if not good:
-                return np.zeros(len(cells)), bad, None
+                return np.zeros(len(cells)), bad, None, None
             max_frame = max(int(p[1]) for p in good)
             nominal = next((r for r in STANDARD_RATES if r > max_frame), float(max_frame + 1))
+            note = None
             if fps is not None and fps > max_frame:
                 nominal = float(fps)
+            elif fps is None:
+                note = _unsure_rate(good, nominal)
             times = np.array(
                 [np.nan if p is None else p[0] + p[1] / nominal for p in parsed], dtype=np.float64
             )
-            return times, bad, nominal
+            return times, bad, nominal, note
         times = np.array([_to_float(c) for c in cells], dtype=np.float64)
         bad = ~np.isfinite(times)
         if self.time_kind == "ms":
             times = times / 1000.0
         elif self.time_kind == "frame":
             times = times / (fps if fps is not None else DEFAULT_FPS)
-        return times, bad, None
+        return times, bad, None, None
 
 
 # --------------------------------------------------------------------------- processing

@@ -466,3 +466,57 @@ def test_old_mac_line_endings_read_as_the_others(tmp_path):
         np.testing.assert_array_equal(streams[name].weights, streams["lf"].weights)
         np.testing.assert_array_equal(streams[name].timestamps, streams["lf"].timestamps)
     assert streams["cr"].weights[1, INDEX["eyeBlinkLeft"]] == pytest.approx(0.2)
+
+
+def _live_link_rows(seconds_and_frames) -> str:
+    lines = ["Timecode,BlendshapeCount,EyeBlinkLeft,JawOpen"]
+    for i, (sec, ff) in enumerate(seconds_and_frames):
+        lines.append(f"14:58:{sec:02d}:{ff:02d}.668,61,0.1,{i / 100:.2f}")
+    return "\n".join(lines) + "\n"
+
+
+def test_a_live_link_take_within_one_second_warns_that_its_rate_is_unknown(tmp_path):
+    """30 rows cut from a 60 fps take, frames 0 to 29 of one second, read as 30 fps and
+    played at half speed without a word. The rate cannot be told from such timecodes:
+    the reader says so, and the stream's rate, when given, reads it right."""
+    within = tmp_path / "within.csv"
+    within.write_text(_live_link_rows((3, ff) for ff in range(30)))
+    s = read_arkit_csv(within)
+    assert s.fps == 30.0 and s.timestamps[-1] == pytest.approx(29 / 30)
+    assert [w for w in s.warnings if "does not tell its frame rate" in w] == [
+        "the stream's timecodes stay within one second (frames 0 to 29), which does not "
+        "tell its frame rate: read at 30 fps, the smallest standard rate above frame 29; "
+        "if it was recorded at another rate (Live Link Face records at 60), give it with "
+        "--stream-fps"]
+    given = read_arkit_csv(within, fps=60)
+    assert given.fps == 60.0 and given.timestamps[-1] == pytest.approx(29 / 60)
+    assert not any("frame rate" in w for w in given.warnings)
+    # the same 30 rows across a second show the rate's top frame: no doubt, no warning
+    across = tmp_path / "across.csv"
+    across.write_text(_live_link_rows([(2, ff) for ff in range(45, 60)]
+                                      + [(3, ff) for ff in range(15)]))
+    s = read_arkit_csv(across)
+    assert s.fps == 60.0 and not any("frame rate" in w for w in s.warnings)
+
+
+def test_head360_s_own_short_takes_read_back_without_the_rate_warning(tmp_path):
+    """head360 numbers a short take's timecodes at a rate the reader infers back, in
+    fractions of a frame: its times are known, so no rate warning."""
+    stream = make_stream(frames=30, fps=60.0)
+    path = tmp_path / "short.csv"
+    write_arkit_csv(stream, path, flavor="livelinkface")
+    back = read_arkit_csv(path)
+    assert back.fps == 60.0
+    assert not any("frame rate" in w for w in back.warnings)
+
+
+def test_inspect_and_animate_take_the_stream_s_rate(run_cli, tmp_path):
+    within = tmp_path / "within.csv"
+    within.write_text(_live_link_rows((3, ff) for ff in range(30)))
+    r = run_cli("inspect", within, "--json")
+    assert r.code == 0 and "does not tell its frame rate" in r.err
+    r = run_cli("inspect", within, "--stream-fps", "60", "--json")
+    assert r.code == 0 and "frame rate" not in r.err
+    import json
+
+    assert json.loads(r.out)["fps"] == 60.0
