@@ -96,6 +96,9 @@ def _format_image(r: dict[str, Any]) -> str:
         f"{r['display_size'][0]}x{r['display_size'][1]}",
         f"  frames       {r['frames']}",
         f"  colours      {_colours(r.get('colour_profile'), r.get('converted'))}",
+        f"  depth        {r['bits']} bits a channel"
+        + (f", values using {r['bits_used']} (read as {r['bits_used']}-bit data)"
+           if r.get("bits_used") and r["bits_used"] < r["bits"] else ""),
         *([f"  tone         {r['tone']}"
            + (" (fit fits its grey; the skin's colour comes from the model)"
               if r["tone"] == "greyscale" else "")] if r.get("tone") else []),

@@ -165,13 +165,18 @@ class Preview:
 def photo_warnings(img) -> list[str]:
     """The warnings for a loaded photo: a file of several frames or pages (an animated
     GIF, a TIFF stack), of which only the first is read; a colour profile that could not
-    be used, so that its values are taken as sRGB's."""
+    be used, so that its values are taken as sRGB's; 16-bit channels holding fewer bits'
+    data (12-bit values up to 4095), scaled by the range they use."""
     warnings = []
     if img.frames > 1:
         warnings.append(f"{Path(img.path).name} holds {img.frames} frames; the first is used")
     if img.colour_profile == "unreadable":
         warnings.append(f"{Path(img.path).name} has a colour profile head360 cannot use; "
                         f"its colours are taken as sRGB")
+    if img.bits_used < img.bits:
+        warnings.append(f"{Path(img.path).name} has {img.bits}-bit channels whose values use "
+                        f"{img.bits_used} bits (up to {2 ** img.bits_used - 1}): read as "
+                        f"{img.bits_used}-bit data")
     return warnings
 
 

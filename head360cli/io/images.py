@@ -21,6 +21,7 @@ import dataclasses
 import functools
 import io
 import os
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -71,6 +72,9 @@ class LoadedImage:
         colour_profile: The embedded colour profile's description when the pixels were
             converted from it to sRGB; ``"unreadable"`` when a profile could not be used
             (its values are then taken as sRGB); ``None`` without one, or for sRGB's.
+        bits: Bits per channel in the file (8 or 16).
+        bits_used: Bits its values use (:func:`used_bits`): a 16-bit file holding 12-bit
+            data (values up to 4095) is scaled by that range, not 16 bits'.
     """
 
     pixels: np.ndarray
@@ -83,6 +87,8 @@ class LoadedImage:
     focal_35mm: float | None = None
     frames: int = 1
     colour_profile: str | None = None
+    bits: int = 8
+    bits_used: int = 8
 
     @property
     def size(self) -> tuple[int, int]:
@@ -123,9 +129,10 @@ def is_greyscale(pixels: np.ndarray) -> bool:
         <= 0.01 * spread.size
 
 
-def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
-    """``(PIL.Image.Image, size in bytes)`` of an image file, a pipe or a pipe's content
-    already read (:func:`~head360cli.io.sources.readable`), its pixels not decoded yet."""
+def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int, object]:
+    """``(PIL.Image.Image, size in bytes, source)`` of an image file, a pipe or a pipe's
+    content already read (:func:`~head360cli.io.sources.readable`), its pixels not decoded
+    yet; ``source`` is the file's path or its bytes (for :func:`_deep_pixels`)."""
     from PIL import Image, UnidentifiedImageError
 
     from head360cli.io.sources import NamedBytes, existing, readable
@@ -147,7 +154,7 @@ def _open(path: str | os.PathLike[str] | NamedBytes) -> tuple[object, int]:
         ) from None
     except OSError as exc:
         raise FileFormatError(f"cannot read image {label!r}: {exc}") from exc
-    return img, size
+    return img, size, source
 
 
 def _is_heif(source) -> bool:
@@ -240,7 +247,8 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
     """
     from head360cli.io.sources import NamedBytes
 
-    img, size = _open(path)
+    img, size, source = _open(path)
+    sixteen = _sixteen_bit(img)  # first: loading (EXIF reads load a PNG) drops its raw mode
     name = path.name if isinstance(path, NamedBytes) else str(path)
     with img:
         w, h = img.size
@@ -259,7 +267,10 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
             except Exception:  # a profile of another colour space: not used
                 profile = "unreadable"
         problem = _decode_problem(img, max_pixels)  # after the header: draft changes mode
-        tone = None if problem else _tone(img)
+        deep = None if problem else _deep_pixels(img, source, sixteen)
+        bits_used = None if problem else 8 if deep is None else used_bits(int(deep.max()))
+        tone = None if problem else _tone(
+            img if deep is None else _eight_bit_from_deep(deep, bits_used, img, 1))
         return {
             "kind": "image",
             "path": name,
@@ -275,6 +286,8 @@ def describe_image(path: str | os.PathLike[str] | NamedBytes,
             "megapixels": round(w * h / 1e6, 3),
             "colour_profile": profile,
             "converted": converted,
+            "bits": 16 if sixteen else 8,
+            "bits_used": bits_used,
             "tone": tone,
             "problem": problem,
         }
@@ -306,6 +319,68 @@ def _eight_bit(img):  # PIL.Image -> PIL.Image in an 8-bit mode
     elif mode not in ("RGB", "RGBA", "L", "LA", "P", "PA", "1"):
         img = img.convert("RGBA" if "A" in mode else "RGB")  # CMYK, YCbCr, LAB...
     return img
+
+
+SIXTEEN_BIT_PNG = ("RGB;16B", "RGBA;16B", "LA;16B")
+"""Pillow's raw modes of 16-bit colour PNGs, which it decodes to 8 bits by keeping each
+value's high byte: 12-bit data (values up to 4095) came out nearly black."""
+
+
+def used_bits(peak: int) -> int:
+    """The fewest of 8, 10, 12, 14 and 16 bits that hold values up to ``peak``: the bit
+    depth a 16-bit file's data uses (a camera's 12-bit raw, converted, leaves the top
+    four bits empty)."""
+    return next((bits for bits in (8, 10, 12, 14) if peak < 2 ** bits), 16)
+
+
+def _sixteen_bit(img) -> bool:
+    """Whether a Pillow image, opened and not yet loaded, holds 16 bits a channel (16-bit
+    greyscale, or a PNG whose raw mode is one of :data:`SIXTEEN_BIT_PNG`)."""
+    return img.mode in ("I;16", "I;16B", "I;16L", "I;16N") or getattr(
+        getattr(img, "png", None), "im_rawmode", None) in SIXTEEN_BIT_PNG
+
+
+def _deep_pixels(img, source, sixteen: bool) -> np.ndarray | None:
+    """A 16-bit file's pixels at their full depth, ``(H, W[, C])`` uint16, RGB(A) order,
+    as stored (before EXIF orientation); ``None`` unless ``sixteen`` (:func:`_sixteen_bit`,
+    asked before the pixels were loaded). Pillow keeps 16-bit greyscale (``I;16``);
+    16-bit colour PNGs are decoded again with OpenCV."""
+    from head360cli.io.sources import NamedBytes
+
+    if not sixteen:
+        return None
+    if img.mode in ("I;16", "I;16B", "I;16L", "I;16N"):
+        return np.asarray(img, dtype=np.uint16)
+    import cv2
+
+    data = source.getvalue() if isinstance(source, NamedBytes) else \
+        Path(source).read_bytes()
+    deep = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if deep is None or deep.dtype != np.uint16:
+        return None
+    if deep.ndim == 3:  # OpenCV's BGR(A) to RGB(A)
+        deep = deep[..., [2, 1, 0, 3][:deep.shape[2]]] if deep.shape[2] >= 3 else deep
+    return deep
+
+
+_TRANSPOSE = {2: "FLIP_LEFT_RIGHT", 3: "ROTATE_180", 4: "FLIP_TOP_BOTTOM", 5: "TRANSPOSE",
+              6: "ROTATE_270", 7: "TRANSVERSE", 8: "ROTATE_90"}
+"""The turn or mirror that puts an image of each EXIF orientation upright."""
+
+
+def _eight_bit_from_deep(deep: np.ndarray, bits: int, like, orient: int):
+    """An upright 8-bit PIL image from 16-bit pixels scaled by their ``bits``' range, with
+    the colour profile of the Pillow image ``like``."""
+    from PIL import Image
+
+    top = float(2 ** bits - 1)
+    a = np.clip(np.round(deep.astype(np.float64) / top * 255.0), 0, 255).astype(np.uint8)
+    mode = "L" if a.ndim == 2 else {2: "LA", 3: "RGB", 4: "RGBA"}[a.shape[2]]
+    out = Image.fromarray(a, mode)
+    out.info.update({k: v for k, v in like.info.items() if k == "icc_profile"})
+    if orient in _TRANSPOSE:
+        out = out.transpose(getattr(Image.Transpose, _TRANSPOSE[orient]))
+    return out
 
 
 def _profile_name(icc: bytes | None) -> str | None:
@@ -447,7 +522,8 @@ def load_image(
     """
     from PIL import Image, ImageOps
 
-    img, _ = _open(path)
+    img, _, source = _open(path)
+    sixteen = _sixteen_bit(img)  # first: loading (EXIF reads load a PNG) drops its raw mode
     with img:
         w, h = img.size
         if w <= 0 or h <= 0:
@@ -467,12 +543,16 @@ def load_image(
             img.draft("RGB", (max(1, w * max_side // longer), max(1, h * max_side // longer)))
         try:
             img.load()
-            upright = ImageOps.exif_transpose(img) if orient != 1 else img
+            deep = _deep_pixels(img, source, sixteen)
+            upright = ImageOps.exif_transpose(img) if orient != 1 and deep is None else img
         except (OSError, SyntaxError, ValueError) as exc:
             raise FileFormatError(
                 f"image {str(path)!r} is truncated or corrupted: {exc}"
             ) from exc
         full_w, full_h = (h, w) if orient in (5, 6, 7, 8) else (w, h)
+        bits, bits_used = (8, 8) if deep is None else (16, used_bits(int(deep.max())))
+        if deep is not None:  # 16 bits: scaled by the range its values use
+            upright = _eight_bit_from_deep(deep, bits_used, img, orient)
         # CMYK first (the 8-bit step would convert it naively); RGB after the downscale,
         # on fewer pixels
         upright, profile = _to_srgb(upright) if upright.mode == "CMYK" else (upright, None)
@@ -498,6 +578,8 @@ def load_image(
         focal_35mm=focal_35mm,
         frames=frames,
         colour_profile=profile,
+        bits=bits,
+        bits_used=bits_used,
     )
 
 

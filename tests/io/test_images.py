@@ -396,3 +396,53 @@ def test_describe_image_tells_the_tone_fit_will_see(tmp_path):
     (tmp_path / "cut.jpg").write_bytes(data_[:len(data_) // 2])
     cut = describe_image(tmp_path / "cut.jpg")
     assert cut["problem"] and cut["tone"] is None
+
+
+def _sixteen_bit_png(path, values: np.ndarray) -> None:
+    """Write ``values`` (uint16, grey or RGB) as a 16-bit PNG (OpenCV writes BGR)."""
+    import cv2
+
+    cv2.imwrite(str(path), values[..., ::-1] if values.ndim == 3 else values)
+
+
+@pytest.mark.parametrize("colour", [True, False])
+def test_twelve_bit_data_in_a_sixteen_bit_png_is_read_by_its_range(tmp_path, colour):
+    """A 16-bit PNG holding 12-bit values (up to 4095) read nearly black (Pillow keeps a
+    colour PNG's high bytes; grey was scaled by 65535) and was fitted without a word."""
+    from skimage import data
+
+    from head360cli.fitting.stages import photo_warnings
+    from head360cli.io.images import describe_image
+
+    eight = data.astronaut() if colour else data.camera()
+    path = tmp_path / "twelve.png"
+    _sixteen_bit_png(path, eight.astype(np.uint16) * 16)  # 0..4080: 12 bits
+    img = load_image(path)
+    assert (img.bits, img.bits_used) == (16, 12)
+    expected = eight if colour else np.repeat(eight[..., None], 3, axis=2)
+    assert np.abs(img.pixels.astype(int) - expected).max() <= 1
+    assert photo_warnings(img) == [
+        "twelve.png has 16-bit channels whose values use 12 bits (up to 4095): read as "
+        "12-bit data"]
+    d = describe_image(path)
+    assert (d["bits"], d["bits_used"]) == (16, 12)
+    assert d["tone"] == ("colour" if colour else "greyscale")
+
+
+def test_sixteen_bit_data_and_eight_bit_files_read_as_before(tmp_path):
+    from skimage import data
+
+    from head360cli.fitting.stages import photo_warnings
+
+    eight = data.astronaut()
+    full = tmp_path / "full.png"
+    _sixteen_bit_png(full, eight.astype(np.uint16) * 257)  # 0..65535: all 16 bits
+    img = load_image(full)
+    assert (img.bits, img.bits_used) == (16, 16)
+    assert np.abs(img.pixels.astype(int) - eight).max() <= 1
+    assert photo_warnings(img) == []
+    png = tmp_path / "eight.png"
+    Image.fromarray(eight).save(png)
+    img = load_image(png)
+    assert (img.bits, img.bits_used) == (8, 8)
+    np.testing.assert_array_equal(img.pixels, eight)
