@@ -10,9 +10,11 @@ signal asked (exit 130 for Ctrl-C), with its work saved. Used by ``train`` and
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["catch_interrupts", "restore_handlers"]
+__all__ = ["catch_interrupts", "restore_handlers", "sigint_ignored"]
 
 
 def catch_interrupts(caught: list[int]) -> dict[int, Any]:
@@ -56,3 +58,27 @@ def restore_handlers(previous: dict[int, Any]) -> None:
 
     for sig, handler in previous.items():
         signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def sigint_ignored() -> Iterator[None]:
+    """Start processes inside this block: they ignore SIGINT for their whole life.
+
+    A Ctrl-C at a terminal goes to every process of the foreground group, the spawned
+    ones too; one still importing torch printed a traceback of its own, or a stray
+    "Process SpawnProcess-1:" line. A signal ignored at ``exec`` stays ignored, and
+    Python then installs no handler of its own for it, so processes started here leave
+    Ctrl-C to this one, which ends them. This process ignores SIGINT only while the
+    block runs (main thread only; elsewhere the block changes nothing).
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -185,7 +185,10 @@ def _open_closed_outputs() -> None:
 
 def _run(args: list[str], debug: bool, as_json: bool) -> int:
     try:
-        cli.main(args=args, prog_name="head360", standalone_mode=False)
+        # click's main() would print an empty line before an interrupt's Abort: the
+        # context is made and invoked here, so an interrupt is one line of ours
+        with cli.make_context("head360", list(args)) as ctx:
+            cli.invoke(ctx)
         return 0
     except click.exceptions.Exit as exc:
         return int(exc.exit_code)

@@ -194,9 +194,12 @@ class Workers:
         self.procs = [ctx.Process(target=_worker, daemon=True, args=(
             self.jobs, self.counter, self.written, self.results, os.getpid()))
             for _ in range(workers - 1)]
+        from head360cli.interrupts import sigint_ignored
+
         try:
-            for p in self.procs:  # returns at once: the arguments are small
-                p.start()
+            with sigint_ignored():  # Ctrl-C is this process's to handle: it ends them
+                for p in self.procs:  # returns at once: the arguments are small
+                    p.start()
         except Exception as exc:  # e.g. no more processes allowed: render without them
             self.error = f"{type(exc).__name__}: {exc}"
             self.close()

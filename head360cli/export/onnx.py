@@ -313,7 +313,10 @@ def _export_pair(renderer, out: Path, bald: Path, cull: bool, meta: dict[str, An
         # the job goes through the pipe after the start, not as the process's argument:
         # a large argument is written while the child starts, and a child that dies
         # then would leave that write waiting for ever
-        proc.start()
+        from head360cli.interrupts import sigint_ignored
+
+        with sigint_ignored():  # Ctrl-C is this process's to handle: it ends the child
+            proc.start()
         there.close()
         shipped = copy.copy(renderer)
         shipped.last_reuse = None  # a render's leftovers, not needed to trace

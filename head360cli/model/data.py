@@ -138,10 +138,14 @@ class Views:
             import concurrent.futures
             import multiprocessing
 
+            from head360cli.interrupts import sigint_ignored
+
             ctx = multiprocessing.get_context("spawn")
             with concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-                heads = list(pool.map(_make_head, [(i, self.split, self.seed,
-                                                    self.texture_size) for i in todo]))
+                with sigint_ignored():  # the pool's processes start with the first jobs
+                    jobs = [pool.submit(_make_head, (i, self.split, self.seed,
+                                                     self.texture_size)) for i in todo]
+                heads = [job.result() for job in jobs]
         else:
             heads = [make_head(i, self.split, self.seed, texture_size=self.texture_size)
                      for i in todo]

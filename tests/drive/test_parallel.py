@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -347,4 +348,46 @@ def test_cli_animate_terminated_leaves_no_output_and_no_processes(head_file, tmp
     assert p.returncode == code, err
     assert f"head360: {says}" in err
     assert list(out.parent.iterdir()) == []
+    assert all(_gone(c, 30) for c in children)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="reads /proc")
+@pytest.mark.parametrize("delay", [0.0, 0.1, 0.3, 0.6, 1.0, 1.5])
+def test_ctrl_c_while_the_processes_start_is_one_line_and_exit_130(head_file, tmp_path,
+                                                                     delay):
+    """A terminal's Ctrl-C reaches the whole process group: a spawned process still
+    importing torch printed a 17-line KeyboardInterrupt traceback of its own, or a stray
+    "Process SpawnProcess-1:" line. The spawned processes leave SIGINT to head360,
+    which says one line, exits 130 and ends them."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from head360cli.io.arkit import ArkitStream, write_arkit_csv
+
+    n = 3000
+    write_arkit_csv(ArkitStream(_weights(n), np.arange(n) / 30.0, 30.0), tmp_path / "s.csv")
+    out = tmp_path / "take.mp4"
+    p = subprocess.Popen([sys.executable, "-m", "head360cli", "animate", str(head_file),
+                          "--arkit", str(tmp_path / "s.csv"), "-o", str(out), "--size", "32",
+                          "--samples", "2", "--workers", "2"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)  # its own group, as a terminal's job is
+    try:
+        end, children = time.monotonic() + 120, []
+        while not children and time.monotonic() < end and p.poll() is None:
+            with open(f"/proc/{p.pid}/task/{p.pid}/children") as f:
+                children = [int(c) for c in f.read().split()]
+            time.sleep(0.02)
+        assert children, "no process was spawned"
+        time.sleep(delay)  # the child is importing torch, or waiting for its job
+        os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    assert p.returncode == 130, err
+    assert err == "head360: interrupted\n", err
+    assert not out.exists()
     assert all(_gone(c, 30) for c in children)
