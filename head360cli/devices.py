@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import re
 
 from head360cli.errors import BadInputError
@@ -69,8 +68,8 @@ def gpu_peak_mib(device) -> float | None:
 
 
 def usable_cpus() -> int:
-    """CPU cores this process may run on (its affinity mask, where the system has one)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+    """CPU cores this process may use: its affinity mask and its cgroup's CPU quota, at
+    most the user's cap (``HEAD360_THREADS``, ``--threads``; :mod:`head360cli.threads`)."""
+    from head360cli.threads import thread_budget
+
+    return thread_budget()

@@ -11,7 +11,7 @@ import click
 from head360cli.cli import cli
 from tests.conftest import REPO
 
-_GLOBAL_WITH_VALUE = {"--device"}
+_GLOBAL_WITH_VALUE = {"--device", "--threads"}
 
 
 def _check(args: list[str]) -> str | None:

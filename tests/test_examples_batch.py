@@ -95,3 +95,26 @@ def test_scripts_explain_their_usage():
     p = subprocess.run([sys.executable, str(REPO / "examples/batch/collect.py")],
                        capture_output=True, text=True)
     assert p.returncode == 2 and "usage:" in p.stderr
+
+
+@pytest.mark.slow
+def test_side_by_side_times_a_fit_alone_and_several_at_once(tmp_path):
+    """The script that measures fits side by side: one alone, then two at once with one
+    thread each, every time printed, nothing left behind."""
+    import re
+
+    from PIL import Image
+    from skimage import data
+
+    photo = tmp_path / "astronaut.png"
+    Image.fromarray(data.astronaut()).save(photo)
+    p = subprocess.run(["bash", str(REPO / "examples/batch/side_by_side.sh"), str(photo), "2",
+                        "--", "--threads", "1"], capture_output=True, text=True, env=_env(),
+                       cwd=tmp_path, timeout=600)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert re.fullmatch(r"alone: \d+\.\d s", lines[0]), lines
+    assert [re.sub(r"[\d.]+ s$", "T", line) for line in lines[1:3]] == [
+        "side by side 1 of 2: T", "side by side 2 of 2: T"]
+    assert re.fullmatch(r"2 fits side by side: \d+\.\d s in all", lines[3]), lines
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["astronaut.png"]

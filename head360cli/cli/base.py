@@ -144,8 +144,17 @@ PHOTO = click.argument("photo", type=InputPath(dir_okay=False),
 """The photo argument of fit, parse-hair and classify-hair: a file, a pipe or ``-``."""
 
 
+def _set_threads(ctx: click.Context, param: click.Parameter, value: int | None) -> None:
+    """``--threads N``: cap the thread counts before torch or OpenCV is imported."""
+    if value is not None:
+        from head360cli.threads import configure_threads
+
+        configure_threads(value)
+
+
 def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
-    """Add --device/--quiet/--json/--debug to a command (they also work on the group)."""
+    """Add --device/--quiet/--json/--debug/--threads to a command (they also work on the
+    group)."""
     options = [
         click.option("--device", default=None, expose_value=False, callback=_set("device"),
                      help="Torch device: cpu (default), cuda, cuda:N or auto."),
@@ -155,6 +164,10 @@ def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
                      callback=_set("json"), help="Print one JSON object on stdout."),
         click.option("--debug", is_flag=True, default=False, expose_value=False,
                      callback=_set("debug"), help="Show tracebacks for errors."),
+        click.option("--threads", type=click.IntRange(min=1), default=None,
+                     expose_value=False, callback=_set_threads,
+                     help="Most threads to run (default: the CPUs this process may use; "
+                     "also $HEAD360_THREADS). 1 for each of several jobs side by side."),
     ]
     for option in reversed(options):
         f = option(f)
@@ -235,6 +248,9 @@ def cli() -> None:
     """
     current_settings()
     _check_working_folder()
+    from head360cli.threads import configure_threads
+
+    configure_threads()  # from $HEAD360_THREADS and the CPUs: before torch is imported
 
 
 def _check_working_folder() -> None:
