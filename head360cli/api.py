@@ -100,12 +100,12 @@ def render(head, yaws=(0.0,), pitch: float = 0.0, *, expression: Any = None,
     Returns:
         ``(len(yaws), S, S, 3)`` uint8 RGB images.
     """
-    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
 
     if isinstance(head, str | Path):
         head = load_head(head)
     yaws = np.atleast_1d(np.asarray(yaws, np.float32))
-    cams = view_cameras(yaws, pitch)
+    cams = view_cameras(yaws, pitch, head_framing(head, hair))
     given = expression is not None
     weights = np.broadcast_to(_weights(expression) if given else head.expression,
                               (len(cams), 52))

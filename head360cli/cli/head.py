@@ -234,11 +234,12 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         return
     from PIL import Image
 
-    from head360cli.drive.views import GRID_COLUMNS, check_grid_size
+    from head360cli.drive.views import GRID_COLUMNS, check_grid_size, head_framing
     from head360cli.io.atomic import atomic_path
 
     check_grid_size(len(pairs), r.size)
-    cams = view_cameras([p[0] for p in pairs], [p[1] for p in pairs])
+    cams = view_cameras([p[0] for p in pairs], [p[1] for p in pairs],
+                        head_framing(r, not no_hair))
     frames_ = np.concatenate(list(r.frames(cams, np.broadcast_to(w, (len(pairs), 52)),
                                            view_intrinsics(r.size), hair=not no_hair)))
     image = frames_[0] if len(pairs) == 1 else grid_image(

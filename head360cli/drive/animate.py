@@ -241,11 +241,11 @@ def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress, work
     processes render the frames if the renderer is torch's on a CPU (``pool``: those
     started already, or ``None``)."""
     from head360cli.devices import gpu_peak_mib
-    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
     from head360cli.io.video import VideoWriter
 
     n = stream.num_frames
-    base = view_cameras(cfg.yaw, cfg.pitch)[0]
+    base = view_cameras(cfg.yaw, cfg.pitch, head_framing(renderer, cfg.hair))[0]
     cams = (head_pose_cameras(stream.head_rotation, base) if cfg.head_pose
             else base[None].expand(n, 4, 4))
     result: dict[str, Any] = {"frames": n, "fps": float(stream.fps),

@@ -130,16 +130,16 @@ def style_sheet(renderer, out: str | Path, yaw: float = 30.0, size: int = 128,
     seen from ``yaw`` degrees, ``size`` pixels per tile."""
     from PIL import Image
 
-    from head360cli.drive.views import grid_image, view_cameras, view_intrinsics
+    from head360cli.drive.views import grid_image, head_framing, view_cameras, view_intrinsics
     from head360cli.io.atomic import atomic_path, check_file_target
 
     check_file_target(out)  # a missing folder or a read-only file: before 30 renders
     styles = list_styles()
-    cam = view_cameras(yaw, 0.0)
     k = view_intrinsics(renderer.size)
     tiles = []
     for i, s in enumerate(styles):
         r = renderer.with_hair(s["id"], renderer.hair_colour)
+        cam = view_cameras(yaw, 0.0, head_framing(r))  # long styles and an afro whole
         frame = next(r.frames(cam, np.zeros((1, 52)), k))[0]
         tiles.append(np.asarray(Image.fromarray(frame).resize((size, size),
                                                                Image.LANCZOS)))

@@ -18,9 +18,11 @@ __all__ = ["grid_image", "parse_expression", "parse_views", "view_cameras",
            "view_intrinsics", "write_turntable"]
 
 
-def view_cameras(yaw_deg, pitch_deg):
-    """``(B, 4, 4)`` cameras at the rig's distance for yaws and pitches ``(B,)`` in
-    degrees (scalars broadcast).
+def view_cameras(yaw_deg, pitch_deg, framing: tuple[tuple[float, float, float], float]
+                 | None = None):
+    """``(B, 4, 4)`` cameras for yaws and pitches ``(B,)`` in degrees (scalars broadcast),
+    looking at ``framing``'s target from its distance (:func:`head_framing`; default the
+    rig's target and distance).
 
     Raises:
         BadInputError: A yaw that is not finite or a pitch past a pole (as
@@ -28,14 +30,56 @@ def view_cameras(yaw_deg, pitch_deg):
     """
     import torch
 
-    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
+    from head360cli.geometry.cameras import RIG_DISTANCE, RIG_TARGET, camera_on_sphere
 
+    target, distance = framing if framing is not None else (RIG_TARGET, RIG_DISTANCE)
     yaw = np.atleast_1d(np.asarray(yaw_deg, np.float32))
     pitch = np.atleast_1d(np.asarray(pitch_deg, np.float32))
     yaw, pitch = np.broadcast_arrays(yaw, pitch)
     check_angles(yaw, pitch)
     return camera_on_sphere(torch.from_numpy(yaw.copy()), torch.from_numpy(pitch.copy()),
-                            RIG_DISTANCE)
+                            float(distance), tuple(float(c) for c in target))
+
+
+FRAME_MARGIN = 0.04
+"""Share of the frame's half-height kept clear around a head that the rig's framing cuts
+(:func:`head_framing`)."""
+
+
+def head_framing(renderer, hair: bool = True) -> tuple[tuple[float, float, float], float]:
+    """``(target, distance)`` of cameras that show the whole head, with its ``hair``, from
+    any yaw at the rig's field of view: the rig's own target and distance where they do
+    (most heads: their renders stay as they were), else a target halfway between the
+    lowest and highest point and a distance at which every point stays inside the frame,
+    with :data:`FRAME_MARGIN`, however the head turns. An afro's top and long hair's ends
+    were cut off by the rig's frame.
+
+    Args:
+        renderer: A :class:`~head360cli.model.head_render.HeadRenderer`.
+        hair: Whether its hair is shown.
+    """
+    import math
+
+    from head360cli.geometry.cameras import RIG_DISTANCE, RIG_FOV_DEG, RIG_TARGET
+
+    points = [renderer.vertices(np.zeros(52)).detach().cpu().numpy().reshape(-1, 3)]
+    if hair and renderer.hair is not None:
+        points.append(renderer.hair.meshes[0][0].detach().cpu().numpy().reshape(-1, 3))
+    p = np.concatenate(points).astype(np.float64)
+    p = p[np.isfinite(p).all(1)]
+    tx, ty0, tz = RIG_TARGET
+    rho = np.hypot(p[:, 0] - tx, p[:, 2] - tz)  # how far a point comes towards a camera
+    slope = math.tan(math.radians(RIG_FOV_DEG) / 2)
+
+    def needed(ty: float, margin: float) -> float:
+        """The least distance at which every point fits the frame about height ``ty``."""
+        room = slope * (1.0 - margin)
+        return float(np.max(rho + np.maximum(np.abs(p[:, 1] - ty), rho) / room))
+
+    if needed(ty0, 0.0) <= RIG_DISTANCE:
+        return RIG_TARGET, RIG_DISTANCE
+    ty = 0.5 * (float(p[:, 1].min()) + float(p[:, 1].max()))
+    return (tx, ty, tz), max(RIG_DISTANCE, needed(ty, FRAME_MARGIN))
 
 
 def view_intrinsics(size: int):
@@ -214,7 +258,7 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
         raise BadInputError(f"expected a frame rate of {MIN_FPS:g} to {MAX_FPS:g} frames per "
                             f"second, found {fps:g}")
     yaws = yaw + np.arange(frames) * (360.0 / frames)
-    cams = view_cameras(yaws, np.full(frames, pitch))
+    cams = view_cameras(yaws, np.full(frames, pitch), head_framing(renderer, hair))
     w = np.zeros(52) if expression is None else np.asarray(expression)
     if w.shape != (52,):
         raise ValueError(f"expected ARKit weights of shape (52,), found {w.shape}")

@@ -376,14 +376,13 @@ def render_preview(head, frame: Framing, bald: BaldTarget, inv, grey: bool) -> P
     on the face, with hair and bald (in grey for a grey photo, the values it has)."""
     import torch
 
+    from head360cli.drive.views import head_framing, view_cameras
     from head360cli.fitting.texture import LUMA
-    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
     from head360cli.model.head_render import to_uint8
 
     res = frame.crop.shape[0]
     kk = torch.tensor(frame.k, device=inv.c2w.device)
-    others = camera_on_sphere(torch.tensor(PREVIEW_YAWS), torch.zeros(len(PREVIEW_YAWS)),
-                              RIG_DISTANCE)
+    others = view_cameras(PREVIEW_YAWS, 0.0, head_framing(head))
     front = to_uint8(head.render(inv.c2w[None], kk))[0]
     views = to_uint8(head.render(others, rig_intrinsics(res), expression=np.zeros(52)))
     # With its hair, as the user will see it: hair over the forehead counts as error.

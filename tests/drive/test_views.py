@@ -126,3 +126,33 @@ def test_check_grid_size_bounds_pixels_and_height():
         check_grid_size(19, 2048)
     with pytest.raises(BadInputError, match=r"65535 pixels high .* 192x69000 pixels"):
         check_grid_size(9000, 32)
+
+
+def test_views_frame_the_whole_head_with_its_hair(head_file):
+    """The afro's top was cut by the frame at 0, 90 and 180 degrees and long styles' ends
+    at the bottom of swap-hair's sheets: heads the rig's frame cuts are framed from their
+    bounds, the others as before."""
+    from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.geometry.cameras import RIG_DISTANCE, RIG_TARGET
+    from head360cli.synth.hair import style_index
+
+    r = load_head_renderer(head_file, size=64, samples=2, precision="fp32")
+    k = view_intrinsics(64)
+
+    def edges(renderer, framing):
+        """Whether anything but the backdrop touches the top or bottom row."""
+        img = renderer.render(view_cameras([0.0, 90.0, 180.0], 0.0, framing), k).numpy()
+        drawn = (img < 0.97).any(1)  # (3, H, W)
+        return bool(drawn[:, 0].any()), bool(drawn[:, -1].any())
+
+    for name in ("afro", "long wavy"):
+        styled = r.with_hair(style_index(name), r.hair_colour)
+        target, distance = head_framing(styled)
+        assert distance > RIG_DISTANCE
+        assert edges(styled, None) != (False, False), name  # the rig's frame cuts it
+        assert edges(styled, (target, distance)) == (False, False), name
+    short = r.with_hair(style_index("pixie"), r.hair_colour)
+    assert head_framing(short) == (RIG_TARGET, RIG_DISTANCE)  # as before
+    assert head_framing(r.with_hair(style_index("afro"), r.hair_colour), hair=False) == (
+        RIG_TARGET, RIG_DISTANCE)  # bald, the head alone fits
