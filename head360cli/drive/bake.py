@@ -32,6 +32,10 @@ BAKE_VIEWS: tuple[tuple[float, float], ...] = (
 VISIBLE_TOLERANCE = 0.004
 """Metres a texel may lie behind the rendered surface and still count as seen."""
 
+DEGENERATE_AREA = 1e-10
+"""Twice the area (m^2) below which a triangle of the mesh counts as having none: its
+texels are filled from their neighbours rather than baked."""
+
 TEXTURED_PART = "head"
 """The exported part that carries the baked texture (an OBJ writes it as
 ``<stem>_head.png``; the hair part has vertex colours)."""
@@ -85,7 +89,7 @@ def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 def _texels(renderer, size: int):
     """Per texel of a ``size`` x ``size`` UV layout: the point on the neutral mesh, its
-    normal, and whether a triangle covers it."""
+    normal, and whether a triangle with an area on the mesh covers it."""
     import torch
 
     from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
@@ -101,7 +105,15 @@ def _texels(renderer, size: int):
     normals = torch.tensor(vertex_normals(verts.numpy(), faces.numpy()), dtype=torch.float32)
     normals = interpolate_face_corners(normals[faces], frags)[0]
     normals = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    return points, normals, frags.mask[0], verts
+    # The template closes its seams with triangles of no area on the mesh (732 of them,
+    # around the head at mouth height and on the neck, under every expression) but with
+    # room in the UV layout: their texels all lie on a line, whose normal is undefined,
+    # and took streaks of whatever the views showed there, grey and white beside the
+    # mouth. They are left to the fill from the skin around them.
+    tri = verts[faces]
+    area = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).norm(dim=-1)
+    flat = area[frags.face_id[0].clamp_min(0)] <= DEGENERATE_AREA
+    return points, normals, frags.mask[0] & ~flat, verts
 
 
 def _gather(points, normals, images, cams, k, depth_maps):

@@ -125,3 +125,32 @@ def test_an_obj_whose_texture_name_is_too_long_is_refused_before_the_bake(
     with pytest.raises(BadInputError, match=f"at most {limit} bytes"):
         bake.export_head(r, out)
     assert baked == [] and list(tmp_path.iterdir()) == []
+
+
+def test_texels_of_triangles_without_area_are_filled_not_baked(head_file):
+    """The template's seams are closed by triangles of no area (a ring at mouth height,
+    the neck) that have room in the UV layout: their texels took grey and white streaks
+    beside the mouth. They are filled from the skin around them, as smooth as the rest."""
+    import torch
+
+    from head360cli.drive.bake import DEGENERATE_AREA, _texels, bake_head
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.geometry.rasterize import rasterize
+
+    r = load_head_renderer(head_file, samples=2, size=64, precision="fp32")
+    size = 256
+    gen = r.gen
+    faces, uv, faces_uv = gen.faces.cpu(), gen.uv.cpu(), gen.faces_uv.cpu()
+    frags = rasterize((uv * size)[None], torch.ones(1, len(uv)), faces_uv, size, size,
+                      perspective_correct=False, near=float("-inf"))
+    tri = r.vertices(np.zeros(52)).cpu()[faces]
+    area = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).norm(dim=-1)
+    flat = (frags.mask[0] & (area[frags.face_id[0].clamp_min(0)] <= DEGENERATE_AREA)).numpy()
+    assert flat.sum() > 1000  # the seams' band is there to be filled
+    _, _, baked, _ = _texels(r, size)
+    assert not (baked.numpy() & flat).any()
+    texture, _ = bake_head(r, size)
+    step = np.abs(np.diff(texture.astype(int), axis=1)).max(-1)
+    in_flat = flat[:, 1:] & flat[:, :-1]
+    rest = ~flat[:, 1:] & ~flat[:, :-1] & frags.mask[0].numpy()[:, 1:]
+    assert np.percentile(step[in_flat], 99) <= np.percentile(step[rest], 99)
