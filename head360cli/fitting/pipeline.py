@@ -404,8 +404,13 @@ class FitSummary:
     """The detector that found the face."""
     face_turn_degrees: float | None
     """The face's turn as the detector saw it."""
+    checks: dict[str, Any]
+    """Signs that the fit went wrong (:class:`~head360cli.fitting.stages.FitChecks`):
+    ``face_psnr_low``, ``weights_at_limit`` (names at 1) and ``opposed_pairs``; each that
+    shows adds a warning."""
     warnings: list[str]
-    """What the user should know (several faces, a profile view, ...)."""
+    """What the user should know (several faces, a profile view, a fit that went
+    wrong, ...)."""
     device: str
     """Where the generator ran: the timings depend on it."""
     timings: dict[str, float]
@@ -542,6 +547,8 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                         colour_gain=inv.gain)
     preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
     timings["preview"] = time.perf_counter() - t0
+    checks = stages.check_fit(shape.fit.expression, preview.psnr_face)
+    warnings += checks.warnings(preview.psnr_face)
 
     t0 = time.perf_counter()
     paths = fit_outputs(out)
@@ -571,13 +578,13 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
         timings["write"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
         summary = _summary(photo, cfg, seen, shape, parse, hair, placement, inv, lips,
-                           kept_inside, lids, preview, warnings, dev, timings, paths)
+                           kept_inside, lids, preview, checks, warnings, dev, timings, paths)
         tmp_summary.write_text(dumps(summary.to_dict(), indent=1))
     return summary.to_dict()
 
 
 def _summary(photo, cfg: FitConfig, seen, shape, parse, hair, placement, inv, lips: float,
-             kept_inside: bool, lids, preview, warnings: list[str], dev,
+             kept_inside: bool, lids, preview, checks, warnings: list[str], dev,
              timings: dict[str, float], paths: dict[str, Path]) -> FitSummary:
     """The :class:`FitSummary` of a fit's stages' results, rounded for reading."""
     from head360cli.synth.hair import HAIRSTYLES
@@ -622,7 +629,7 @@ def _summary(photo, cfg: FitConfig, seen, shape, parse, hair, placement, inv, li
         image_size=list(seen.image.source_size),
         face_width=round(float(seen.face.box[2] - seen.face.box[0]) / seen.image.scale, 1),
         face_detector=seen.face.detector, face_turn_degrees=seen.face.turn,
-        warnings=warnings, device=str(dev),
+        checks=dataclasses.asdict(checks), warnings=warnings, device=str(dev),
         timings={k: round(v, 3) for k, v in timings.items()},
         files={k: str(v) for k, v in paths.items()})
 

@@ -36,7 +36,7 @@ from head360cli.errors import BadInputError
 from head360cli.geometry.rig import RIG_TARGET
 from head360cli.mesh.bilinear import BilinearModel
 
-__all__ = ["FOCAL_35MM_RANGE", "FitConfig", "ShapeFit", "ShapeFitter", "check_camera",
+__all__ = ["FOCAL_35MM_RANGE", "ShapeFit", "ShapeFitConfig", "ShapeFitter", "check_camera",
            "check_focal", "default_focal"]
 
 
@@ -107,7 +107,7 @@ def default_focal(width: int, height: int, focal_35mm: float | None = None) -> f
 
 
 @dataclasses.dataclass(frozen=True)
-class FitConfig:
+class ShapeFitConfig:
     """Settings of the shape fit."""
 
     iterations: int = 8
@@ -119,6 +119,12 @@ class FitConfig:
     """Weight of the identity prior (in units of one pixel squared per standard deviation)."""
     expression_prior: float = 20.0
     """Ridge weight on the ARKit weights (pixels squared); reweighted towards L1."""
+    opposed: float = 4.0
+    """Weight of the squared excess over 1 of the sum of each pair of opposed blendshapes
+    (:data:`~head360cli.mesh.arkit52.OPPOSED`: a wide eye and a squint, a smile and a
+    pucker), relative to the geometric mean of the two shapes' own squared landmark
+    moves, so the two cannot both saturate. Without it a smiling portrait fitted 16 of 52
+    weights at exactly 1, pucker beside smile and wide eyes beside squints. 0: none."""
     fit_expression: bool = True
     """Solve for ``w`` (else keep it zero)."""
     contour: bool = True
@@ -178,7 +184,7 @@ class ShapeFitter:
         config: Fit settings.
     """
 
-    def __init__(self, model: BilinearModel, config: FitConfig = FitConfig()) -> None:
+    def __init__(self, model: BilinearModel, config: ShapeFitConfig = ShapeFitConfig()) -> None:
         import cv2  # noqa: F401  (loaded here, with the model, not in the first fit)
 
         self.model = model
@@ -225,6 +231,13 @@ class ShapeFitter:
         # be fitted.
         moved = np.abs(np.concatenate([self.fix_blocks["me"], self.cand_blocks["me"]]))
         self.visible_shapes = np.nonzero(moved.max(axis=(0, 1)) > 0)[0]
+        # the opposed pairs among them, as columns of the visible shapes' solve
+        from head360cli.mesh.arkit52 import INDEX, OPPOSED
+
+        column = {int(k): n for n, k in enumerate(self.visible_shapes)}
+        self.opposed_pairs = np.array(
+            [(column[INDEX[a]], column[INDEX[b]]) for a, b in OPPOSED
+             if INDEX[a] in column and INDEX[b] in column], dtype=np.int64).reshape(-1, 2)
 
     @staticmethod
     def _blocks(model: BilinearModel, verts: np.ndarray) -> dict[str, np.ndarray]:
@@ -480,7 +493,7 @@ class ShapeFitter:
                 b_rows = -(np.einsum("ij,ij->i", m, np.repeat(base, 2, axis=0)) + off)
                 w_prev, w = w, np.zeros(52)
                 w[vis] = self._bounded(a_rows, b_rows, cfg.expression_prior * ew[vis],
-                                       w_prev[vis])
+                                       w_prev[vis], self.opposed_pairs, cfg.opposed)
                 ew = 1.0 / (np.abs(w) + 0.05)
                 ew = ew / ew.mean()
                 timings["expression"] += time.perf_counter() - te
@@ -524,19 +537,40 @@ class ShapeFitter:
 
     @staticmethod
     def _bounded(a: np.ndarray, b: np.ndarray, ridge: np.ndarray, w0: np.ndarray,
+                 pairs: np.ndarray | None = None, opposed: float = 0.0,
                  rounds: int = 3) -> np.ndarray:
-        """``min |A w - b|^2 + sum ridge_i w_i^2`` with ``0 <= w <= 1``.
+        """``min |A w - b|^2 + sum ridge_i w_i^2 + sum_pairs c_ij max(0, w_i + w_j - 1)^2``
+        with ``0 <= w <= 1``: the column ``pairs (P, 2)`` (opposed blendshapes) pay for any
+        sum over 1, ``c_ij = opposed * sqrt(q_ii q_jj)``, so both cannot saturate.
 
         A few rounds of an active-set method, warm-started from ``w0``: the weights at a
         bound whose gradient pushes them outwards stay there, the free ones get the exact
-        solution of the reduced system, clipped to the box. Across the fit's iterations the
-        active set settles, so a few rounds per call are enough.
+        solution of the reduced system, clipped to the box; the pairs over 1 at the start
+        of a round have their penalty in that round's system (a convex, piecewise
+        quadratic term). Across the fit's iterations the active set settles, so a few
+        rounds per call are enough.
         """
-        q = a.T @ a
-        q.flat[:: len(q) + 1] += ridge  # the diagonal
-        r = a.T @ b
+        q0 = a.T @ a
+        q0.flat[:: len(q0) + 1] += ridge  # the diagonal
+        r0 = a.T @ b
+        use_pairs = pairs is not None and len(pairs) > 0 and opposed > 0
+        if use_pairs:
+            i, j = pairs[:, 0], pairs[:, 1]
+            c = opposed * np.sqrt(np.diag(a.T @ a)[i] * np.diag(a.T @ a)[j])
         w = np.clip(w0, 0.0, 1.0)
-        for _ in range(rounds):
+        for _ in range(rounds + (3 if use_pairs else 0)):
+            q, r = q0, r0
+            if use_pairs:
+                over = w[i] + w[j] > 1.0
+                if over.any():  # c (w_i + w_j - 1)^2 = c (e.w)^2 - 2 c e.w + c
+                    q, r = q0.copy(), r0.copy()
+                    for ii, jj, cc in zip(i[over], j[over], c[over], strict=True):
+                        q[ii, ii] += cc
+                        q[jj, jj] += cc
+                        q[ii, jj] += cc
+                        q[jj, ii] += cc
+                        r[ii] += cc
+                        r[jj] += cc
             grad = q @ w - r
             free = ~(((w <= 0.0) & (grad > 0)) | ((w >= 1.0) & (grad < 0)))
             if not free.any():

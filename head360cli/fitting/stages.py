@@ -394,6 +394,57 @@ def render_preview(head, frame: Framing, bald: BaldTarget, inv, grey: bool) -> P
     return Preview(np.concatenate([frame.crop, front, *views], 1), psnr_face, psnr_bald)
 
 
+LOW_FACE_PSNR = 20.0
+"""Face PSNR (dB) at the input view under which a fit warns that it matches the photo
+poorly: of the bench's five real photos, the smiling portrait whose landmarks the shape
+fit misses reads 16.2 dB, the others 21.5 to 42.1."""
+
+MANY_AT_LIMIT = 8
+"""How many of the 52 expression weights at their limit of 1 make a fit warn that its
+landmarks were likely misread (the bench's portraits: 0 to 6, the smiling one 16)."""
+
+
+@dataclasses.dataclass
+class FitChecks:
+    """Signs that a fit went wrong, kept in the summary (``checks``)."""
+
+    face_psnr_low: bool
+    """The face PSNR at the input view is under :data:`LOW_FACE_PSNR`."""
+    weights_at_limit: list[str]
+    """The ARKit weights the shape fit put at 1."""
+    opposed_pairs: list[list[str]]
+    """Pairs of opposed blendshapes (:data:`~head360cli.mesh.arkit52.OPPOSED`) both at
+    0.5 or more."""
+
+    def warnings(self, psnr: float) -> list[str]:
+        """What the user is told of these checks."""
+        out = []
+        if self.face_psnr_low:
+            out.append(f"the fitted head matches the photo poorly at its own view (face PSNR "
+                       f"{psnr:.1f} dB, under {LOW_FACE_PSNR:g}): look at the preview; a "
+                       f"strong expression, a turned or covered face, or misread landmarks")
+        if len(self.weights_at_limit) >= MANY_AT_LIMIT:
+            out.append(f"the expression fit put {len(self.weights_at_limit)} of 52 "
+                       f"blendshapes at their limit ({', '.join(self.weights_at_limit[:4])}"
+                       f"...): the landmarks were likely misread, and animations start "
+                       f"from this expression")
+        if self.opposed_pairs:
+            shown = ", ".join(" with ".join(p) for p in self.opposed_pairs[:3])
+            out.append(f"the expression fit shows opposed blendshapes together ({shown})")
+        return out
+
+
+def check_fit(expression: np.ndarray, psnr_face: float) -> FitChecks:
+    """The :class:`FitChecks` of a fit's expression ``(52,)`` and face PSNR."""
+    from head360cli.mesh.arkit52 import ARKIT52, INDEX, OPPOSED
+
+    w = np.asarray(expression, np.float64)
+    return FitChecks(
+        face_psnr_low=bool(psnr_face < LOW_FACE_PSNR),
+        weights_at_limit=[n for n in ARKIT52 if w[INDEX[n]] >= 0.999],
+        opposed_pairs=[[a, b] for a, b in OPPOSED if w[INDEX[a]] >= 0.5 and w[INDEX[b]] >= 0.5])
+
+
 def frame_photo(img, fit, model, res: int) -> Framing:
     """The photo's camera, crop and meshes for a shape ``fit`` (``res``-pixel crop)."""
     from head360cli.fitting.texture import crop_image, photo_camera

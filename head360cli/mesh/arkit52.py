@@ -19,6 +19,7 @@ __all__ = [
     "MIRROR",
     "MIRROR_INDEX",
     "NUM_BLENDSHAPES",
+    "OPPOSED",
     "canonical_name",
     "split_part",
 ]
@@ -53,6 +54,27 @@ assert NUM_BLENDSHAPES == 52
 
 INDEX: dict[str, int] = {name: i for i, name in enumerate(ARKIT52)}
 """Position of each canonical name in :data:`ARKIT52`."""
+
+
+_OPPOSED_SIDED = tuple(
+    pair for side in ("Left", "Right") for pair in (
+        (f"eyeWide{side}", f"eyeSquint{side}"),
+        (f"eyeWide{side}", f"eyeBlink{side}"),
+        (f"mouthSmile{side}", f"mouthFrown{side}"),
+        (f"mouthSmile{side}", "mouthPucker"),
+        (f"mouthStretch{side}", "mouthPucker"),
+        (f"mouthDimple{side}", "mouthPucker"),
+        (f"browDown{side}", f"browOuterUp{side}"),
+        (f"browDown{side}", "browInnerUp"),
+        (f"cheekSquint{side}", "cheekPuff"),
+    ))
+OPPOSED: tuple[tuple[str, str], ...] = (
+    *_OPPOSED_SIDED, ("mouthLeft", "mouthRight"), ("jawLeft", "jawRight"),
+    ("mouthPucker", "mouthFunnel"), ("mouthRollLower", "mouthShrugLower"),
+    ("mouthRollUpper", "mouthShrugUpper"))
+"""Pairs of blendshapes that move the face in opposite ways (a wide eye and a squint, a
+smile and a pucker): a face shows one or the other, so a fit that saturates both is
+reading landmark noise."""
 
 
 def _mirror_of(name: str) -> str:

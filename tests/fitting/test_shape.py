@@ -7,7 +7,7 @@ import pytest
 
 from head360cli.bench.fit_shape import simulate_detections
 from head360cli.errors import BadInputError
-from head360cli.fitting.shape import FitConfig, ShapeFitter, default_focal
+from head360cli.fitting.shape import ShapeFitConfig, ShapeFitter, default_focal
 from head360cli.mesh.bilinear import load_bilinear
 
 W = H = 640
@@ -92,7 +92,7 @@ def test_a_20_pixel_face_gives_a_stable_answer(fitter):
 def test_default_focal_and_options():
     assert default_focal(4000, 3000) == pytest.approx(50 / 36 * 4000)
     assert default_focal(640, 480, focal_35mm=26.0) == pytest.approx(26 / 36 * 640)
-    fitter = ShapeFitter(load_bilinear(), FitConfig(fit_expression=False, contour=False))
+    fitter = ShapeFitter(load_bilinear(), ShapeFitConfig(fit_expression=False, contour=False))
     uv, _ = synthetic(fitter, np.zeros(fitter.model.rank), np.zeros(52), 0.0, 0.0, 0.5,
                       np.random.default_rng(2))
     fit = fitter.fit(uv, (W, H), focal=F)
@@ -223,3 +223,43 @@ def test_a_turned_face_fits_as_the_upright_one_rolled(fitter, degrees):
                                atol=1e-6)
     lying = fitter.fit(turned, (W, H), focal=F)
     assert np.abs(lying.shape - upright.shape).max() > 1e-3
+
+
+def test_opposed_blendshapes_cannot_both_saturate():
+    """The bounded expression solve: two shapes whose landmark moves the data asks for in
+    full both went to 1; as an opposed pair their sum stays near 1, and a pair asked for
+    one at a time is not held back."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(40, 4))
+    b = a @ np.array([1.0, 1.0, 0.3, 0.0])  # shapes 0 and 1 both fully on
+    ridge = np.full(4, 1e-3)
+    free = ShapeFitter._bounded(a, b, ridge, np.zeros(4), rounds=10)
+    np.testing.assert_allclose(free[:2], [1.0, 1.0], atol=1e-3)
+    pairs = np.array([[0, 1]])
+    held = ShapeFitter._bounded(a, b, ridge, np.zeros(4), pairs, opposed=4.0, rounds=10)
+    assert held[0] + held[1] <= 1.2 and max(held[0], held[1]) < 0.7  # neither saturates
+    assert abs(held[2] - 0.3) < 0.3  # the others still fitted
+    one = a @ np.array([1.0, 0.0, 0.3, 0.0])  # only one of the pair: no penalty applies
+    alone = ShapeFitter._bounded(a, one, ridge, np.zeros(4), pairs, opposed=4.0, rounds=10)
+    np.testing.assert_allclose(alone, [1.0, 0.0, 0.3, 0.0], atol=1e-3)
+
+
+@pytest.mark.shared_data
+def test_a_smiling_portrait_fits_no_opposed_pair_together(shared_data):
+    """Tom Cruise's smiling portrait fitted 16 of 52 weights at exactly 1, a pucker with
+    both smiles and wide eyes with a squint; no opposed pair is now at 0.5 or more."""
+    from head360cli.fitting.landmarks import find_faces, pick_face
+    from head360cli.io.images import load_image
+    from head360cli.mesh.arkit52 import ARKIT52, OPPOSED
+
+    img = load_image(shared_data / "faces" / "Tom_Cruise_avp_2014_4.jpg")
+    face = pick_face(find_faces(img.pixels, "hog", only=0), 0, "hog", img.pixels)
+    focal = default_focal(*img.source_size, img.focal_35mm) * img.scale
+    w = dict(zip(ARKIT52, ShapeFitter(load_bilinear()).fit(face.landmarks, img.size,
+                                                              focal=focal).expression,
+                 strict=True))
+    assert [(x, y) for x, y in OPPOSED if w[x] >= 0.5 and w[y] >= 0.5] == []
+    unheld = ShapeFitter(load_bilinear(), ShapeFitConfig(opposed=0.0)).fit(
+        face.landmarks, img.size, focal=focal).expression
+    u = dict(zip(ARKIT52, unheld, strict=True))
+    assert len([(x, y) for x, y in OPPOSED if u[x] >= 0.5 and u[y] >= 0.5]) >= 3

@@ -1,0 +1,51 @@
+"""The fit's stages as functions: the checks that say a fit went wrong."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from head360cli.fitting.stages import LOW_FACE_PSNR, MANY_AT_LIMIT, check_fit
+from head360cli.mesh.arkit52 import ARKIT52, INDEX
+
+
+def _weights(**named: float) -> np.ndarray:
+    w = np.zeros(52)
+    for name, value in named.items():
+        w[INDEX[name]] = value
+    return w
+
+
+def test_a_good_fit_passes_its_checks_without_a_word():
+    checks = check_fit(_weights(mouthSmileLeft=1.0, mouthSmileRight=0.8, jawOpen=0.2), 24.0)
+    assert checks.face_psnr_low is False
+    assert checks.weights_at_limit == ["mouthSmileLeft"]
+    assert checks.opposed_pairs == []
+    assert checks.warnings(24.0) == []
+
+
+def test_a_fit_that_went_wrong_says_so():
+    """A smiling portrait fitted at 16 dB, 16 of 52 weights at 1, a pucker beside a smile
+    and wide eyes beside a squint: each is named."""
+    w = np.zeros(52)
+    w[:16] = 1.0
+    w[INDEX["mouthPucker"]] = w[INDEX["mouthSmileLeft"]] = 1.0
+    checks = check_fit(w, 16.2)
+    assert checks.face_psnr_low is True
+    assert checks.weights_at_limit == [n for n in ARKIT52 if w[INDEX[n]] == 1.0]
+    assert ["eyeWideLeft", "eyeSquintLeft"] in checks.opposed_pairs
+    assert ["mouthSmileLeft", "mouthPucker"] in checks.opposed_pairs
+    said = checks.warnings(16.2)
+    assert said[0].startswith(f"the fitted head matches the photo poorly at its own view "
+                              f"(face PSNR 16.2 dB, under {LOW_FACE_PSNR:g})")
+    assert said[1].startswith(f"the expression fit put {len(checks.weights_at_limit)} of 52 "
+                              "blendshapes at their limit (eyeBlinkLeft,")
+    assert said[2].startswith("the expression fit shows opposed blendshapes together "
+                              "(eyeWideLeft with eyeSquintLeft")
+    # the thresholds: one short of many at the limit says nothing of it
+    from head360cli.mesh.arkit52 import OPPOSED
+
+    unpaired = [n for n in ARKIT52 if not any(n in pair for pair in OPPOSED)]
+    few = _weights(**dict.fromkeys(unpaired[:MANY_AT_LIMIT - 1], 1.0))
+    assert check_fit(few, 30.0).warnings(30.0) == []
+    many = _weights(**dict.fromkeys(unpaired[:MANY_AT_LIMIT], 1.0))
+    assert len(check_fit(many, 30.0).warnings(30.0)) == 1
