@@ -283,6 +283,12 @@ FACE_NUMBER = click.option("--face", default=0, show_default=True, type=click.In
                            help="Which face (0 = the largest).")
 """The ``--face`` option of parse-hair and classify-hair (fit's also takes ``all``)."""
 
+STREAM_FPS = click.option(
+    "--stream-fps", type=click.FloatRange(min=0.0, min_open=True), default=None,
+    help="The stream's own frame rate, for Live Link Face timecodes that cannot tell it "
+    "(a take shorter than a second) or a frame-numbered CSV.")
+"""The ``--stream-fps`` option of animate and inspect."""
+
 BENCH_OUT = click.option("--out", "out_dir", default="bench-results", show_default=True,
                          type=OutputPath(file_okay=False),
                          help="Where the JSON and Markdown go.")

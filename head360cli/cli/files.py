@@ -7,6 +7,7 @@ from typing import Any
 import click
 
 from head360cli.cli.base import (
+    STREAM_FPS,
     InputPath,
     OutputPath,
     cli,
@@ -187,9 +188,7 @@ def _format_mesh(r: dict[str, Any]) -> str:
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="error",
               show_default=True, help="ARKit streams: what to do with NaN, empty or "
               "non-numeric cells and malformed rows.")
-@click.option("--stream-fps", type=float, default=None,
-              help="The stream's own frame rate, for Live Link Face timecodes that cannot "
-              "tell it (a take shorter than a second) or a frame-numbered CSV.")
+@STREAM_FPS
 @click.option("--plot", type=OutputPath(dir_okay=False), default=None,
               help="ARKit streams: also draw the most active blendshapes and the head "
               "rotation over time into this PNG.")

@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from head360cli.cli.base import (
+    STREAM_FPS,
     InputPath,
     OutputPath,
     cli,
@@ -277,9 +278,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @click.option("--on-bad", type=click.Choice(["error", "skip", "hold"]), default="hold",
               show_default=True, help="Bad cells in the stream: stop, drop the row, or "
               "hold the last good value.")
-@click.option("--stream-fps", type=float, default=None,
-              help="The stream's own frame rate, for Live Link Face timecodes that cannot "
-              "tell it (a take shorter than a second) or a frame-numbered CSV.")
+@STREAM_FPS
 @click.option("--exact", is_flag=True,
               help="Decode every point of every frame. By default, with a still camera "
               "(no --head-pose), points whose inputs moved by at most 1e-3 since the "
