@@ -257,11 +257,11 @@ def write_turntable(renderer, out: str | Path, frames: int = 48, pitch: float = 
     if not MIN_FPS <= fps <= MAX_FPS:  # ffmpeg wrote 1e9 fps as a video of 0 s at 0 fps
         raise BadInputError(f"expected a frame rate of {MIN_FPS:g} to {MAX_FPS:g} frames per "
                             f"second, found {fps:g}")
-    yaws = yaw + np.arange(frames) * (360.0 / frames)
-    cams = view_cameras(yaws, np.full(frames, pitch), head_framing(renderer, hair))
     w = np.zeros(52) if expression is None else np.asarray(expression)
     if w.shape != (52,):
         raise ValueError(f"expected ARKit weights of shape (52,), found {w.shape}")
+    yaws = yaw + np.arange(frames) * (360.0 / frames)
+    cams = view_cameras(yaws, np.full(frames, pitch), head_framing(renderer, hair))
     done = 0
     with VideoWriter(out, fps=fps) as video:
         for batch in renderer.frames(cams, np.broadcast_to(w, (frames, 52)),
