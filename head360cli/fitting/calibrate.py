@@ -74,7 +74,7 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2, radius: fl
         ``(model, stats)``: the model with new ``landmarks``/``landmark_tri``/
         ``landmark_bary`` and the mean reprojection error (in face sizes) per round.
     """
-    from head360cli.fitting.shape import CHIN_FIXED, JAW, ShapeFitter
+    from head360cli.fitting.shape import CHIN_FIXED, JAW, ShapeFitConfig, ShapeFitter
 
     mean = model.neutral_mean.astype(np.float64)
     allowed = np.isin(model.region, [1, 2, 3])  # face, nose, lips
@@ -84,7 +84,9 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2, radius: fl
     m = model
     stats: dict[str, float] = {}
     for r in range(rounds):
-        fitter = ShapeFitter(m)
+        # Opposed blendshapes left free, as when the shipped model was calibrated: the
+        # landmarks' places are the annotations', and the model stays what it was.
+        fitter = ShapeFitter(m, ShapeFitConfig(opposed=0.0))
         fits = [(fitter.fit(lm, size), lm) for lm, size in faces]
         points = m.landmark_points(mean)
         landmarks = m.landmarks.copy()
