@@ -157,6 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     handles = threading.current_thread() is threading.main_thread()  # only it may
     previous = {sig: signal.signal(sig, _on_terminate) for sig in _stop_signals()} \
         if handles else {}
+    if handles and argv is not None:  # called from Python: its Ctrl-C is given back
+        previous[signal.SIGINT] = signal.getsignal(signal.SIGINT)
     try:
         return _run(args, debug, as_json)
     finally:
@@ -208,6 +210,7 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
                 return EXIT_CODES["hangup"]
             click.echo("head360: terminated", err=True)
             return EXIT_CODES["terminated"]
+        _ignore_further_interrupts()
         click.echo("head360: interrupted", err=True)
         return EXIT_CODES["interrupted"]
     except Head360Error as exc:
@@ -240,6 +243,20 @@ def _run(args: list[str], debug: bool, as_json: bool) -> int:
                        "half-written was kept)", EXIT_CODES["BadInputError"], debug, as_json)
     except Exception as exc:
         return _internal(exc, debug, as_json)
+
+
+def _ignore_further_interrupts() -> None:
+    """Once head360 is ending on an interrupt, ignore another SIGINT: the interpreter's
+    shutdown puts SIGINT back to its default action, and a Ctrl-C arriving then (a second
+    press, or the process group's signal delivered late) ended the process by the signal
+    (exit -2) instead of 130, after its one line. :func:`main` called from Python (with
+    ``argv``) puts the caller's handler back."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        with contextlib.suppress(ValueError, OSError):
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _internal(exc: Exception, debug: bool, as_json: bool) -> int:
