@@ -22,6 +22,15 @@ from head360cli.cli.base import (
 from head360cli.errors import BadInputError
 
 
+def _save_and_emit(result: dict, md: str, out_dir: str, name: str) -> None:
+    """Write a benchmark's ``NAME.json`` and ``NAME.md`` into ``out_dir`` and print the
+    table (or the JSON, with ``--json``) with the files written."""
+    from head360cli.bench.report import save
+
+    result["files"] = save(result, md, out_dir, name)
+    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+
+
 @cli.group("bench")
 def bench_group() -> None:
     """Speed-against-error benchmarks; each writes JSON and a Markdown table.
@@ -43,17 +52,13 @@ def bench_group() -> None:
 def bench_synth_cmd(identities: int, out_dir: str) -> None:
     """Corpus renderer: ms per 256x256 view by antialiasing samples and batch size, and
     the time to write a corpus subset (target: at most 50 ms per view on 2 cores)."""
-    from head360cli.bench.report import save
     from head360cli.bench.synth import bench_synth
 
     cpu_only_warning("bench synth")
     if identities < 1:
-        from head360cli.errors import BadInputError
-
         raise BadInputError(f"expected --identities >= 1, found {identities}")
     result, md = bench_synth(identities=identities)
-    result["files"] = save(result, md, out_dir, "synth")
-    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+    _save_and_emit(result, md, out_dir, "synth")
 
 
 @bench_group.command("fit-shape")
@@ -65,14 +70,12 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
     """Landmark shape fit: vertex and pose error on synthetic faces by yaw, NME of dlib's
     and the fitted landmarks on the real photos in ../shared/data, and fit time."""
     from head360cli.bench.fit_shape import bench_fit_shape
-    from head360cli.bench.report import save
 
     cpu_only_warning("bench fit-shape")
     if trials < 1:  # zero trials failed after the real-photo part, as an internal error
         raise BadInputError(f"expected --trials >= 1, found {trials}")
     result, md = bench_fit_shape(trials=trials)
-    result["files"] = save(result, md, out_dir, "fit_shape")
-    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+    _save_and_emit(result, md, out_dir, "fit_shape")
 
 
 @bench_group.command("fit")
@@ -113,7 +116,6 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
       head360 bench fit --device cuda          the fits on the GPU (dlib still needed)
     """
     from head360cli.bench.fit import bench_fit
-    from head360cli.bench.report import save
     from head360cli.devices import resolve_device
 
     device = str(resolve_device(current_settings().device))
@@ -134,8 +136,7 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
                            corpus_seed=corpus_seed, device=device,
                            progress=None if current_settings().quiet else
                            (lambda t: click.echo(f"bench fit: {t}", err=True)))
-    result["files"] = save(result, md, out_dir, "fit")
-    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+    _save_and_emit(result, md, out_dir, "fit")
 
 
 @bench_group.command("generator")
@@ -168,7 +169,6 @@ def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
       head360 bench generator --device cuda --train-ids 2 --test-ids 0
     """
     from head360cli.bench.generator import bench_generator
-    from head360cli.bench.report import save
     from head360cli.devices import resolve_device
 
     if train_ids < 1 or test_ids < 0 or fit_steps < 0 or not 1 <= cameras <= 24:
@@ -179,8 +179,7 @@ def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
     result, md = bench_generator(list(weights) or None, train_ids, test_ids, fit_steps,
                                  cameras, speed=not no_speed, device=device,
                                  progress=not current_settings().quiet)
-    result["files"] = save(result, md, out_dir, name)
-    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+    _save_and_emit(result, md, out_dir, name)
 
 
 @bench_group.command("animate")
@@ -224,7 +223,6 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
       head360 bench animate --device cuda --head me.h360 --no-fidelity --frames 480
     """
     from head360cli.bench.animate import bench_animate
-    from head360cli.bench.report import save
     from head360cli.devices import resolve_device
 
     device = str(resolve_device(current_settings().device))
@@ -258,8 +256,7 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
                                fidelity=not no_fidelity,
                                progress=None if current_settings().quiet else
                                (lambda t: click.echo(f"bench animate: {t}", err=True)))
-    result["files"] = save(result, md, out_dir, "animate")
-    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+    _save_and_emit(result, md, out_dir, "animate")
 
 
 @bench_group.command("onnx")
@@ -287,7 +284,6 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
       head360 bench onnx --device cuda --onnx generator.onnx   torch timed on the GPU
     """
     from head360cli.bench.onnx import bench_onnx
-    from head360cli.bench.report import save
     from head360cli.devices import resolve_device
 
     if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000 or not 1 <= rounds <= 100:
@@ -302,8 +298,7 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
                                                                     err=True))
     result, md = bench_onnx(heads, size, samples, repeats, graph=graph, progress=progress,
                             rounds=rounds, device=str(resolve_device(current_settings().device)))
-    result["files"] = save(result, md, out_dir, "onnx")
-    emit(result, md + f"\n\nwrote {', '.join(result['files'])}")
+    _save_and_emit(result, md, out_dir, "onnx")
 
 
 @bench_group.command("summary")
