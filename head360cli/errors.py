@@ -30,6 +30,9 @@ code  exception              meaning
 8     (out of memory)        the CPU's or the GPU's memory ran out (MemoryError,
                              torch's OutOfMemoryError or failed CPU allocation),
                              or a library could not be mapped (``ulimit -v``)
+9     UnsupportedPlatformError
+                             the CPU or system cannot run a model's runtime
+                             (an x86-64 CPU without AVX for LiteRT)
 129   (SIGHUP)               the terminal or ssh session closed; as for 130
 130   (KeyboardInterrupt)    interrupted; nothing half-written is left behind
 143   (SIGTERM)              terminated (``kill``, ``timeout``); as for 130
@@ -46,6 +49,7 @@ __all__ = [
     "ModelMismatchError",
     "ModelNotFoundError",
     "NoFaceError",
+    "UnsupportedPlatformError",
     "is_out_of_memory",
 ]
 
@@ -94,6 +98,13 @@ class ModelNotFoundError(Head360Error, FileNotFoundError):
     exit_code = 7
 
 
+class UnsupportedPlatformError(Head360Error):
+    """The CPU or system cannot run a model's runtime (LiteRT on an x86-64 CPU without
+    AVX)."""
+
+    exit_code = 9
+
+
 EXIT_CODES: dict[str, int] = {
     "ok": 0,
     "internal": 1,
@@ -104,6 +115,7 @@ EXIT_CODES: dict[str, int] = {
     ModelMismatchError.__name__: ModelMismatchError.exit_code,
     ModelNotFoundError.__name__: ModelNotFoundError.exit_code,
     "out_of_memory": 8,
+    UnsupportedPlatformError.__name__: UnsupportedPlatformError.exit_code,
     "hangup": 129,
     "interrupted": 130,
     "terminated": 143,

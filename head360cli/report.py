@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 __all__ = ["describe_mesh", "describe_model", "environment_report", "file_kind",
            "inspect_file", "sha256_file"]
 
-MODEL_SUFFIXES = (".pt", ".npz", ".onnx", ".json")
+MODEL_SUFFIXES = (".pt", ".npz", ".onnx", ".json", ".tflite", ".task", ".obj")
 _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".tif", ".tiff",
                    ".webp", ".bmp", ".heic", ".heif")  # fmt: skip
 _STREAM_SUFFIXES = (".csv", ".tsv", ".txt")
@@ -28,6 +28,25 @@ _OTHER_SUFFIXES = (".json", ".jsonl", ".mtl", ".md", ".mp4", ".mov", ".m4v", ".n
                    ".pkl", ".pickle")  # fmt: skip
 _KINDS = ("an ARKit stream (.csv), an image or a head file (.h360), or a model file (.pt, "
           ".npz, .onnx) or mesh (.glb, .obj) head360 wrote")
+
+
+def _perception_role(filename: str) -> str | None:
+    """The perception role of a model file name, or ``None``."""
+    from head360cli.perception.runtime import PERCEPTION_FILES
+
+    return next((r for r, spec in PERCEPTION_FILES.items() if spec.filename == filename),
+                None)
+
+
+def _litert_version() -> str | None:
+    """LiteRT's version, read from its distribution's metadata (importing it would load
+    its native library)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ai-edge-litert")
+    except PackageNotFoundError:
+        return None
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -68,6 +87,7 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
     packages = {
         "torch": _version("torch"),
         "onnxruntime": _version("onnxruntime"),
+        "ai-edge-litert": _litert_version(),
         "opencv": _version("cv2"),
         "dlib": _version("dlib"),
         "numpy": _version("numpy"),
@@ -95,6 +115,8 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
     except ImportError:
         ort_providers = []
 
+    from head360cli.perception.runtime import PERCEPTION_FILES
+
     mdir = models_dir()
     models = []
     if mdir.is_dir():
@@ -112,6 +134,10 @@ def environment_report(hash_models: bool = True) -> dict[str, Any]:
                             entry["model_hash"] = load_bilinear(p).meta["sha256"]
                         except Exception as exc:  # report, don't fail, on a bad file
                             entry["model_hash"] = f"unreadable: {exc}"
+                    role = _perception_role(p.name)
+                    if role is not None:
+                        entry["licence"] = PERCEPTION_FILES[role].licence
+                        entry["verified"] = entry["sha256"] == PERCEPTION_FILES[role].sha256
                 models.append(entry)
     dlib_files = {
         k: (str(v) if v is not None else None) for k, v in dlib_model_files().items()

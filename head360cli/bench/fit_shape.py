@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from head360cli.perception.ibug68 import nme
+
 __all__ = ["bench_fit_shape", "nme"]
 
 YAW_BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, 90.1))
@@ -29,10 +31,6 @@ SWEEP = (4, 8, 12, 20)
 runs on vary by tens of per cent from one moment to the next), all runs are reported too."""
 
 
-def nme(pred: np.ndarray, truth: np.ndarray) -> float:
-    """Mean landmark error over sqrt(w x h) of the ground truth's bounding box."""
-    span = truth.max(0) - truth.min(0)
-    return float(np.linalg.norm(pred - truth, axis=1).mean() / np.sqrt(span[0] * span[1]))
 
 
 def simulate_detections(fitter, s: np.ndarray, w: np.ndarray, yaw: float, pitch: float,

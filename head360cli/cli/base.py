@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from head360cli.errors import BadInputError
+from head360cli.fitting.config import DETECTORS
 from head360cli.version import __version__
 
 EPILOG_EXIT_CODES = (
@@ -265,17 +266,27 @@ def _check_working_folder() -> None:
                             "cd to an existing folder and run again") from None
 
 
+HAIR_PARSER = click.option(
+    "--hair-parser", type=click.Choice(["segmenter", "grabcut"]), default="segmenter",
+    show_default=True,
+    help="segmenter: MediaPipe's hair segmentation network, kept to the fitted face; "
+         "grabcut: GrabCut seeded by the landmarks and skin colour, with the learned "
+         "corpus prior.")
+"""The ``--hair-parser`` option of fit, parse-hair and classify-hair."""
+
 NO_PRIOR = click.option(
     "--no-prior", is_flag=True,
-    help="Parse the hair by colour and landmarks alone, without the learned hair prior.")
+    help="With --hair-parser grabcut: parse by colour and landmarks alone, without the "
+         "learned hair prior.")
 """The ``--no-prior`` flag of fit, parse-hair and classify-hair."""
 
-DETECTOR_HELP = ("dlib face detector: hog is fast; cnn finds harder and smaller faces, "
-                 "slower; auto runs hog, then cnn on a copy at most 640 px long (about "
-                 "2 s) only if hog finds no face.")
+DETECTOR_HELP = ("Face detector: auto runs YuNet, then BlazeFace if YuNet finds no face, "
+                 "and reads each face with the 478-point face mesh; yunet or blazeface "
+                 "alone; hog or cnn: dlib's detectors and 68-point predictor (slower, "
+                 "research-only training data).")
 """The help of ``--detector`` (fit, parse-hair, classify-hair)."""
 
-DETECTOR = click.option("--detector", type=click.Choice(["auto", "hog", "cnn"]), default="hog",
+DETECTOR = click.option("--detector", type=click.Choice(list(DETECTORS)), default="auto",
                         show_default=True, help=DETECTOR_HELP)
 """The ``--detector`` option of fit, parse-hair and classify-hair."""
 

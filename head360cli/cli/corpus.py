@@ -328,3 +328,52 @@ def train_hair_prior_cmd(out: str | None, heads: int, views: int, seed: int, ste
     emit(summary, f"trained the hair prior for {summary['steps']} steps "
           f"({summary['render_seconds']} s rendering, {summary['train_seconds']} s training, "
           f"final loss {summary['final_loss']}); wrote {out}")
+
+
+@cli.command("build-landmark-map")
+@click.argument("folder", type=InputPath(exists=True, file_okay=False))
+@click.option("-o", "--out", default=None, type=OutputPath(file_okay=False),
+              help="Output folder (default: the models folder).")
+@common_options
+def build_landmark_map_cmd(folder: str, out: str | None) -> None:
+    """Learn how the 68 iBUG landmarks are read from the 478-point face mesh, and where
+    the mesh's points sit on the head template.
+
+    Each iBUG point becomes a fixed combination of a few mesh points, fitted to dlib's
+    68-point predictions on the photos in FOLDER (searched recursively; at least 20
+    faces); then each mesh point is placed on the head's surface where fits of those
+    photos project it best. Writes ibug68_map.npz and face_mesh_on_head.npz. The
+    shipped files were made from the London set's 124 portraits.
+
+    \b
+    Example:
+      head360 build-landmark-map ../shared/data/faces/london
+    """
+    import numpy as np
+
+    from head360cli.fitting.calibrate import DENSE_FILE, build_ibug68_map
+    from head360cli.io.atomic import atomic_paths
+    from head360cli.paths import models_dir
+    from head360cli.perception.ibug68 import IBUG68_FILE
+
+    result = build_ibug68_map(folder)
+    folder_out = Path(out) if out else models_dir()
+    targets = (folder_out / IBUG68_FILE, folder_out / DENSE_FILE)
+    with atomic_paths(*targets) as (map_tmp, dense_tmp):
+        with open(map_tmp, "wb") as fh:
+            np.savez_compressed(fh, index=result["index"].astype(np.int16),
+                                weight=result["weight"].astype(np.float32))
+        with open(dense_tmp, "wb") as fh:
+            np.savez_compressed(fh, tri=result["tri"].astype(np.int32),
+                                bary=result["bary"].astype(np.float32),
+                                error=result["error"].astype(np.float32),
+                                use=result["use"], model=np.array(result["model"]))
+    reg = result["registration"]
+    emit({"out": [str(t) for t in targets], "faces": result["faces"],
+          "train_nme_percent": round(100 * result["train_nme"], 3),
+          "dense_points": int(result["use"].sum()),
+          "registration_error_percent": round(100 * reg["mesh_error"], 3)},
+         f"landmark map and face-mesh registration from {result['faces']} faces (map NME "
+         f"against dlib {100 * result['train_nme']:.2f} %; {int(result['use'].sum())} mesh "
+         f"points placed, mean error {100 * reg['mesh_error']:.2f} % of the face) -> "
+         f"{folder_out}")

@@ -51,10 +51,12 @@ def info() -> None:
     lines.append(f"models ({report['models_dir']}):")
     if not report["models"]:
         lines.append("  (no model files installed yet)")
-    for m in report["models"]:
-        line = f"  {m['name']:<24} {m['bytes'] / 1e6:8.2f} MB  file sha256 {m['sha256'][:16]}"
+    for m in report["models"]:  # names up to face_detection_yunet_2023mar.onnx
+        line = f"  {m['name']:<34} {m['bytes'] / 1e6:6.2f} MB  sha256 {m['sha256'][:16]}"
         if "model_hash" in m:
             line += f"  model {m['model_hash'][:16]}"
+        if "licence" in m:
+            line += f"  {m['licence']}, {'verified' if m['verified'] else 'DAMAGED'}"
         lines.append(line)
     lines.append("dlib weights (face-recognition-models):")
     for key, path in report["dlib_models"].items():

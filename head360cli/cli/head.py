@@ -168,8 +168,9 @@ def _write_stdout_png(image) -> None:
 @click.option("--views", default=None,
               help="A PNG grid of views: yaws '0,45,90' or yaw:pitch pairs '0:0,90:20'.")
 @click.option("--expr", default=None,
-              help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1' (default neutral; "
-                   "a fitted head's eyes rest at the photo's openness and blink from it).")
+              help="ARKit expression, e.g. 'JawOpen=0.8,EyeBlinkLeft=1', or 'photo': the "
+                   "fitted photo's own (default neutral; a fitted head's eyes rest at the "
+                   "photo's openness and blink from it).")
 @_quality_options
 @_backend_options
 @common_options
@@ -184,6 +185,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
       head360 render me.h360 -o front.png
       head360 render me.h360 --yaw 45 --pitch 10 --size 512 -o view.png
       head360 render me.h360 --expr JawOpen=0.8,EyeBlinkLeft=1 -o smile.png
+      head360 render me.h360 --expr photo -o as_photographed.png
       head360 render me.h360 --views 0,45,90,180,270 -o views.png
       head360 render me.h360 --turntable --frames 96 -o turn.mp4
       head360 render me.h360 --backend onnx --onnx generator.onnx -o front.png
@@ -202,7 +204,7 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         write_turntable,
     )
 
-    w = parse_expression(expr)
+    w = None if expr == "photo" else parse_expression(expr)
     check_angles(yaw, pitch)
     if turntable and views is not None:
         raise BadInputError("expected --turntable or --views, found both")
@@ -228,6 +230,10 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
         check_file_target(out)
     pairs = parse_views(views) if views is not None else [(yaw, pitch)]  # before the load
     r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
+    if w is None:
+        from head360cli.drive.views import photo_expression
+
+        w = photo_expression(r.expression)
     if turntable:
         write_turntable(r, out, frames, pitch, fps, expression=w,
                         progress=progress_printer(), hair=not no_hair, yaw=yaw)

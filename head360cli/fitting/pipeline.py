@@ -81,7 +81,8 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     from PIL import Image
 
     from head360cli.fitting.landmarks import find_faces, pick_face
-    from head360cli.fitting.shape import ShapeFitter, check_camera, check_focal, default_focal
+    from head360cli.fitting.shape import check_camera, check_focal, default_focal
+    from head360cli.fitting.stages import fit_face
     from head360cli.io.atomic import atomic_paths
     from head360cli.io.images import load_image
     from head360cli.io.mesh import MeshPart, write_obj
@@ -98,7 +99,6 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     img = load_image(photo)
     check_focal(focal, *img.source_size)
     model = load_bilinear()
-    fitter = ShapeFitter(model)
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     faces = find_faces(img.pixels, detector, only=None if face == "all" else int(face))
@@ -118,8 +118,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
     results = []
     for index, found in chosen:
         t0 = time.perf_counter()
-        fit = fitter.fit(found.landmarks, img.size, focal=f_disk * scale, distance=distance,
-                         turn=found.turn)
+        fit = fit_face(model, found, img.size, f_disk * scale, distance)
         t_fit = time.perf_counter() - t0
         t0 = time.perf_counter()
         verts = model.vertices(fit.shape, fit.expression)
@@ -205,7 +204,8 @@ def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "hog"):
 
 
 def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
-                detector: str = "hog", learned_prior: bool = True) -> dict[str, Any]:
+                detector: str = "auto", learned_prior: bool = True,
+                hair_parser: str = "segmenter") -> dict[str, Any]:
     """``head360 parse-hair``: hair and face masks of a photo (PNG, 255 inside, at the
     photo's size on disk) and an overlay (hair red, face blue).
 
@@ -213,7 +213,8 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     landmarks (``"seeded": false``, ``"face_detector": null``; else the detector that
     found it, ``hog`` or ``cnn``, and ``face_turn_degrees``); ``"profile_face"`` says
     whether such a photo showed a face in profile, whose skin is then its face mask.
-    ``learned_prior=False`` parses by colour and landmarks alone (no hair-prior network).
+    ``hair_parser`` is :func:`~head360cli.fitting.hair_parse.parse_hair`'s method; with
+    ``grabcut``, ``learned_prior=False`` parses by colour and landmarks alone.
     """
     import cv2
     from PIL import Image
@@ -242,7 +243,8 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
     found = face_to_parse(img.pixels, face, detector)
     landmarks = None if found is None else found.landmarks
     found_by = None if found is None else found.detector
-    parse = parse_hair(img.pixels, landmarks, prior="learned" if learned_prior else None)
+    parse = parse_hair(img.pixels, landmarks, method=hair_parser,
+                       prior="learned" if learned_prior else None)
     w, h = img.source_size
     out.mkdir(parents=True, exist_ok=True)
     overlay = img.pixels.astype(np.float32)
@@ -257,7 +259,9 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
             Image.fromarray(full).save(tmp)
         Image.fromarray(overlay.round().astype(np.uint8)).save(tmps[2])
     return {"photo": str(photo), "seeded": parse.seeded, "face_detector": found_by,
-            "warnings": photo_warnings(img) + prior_missing(learned_prior),
+            "warnings": photo_warnings(img) + prior_missing(
+                learned_prior and hair_parser == "grabcut"),
+            "hair_parser": hair_parser,
             "face_turn_degrees": None if found is None else found.turn,
             "profile_face": parse.profile, "learned_prior": parse.prior,
             "hair_fraction": round(float(parse.hair.mean()), 4),
@@ -266,23 +270,24 @@ def parse_photo(photo: str | Path, out_dir: str | Path, *, face: int = 0,
             **{k: str(v) for k, v in paths.items()}}
 
 
-def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
+def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "auto",
                    focal: float | None = None, top: int = 3,
-                   learned_prior: bool = True) -> dict[str, Any]:
+                   learned_prior: bool = True, hair_parser: str = "segmenter"
+                   ) -> dict[str, Any]:
     """``head360 classify-hair``: the ``top`` SynHead-P hairstyles for a photo's hair, and
     its hair colour (``learned_prior=False``: the hair parsed without the learned prior)."""
     from head360cli.fitting import stages
     from head360cli.fitting.hair_parse import parse_hair
 
-    cfg = FitConfig(face=face, detector=detector, focal=focal,
-                    learned_prior=learned_prior).check()
+    cfg = FitConfig(face=face, detector=detector, focal=focal, learned_prior=learned_prior,
+                    hair_parser=hair_parser).check()
     timings: dict[str, float] = {}
     warnings: list[str] = []
     with ThreadPoolExecutor(max_workers=1) as pool:  # the parse beside the shape fit
         img, timings["load"] = _timed(stages.load_photo, photo, cfg, warnings)
         seen, timings["detect"] = _timed(stages.detect_face, img, cfg, warnings)
         job = pool.submit(_timed, parse_hair, seen.image.pixels, seen.face.landmarks,
-                          prior="learned" if learned_prior else None)
+                          method=hair_parser, prior="learned" if learned_prior else None)
         shape, timings["shape"] = _timed(stages.fit_shape, seen, cfg, warnings)
         parse, timings["parse"] = job.result()
     t0 = time.perf_counter()
@@ -290,7 +295,7 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "hog",
                                                       shape.model, seen.face.landmarks)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
-            "warnings": warnings + prior_missing(learned_prior),
+            "warnings": warnings + prior_missing(learned_prior and hair_parser == "grabcut"),
             # False: no style overlaps the parsed hair enough (ranked as no hair)
             "hair_matches_a_style": guess.matched,
             "hair_color": [round(float(c), 4) for c in colour],
@@ -490,6 +495,7 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
         img, timings["load"] = _timed(stages.load_photo, photo, cfg, warnings)
         seen, timings["detect"] = _timed(stages.detect_face, img, cfg, warnings)
         job = pool.submit(_timed, parse_hair, img.pixels, seen.face.landmarks,
+                          method=cfg.hair_parser,
                           prior="learned" if cfg.learned_prior else None)
         shape, timings["shape"] = _timed(stages.fit_shape, seen, cfg, warnings)
         (gen, codes), load_s = _timed(load_generator, device=cfg.device)
@@ -509,7 +515,7 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                         torch.tensor(frame.k, device=dev)[None], code=start[None])
         first_s = time.perf_counter() - t0
         parse, timings["parse"] = job.result()
-    warnings += prior_missing(cfg.learned_prior)
+    warnings += prior_missing(cfg.learned_prior and cfg.hair_parser == "grabcut")
     hair, t = _timed(stages.choose_hairstyle, seen, shape, parse, cfg, silhouettes, warnings)
     timings["classify"] = classify_s + t
 

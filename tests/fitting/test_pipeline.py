@@ -62,7 +62,12 @@ def test_landmarks_are_in_pixels_of_the_image_on_disk(run_cli, shared_data, tmp_
 
 
 def test_no_face_and_bad_face_numbers(run_cli, shared_data, tmp_path):
-    r = run_cli("fit", "--stage", "shape", shared_data / "faces" / "camera.png", "-o", tmp_path)
+    import skimage.data
+    import skimage.io
+
+    coffee = tmp_path.parent / "coffee.png"
+    skimage.io.imsave(coffee, skimage.data.coffee())
+    r = run_cli("fit", "--stage", "shape", coffee, "-o", tmp_path)
     assert r.code == 4 and "no face" in r.err
     photo = shared_data / "faces" / "Tom_Cruise_avp_2014_4.jpg"
     assert run_cli("fit", "--stage", "shape", photo, "--face", "7", "-o", tmp_path).code == 4

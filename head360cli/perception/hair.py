@@ -1,0 +1,79 @@
+"""Hair and person probability maps from MediaPipe's segmenters on LiteRT.
+
+The hair model reads a 512x512 RGB square (values in [0, 1]) with a fourth channel for
+the previous frame's mask (zero for a photo) and answers two logits per pixel
+(background, hair). The person (selfie) model reads 256x256 and answers one probability.
+Both read a square crop of the photo (the whole photo letterboxed, or a square about the
+face) and their answer is mapped back to the photo's pixels, zero outside the crop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["HAIR_SIDE", "PERSON_SIDE", "hair_probability", "person_probability",
+           "square_about"]
+
+HAIR_SIDE = 512
+"""The hair model's input side."""
+PERSON_SIDE = 256
+"""The person model's input side."""
+
+
+def square_about(centre: tuple[float, float], side: float) -> np.ndarray:
+    """The ``(2, 3)`` affine map from photo pixels to a unit square (side 1) of ``side``
+    pixels about ``centre``."""
+    return np.array([[1.0 / side, 0.0, 0.5 - centre[0] / side],
+                     [0.0, 1.0 / side, 0.5 - centre[1] / side]])
+
+
+def _run_square(rgb: np.ndarray, square: np.ndarray | None, out: int, run) -> np.ndarray:
+    """Warp ``rgb`` by ``square`` (photo -> unit square; ``None``: the whole photo,
+    letterboxed) to ``out`` pixels, ``run`` the model on it, and warp the ``(out, out)``
+    map back to ``(H, W)``, zero outside the square."""
+    import cv2
+
+    h, w = rgb.shape[:2]
+    if square is None:
+        side = max(h, w)
+        square = square_about((w / 2, h / 2), side)
+    to_input = square * out
+    img = cv2.warpAffine(rgb, to_input, (out, out), flags=cv2.INTER_AREA
+                         if to_input[0, 0] < 1 else cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT)
+    prob = run(img.astype(np.float32) / 255.0)
+    back = cv2.warpAffine(prob.astype(np.float32), to_input, (w, h),
+                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return np.clip(back, 0.0, 1.0)
+
+
+def hair_probability(rgb: np.ndarray, square: np.ndarray | None = None,
+                     threads: int = 1) -> np.ndarray:
+    """``(H, W)`` float32 probability of hair for an ``(H, W, 3)`` uint8 RGB photo.
+
+    Args:
+        rgb: The photo.
+        square: Photo -> unit square map of the crop to read (:func:`square_about`);
+            ``None``: the whole photo.
+        threads: LiteRT threads.
+    """
+    from head360cli.perception.runtime import tflite_model
+
+    model = tflite_model("hair_segmenter", None, threads)
+
+    def run(x: np.ndarray) -> np.ndarray:
+        x4 = np.concatenate([x, np.zeros((*x.shape[:2], 1), np.float32)], -1)
+        logits = model(x4[None])[0][0]
+        return 1.0 / (1.0 + np.exp(np.clip(logits[..., 0] - logits[..., 1], -60, 60)))
+
+    return _run_square(rgb, square, HAIR_SIDE, run)
+
+
+def person_probability(rgb: np.ndarray, square: np.ndarray | None = None,
+                       threads: int = 1) -> np.ndarray:
+    """``(H, W)`` float32 probability of a person (hair, face, body, clothes)."""
+    from head360cli.perception.runtime import tflite_model
+
+    model = tflite_model("person_segmenter", None, threads)
+    return _run_square(rgb, square, PERSON_SIDE, lambda x: model(x[None])[0][0, ..., 0])
