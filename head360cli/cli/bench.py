@@ -67,8 +67,9 @@ def bench_synth_cmd(identities: int, out_dir: str) -> None:
 @BENCH_OUT
 @common_options
 def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
-    """Landmark shape fit: vertex and pose error on synthetic faces by yaw, NME of dlib's
-    and the fitted landmarks on the real photos in ../shared/data, and fit time."""
+    """Landmark shape fit: vertex and pose error on synthetic faces by yaw; on the real
+    photos in ../shared/data, NME of the detected (face mesh and dlib) and the fitted
+    landmarks by yaw, faces found per yaw by each detector, and detection and fit time."""
     from head360cli.bench.fit_shape import bench_fit_shape
 
     cpu_only_warning("bench fit-shape")

@@ -14,7 +14,7 @@ import numpy as np
 
 from head360cli.errors import BadInputError
 
-__all__ = ["grid_image", "parse_expression", "photo_expression", "parse_views", "view_cameras",
+__all__ = ["grid_image", "parse_expression", "parse_views", "photo_expression", "view_cameras",
            "view_intrinsics", "write_turntable"]
 
 

@@ -178,10 +178,6 @@ def _predictor():
 
 
 TURNS = (30.0, -30.0, 60.0, -60.0, 90.0, -90.0)
-UPRIGHT_TILT = 45.0
-"""Degrees the eyes' line may tilt in a turned copy for its face to count: the face mesh
-reads faces at any tilt, so a photo upside down showed a face in the copy turned by 60
-degrees, 120 degrees from upright, and was fitted with a wrong pose."""
 """Degrees by which :meth:`LandmarkDetector.detect_turned` turns an image in which no face
 is found upright. HOG finds faces tilted in the image up to about 35 degrees, and dlib's
 predictor places the landmarks of a face tilted beyond about 30 well only when the image is
@@ -402,14 +398,16 @@ def turned_image(rgb: np.ndarray, degrees: float) -> tuple[np.ndarray, np.ndarra
     return np.ascontiguousarray(out), m
 
 
-def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH_PASSES
-                ) -> list[DetectedFace]:
+def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH_PASSES,
+                confirmed: bool = False) -> list[DetectedFace]:
     """Faces by YuNet or BlazeFace (``auto``: YuNet, then BlazeFace when YuNet finds none),
     largest first, each read by the face mesh: face ``only`` (all when ``None``) with
     ``passes`` passes and its blendshape scores, the others with two. A box in which
     the mesh sees no face (presence below :data:`MESH_MIN_PRESENCE`) is dropped: the
     detectors' false positives (BlazeFace read a coffee cup turned upside down as a face,
-    at 0.77) and faces upside down, whose mesh is wrong."""
+    at 0.77) and faces upside down, whose mesh is wrong; but when no box is confirmed,
+    the boxes the detector is sure of (:data:`SURE_DETECTION`) are kept, unless
+    ``confirmed`` (see below)."""
     from head360cli.perception.faces import detect_blazeface, detect_yunet
     from head360cli.perception.ibug68 import to_ibug68
     from head360cli.perception.mesh478 import blendshape_scores, face_mesh
@@ -418,21 +416,33 @@ def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH
         return []
     order = {"auto": (detect_yunet, detect_blazeface), "yunet": (detect_yunet,),
              "blazeface": (detect_blazeface,)}[kind]
+    unconfirmed = []  # sure boxes the mesh does not confirm: (box, its best reading)
     for detect in order:
         boxes = []  # (box, its mesh after two passes)
         for b in detect(img):
             # a profile's eye keypoints can be far off: then a crop kept upright
             y = (b.box[1] + b.box[3]) / 2
+            readings = []
             for eyes in (b.keypoints[:2], np.array([[b.box[0], y], [b.box[2], y]])):
                 first = face_mesh(img, b.box, eyes, 1)
                 if first.presence < MESH_MIN_PRESENCE and b.score < SURE_DETECTION:
                     continue
-                mesh = face_mesh(img, b.box, eyes, 2, start=first)
-                if mesh.presence >= MESH_MIN_PRESENCE:
-                    boxes.append((b, mesh))
+                readings.append(face_mesh(img, b.box, eyes, 2, start=first))
+                if readings[-1].presence >= MESH_MIN_PRESENCE:
+                    boxes.append((b, readings[-1]))
                     break
+            else:
+                if readings:
+                    unconfirmed.append((b, max(readings, key=lambda m: m.presence)))
         if boxes:
             break
+    if not boxes and unconfirmed and not confirmed and not _mesh_faces(
+            kind, np.ascontiguousarray(img[::-1, ::-1]), None, 1, confirmed=True):
+        # faces turned 75 degrees and more: YuNet is sure (0.90-0.94 on Pointing'04's
+        # profiles), the mesh reads them poorly (presence 0.0-0.3); kept, the largest
+        # first, unless the photo turned upside down shows a face the mesh confirms (the
+        # astronaut upside down: YuNet 0.85, presence 0.06-0.23)
+        boxes = sorted(unconfirmed, key=lambda bm: -bm[0].area)
     faces = []
     for rank, (b, mesh) in enumerate(boxes):
         chosen = only in (None, rank)
@@ -508,13 +518,10 @@ class LandmarkDetector:
         for degrees in TURNS:
             copy, forward = turned_image(rgb, degrees)
             inverse = np.linalg.inv(np.vstack([forward, [0.0, 0.0, 1.0]]))[:2]
-            mesh = self.kind in MESH_DETECTORS
-            for f in LandmarkDetector(self.kind, self.upsample, mesh and self.average,
+            for f in LandmarkDetector(self.kind, self.upsample, False,
                                       self.max_side).detect(copy):
                 eyes = f.landmarks[42:48].mean(0) - f.landmarks[36:42].mean(0)
                 tilt = abs(float(np.degrees(np.arctan2(eyes[1], eyes[0]))))
-                if tilt > UPRIGHT_TILT:
-                    continue  # still far from upright (a face upside down)
                 x0, y0, x1, y1 = f.box
                 centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2]) @ inverse[:, :2].T \
                     + inverse[:, 2]
@@ -525,14 +532,11 @@ class LandmarkDetector:
         width = best[6].box[2] - best[6].box[0]
         same = [c for c in seen if np.linalg.norm(c[1] - best[1]) < 0.5 * width]
         _, centre, _, degrees, copy, inverse, face = min(same, key=lambda c: (c[2], -c[0]))
-        if self.average and self.kind not in MESH_DETECTORS:
+        if self.average:
             face.landmarks = _averaged(_predictor(), copy,
                                        np.ascontiguousarray(copy[:, ::-1]),
                                        tuple(int(v) for v in face.box))
         face.landmarks = face.landmarks @ inverse[:, :2].T + inverse[:, 2]
-        if face.mesh is not None:
-            face.mesh = face.mesh.copy()
-            face.mesh[:, :2] = face.mesh[:, :2] @ inverse[:, :2].T + inverse[:, 2]
         half_w, half_h = (face.box[2] - face.box[0]) / 2, (face.box[3] - face.box[1]) / 2
         face.box = (centre[0] - half_w, centre[1] - half_h, centre[0] + half_w,
                     centre[1] + half_h)
@@ -552,9 +556,13 @@ def find_faces(rgb: np.ndarray, detector: str = "auto", only: int | None = None,
                small: bool = True) -> list[DetectedFace]:
     """Faces by the whole search the commands make, each step only when the ones before
     found nothing: ``detector``; for dlib's HOG with ``small``, for images up to
-    :data:`SMALL_RETRY_SIDE` pixels, the same at twice the size; unless ``detector`` is
-    ``cnn``, the same detector in turned copies (:meth:`LandmarkDetector.detect_turned`,
-    at most one face; dlib's on copies at most :data:`TURNED_SIDE` pixels long).
+    :data:`SMALL_RETRY_SIDE` pixels, the same at twice the size, then HOG in turned
+    copies (:meth:`LandmarkDetector.detect_turned`, at most one face, on copies at most
+    :data:`TURNED_SIDE` pixels long). The face mesh's detectors find faces tilted up to
+    90 degrees themselves and their crops are levelled by the eyes (the astronaut turned
+    by 30, 45 and 90 degrees: landmarks within 0.3 px of the upright ones, mapped); in
+    turned copies they found false faces (a coffee cup, the astronaut upside down read
+    as upright), so they search none.
 
     Args:
         rgb: ``(H, W, 3)`` uint8 image.
@@ -566,8 +574,6 @@ def find_faces(rgb: np.ndarray, detector: str = "auto", only: int | None = None,
     faces = LandmarkDetector(detector).detect(rgb, only=only)
     if not faces and small and detector == "hog" and max(rgb.shape[:2]) <= SMALL_RETRY_SIDE:
         faces = LandmarkDetector(detector, upsample=2).detect(rgb, only=only)
-    if not faces and detector in MESH_DETECTORS and upside_down(rgb):
-        return []  # a turned copy 120 degrees from upright can read as a face, wrongly
-    if not faces and detector != "cnn":
+    if not faces and detector == "hog":
         faces = LandmarkDetector(detector, max_side=TURNED_SIDE).detect_turned(rgb)
     return faces

@@ -1,23 +1,20 @@
-"""Hair and person probability maps from MediaPipe's segmenters on LiteRT.
+"""Hair probability from MediaPipe's hair segmenter on LiteRT.
 
-The hair model reads a 512x512 RGB square (values in [0, 1]) with a fourth channel for
-the previous frame's mask (zero for a photo) and answers two logits per pixel
-(background, hair). The person (selfie) model reads 256x256 and answers one probability.
-Both read a square crop of the photo (the whole photo letterboxed, or a square about the
-face) and their answer is mapped back to the photo's pixels, zero outside the crop.
+The model reads a 512x512 RGB square (values in [0, 1]) with a fourth channel for the
+previous frame's mask (zero for a photo) and answers two logits per pixel (background,
+hair). It reads a square crop of the photo (the whole photo letterboxed, or a square
+about the face) and its answer is mapped back to the photo's pixels, zero outside the
+crop.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HAIR_SIDE", "PERSON_SIDE", "hair_probability", "person_probability",
-           "square_about"]
+__all__ = ["HAIR_SIDE", "hair_probability", "square_about"]
 
 HAIR_SIDE = 512
 """The hair model's input side."""
-PERSON_SIDE = 256
-"""The person model's input side."""
 
 
 def square_about(centre: tuple[float, float], side: float) -> np.ndarray:
@@ -68,12 +65,3 @@ def hair_probability(rgb: np.ndarray, square: np.ndarray | None = None,
         return 1.0 / (1.0 + np.exp(np.clip(logits[..., 0] - logits[..., 1], -60, 60)))
 
     return _run_square(rgb, square, HAIR_SIDE, run)
-
-
-def person_probability(rgb: np.ndarray, square: np.ndarray | None = None,
-                       threads: int = 1) -> np.ndarray:
-    """``(H, W)`` float32 probability of a person (hair, face, body, clothes)."""
-    from head360cli.perception.runtime import tflite_model
-
-    model = tflite_model("person_segmenter", None, threads)
-    return _run_square(rgb, square, PERSON_SIDE, lambda x: model(x[None])[0][0, ..., 0])

@@ -1,7 +1,7 @@
 """The perception models' files and the runtime that runs them.
 
-The face detector, the 478-point landmarker, the blendshape scorer and the hair and
-person segmenters are MediaPipe's TFLite files, run by LiteRT (the ``ai-edge-litert``
+The face detector, the 478-point landmarker, the blendshape scorer and the hair
+segmenter are MediaPipe's TFLite files, run by LiteRT (the ``ai-edge-litert``
 package: CPU wheels for Linux, Windows and macOS, no TensorFlow); YuNet is an ONNX file
 that OpenCV's DNN module runs. Each file is checked against its SHA-256 the first time a
 process opens it, so a damaged or replaced file is a one-line error, never a crash.
@@ -58,10 +58,6 @@ PERCEPTION_FILES: dict[str, PerceptionFile] = {
         "hair_segmentation.tflite",
         "d2c940c4fd80edeaf38f5d7387d1b4235ee320ed120080df67c663e749e77633",
         "MediaPipe hair segmentation, 512x512", "Apache-2.0"),
-    "person_segmenter": PerceptionFile(
-        "selfie_segmentation.tflite",
-        "8d13b7fae74af625c641226813616a2117bd6bca19eb3b75574621fc08557f27",
-        "MediaPipe selfie (person) segmentation, 256x256", "Apache-2.0"),
     "canonical_face": PerceptionFile(
         "canonical_face_model.obj",
         "8bac80443397e113f41a8b565ea72c59390bc031d9defab289dba7bc0c54e618",

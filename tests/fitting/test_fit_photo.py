@@ -74,7 +74,8 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     assert json.loads((tmp_path / "me.json").read_text()) == s
     assert s["warnings"] == []  # one face, 90 px wide, in colour, frontal
     assert s["device"] == "cpu"
-    assert s["hair_parse"]["learned_prior"] is True
+    assert s["hair_parse"]["parser"] == "segmenter"
+    assert s["hair_parse"]["learned_prior"] is False  # the GrabCut parser's only
     # Short hair, light colour, a face fitted well at the input view.
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
                                        "side part", "bangs"}
@@ -633,8 +634,8 @@ def test_the_shape_stage_says_which_whole_fit_options_it_does_not_use(run_cli, a
 
 def test_a_parse_without_the_installed_hair_prior_says_so(run_cli, astronaut, tmp_path,
                                                           monkeypatch):
-    """Without models/hair_prior.pt the parse ran by colour and landmarks alone, saying
-    so only in the JSON's learned_prior: false."""
+    """Without models/hair_prior.pt the GrabCut parse ran by colour and landmarks alone,
+    saying so only in the JSON's learned_prior: false."""
     import shutil
 
     from head360cli.fitting import hair_prior, pipeline
@@ -648,12 +649,14 @@ def test_a_parse_without_the_installed_hair_prior_says_so(run_cli, astronaut, tm
             shutil.copy(f, models / f.name)
     monkeypatch.setenv("HEAD360_MODELS", str(models))
     hair_prior.default_hair_prior.cache_clear()  # loaded by earlier tests in this process
-    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "p", "--json")
+    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "p", "--json", "--hair-parser",
+                "grabcut")
     hair_prior.default_hair_prior.cache_clear()  # not this models folder's None for later
     assert r.code == 0, r.err
     assert "the hair prior is not installed" in r.err
     assert json.loads(r.out)["learned_prior"] is False
-    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "q", "--no-prior")
+    r = run_cli("parse-hair", astronaut, "-o", tmp_path / "q", "--hair-parser", "grabcut",
+                "--no-prior")
     assert r.code == 0 and "not installed" not in r.err
 
 
