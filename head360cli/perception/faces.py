@@ -109,13 +109,13 @@ def non_max_suppression(boxes: np.ndarray, scores: np.ndarray, points: np.ndarra
 
 
 def detect_blazeface(rgb: np.ndarray, min_score: float = BLAZEFACE_MIN_SCORE,
-                     threads: int = 1) -> list[FaceBox]:
+                     threads: int | None = None) -> list[FaceBox]:
     """Faces by BlazeFace full range (192x192 input, 2304 anchors), largest first.
 
     Args:
         rgb: ``(H, W, 3)`` uint8 RGB image.
         min_score: Lowest score kept.
-        threads: LiteRT threads.
+        threads: LiteRT threads (default: the process's budget, at most 2).
     """
     from head360cli.perception.runtime import tflite_model
 
@@ -142,8 +142,8 @@ def detect_blazeface(rgb: np.ndarray, min_score: float = BLAZEFACE_MIN_SCORE,
     return sorted(faces, key=lambda f: -f.area)
 
 
-@functools.lru_cache(maxsize=2)
-def _yunet(threads: int):
+@functools.lru_cache(maxsize=1)
+def _yunet():
     import cv2
 
     from head360cli.perception.runtime import perception_file, quiet_stderr
@@ -165,8 +165,7 @@ YUNET_MAX_SIDE = 1280
 the pixels; faces smaller than about 10 pixels at that scale are lost)."""
 
 
-def detect_yunet(rgb: np.ndarray, min_score: float = YUNET_MIN_SCORE,
-                 threads: int = 1) -> list[FaceBox]:
+def detect_yunet(rgb: np.ndarray, min_score: float = YUNET_MIN_SCORE) -> list[FaceBox]:
     """Faces by YuNet (OpenCV's ``FaceDetectorYN``), largest first; keypoints are the
     right eye, left eye, nose tip and the right and left mouth corners."""
     import cv2
@@ -176,7 +175,7 @@ def detect_yunet(rgb: np.ndarray, min_score: float = YUNET_MIN_SCORE,
     img = rgb if scale == 1.0 else cv2.resize(
         rgb, (max(1, round(w * scale)), max(1, round(h * scale))),
         interpolation=cv2.INTER_AREA)
-    detector = _yunet(threads)
+    detector = _yunet()  # OpenCV's threads: as configured (head360cli.threads)
     detector.setInputSize((img.shape[1], img.shape[0]))
     detector.setScoreThreshold(float(min_score))
     _, found = detector.detect(np.ascontiguousarray(img[:, :, ::-1]))

@@ -46,14 +46,14 @@ def _run_square(rgb: np.ndarray, square: np.ndarray | None, out: int, run) -> np
 
 
 def hair_probability(rgb: np.ndarray, square: np.ndarray | None = None,
-                     threads: int = 1) -> np.ndarray:
+                     threads: int | None = None) -> np.ndarray:
     """``(H, W)`` float32 probability of hair for an ``(H, W, 3)`` uint8 RGB photo.
 
     Args:
         rgb: The photo.
         square: Photo -> unit square map of the crop to read (:func:`square_about`);
             ``None``: the whole photo.
-        threads: LiteRT threads.
+        threads: LiteRT threads (default: the process's budget, at most 2).
     """
     from head360cli.perception.runtime import tflite_model
 

@@ -88,7 +88,7 @@ def _run(rgb: np.ndarray, centre: np.ndarray, side: float, angle: float, threads
 
 
 def face_mesh(rgb: np.ndarray, box: tuple[float, float, float, float],
-              eyes: np.ndarray, passes: int = 2, threads: int = 1,
+              eyes: np.ndarray, passes: int = 2, threads: int | None = None,
               start: FaceMesh | None = None) -> FaceMesh:
     """The 478 points of the face in ``box``.
 
@@ -98,7 +98,7 @@ def face_mesh(rgb: np.ndarray, box: tuple[float, float, float, float],
         eyes: ``(2, 2)`` the subject's right and left eye (the detector's first two
             keypoints), which set the crop's turn.
         passes: 1: crop about the box only; 2: crop again about the points found; ...
-        threads: LiteRT threads.
+        threads: LiteRT threads (default: the process's budget, at most 2).
         start: An earlier reading of this face to go on from (its passes count).
     """
     if start is None:
@@ -128,7 +128,7 @@ def face_mesh(rgb: np.ndarray, box: tuple[float, float, float, float],
                     max(passes, done))
 
 
-def blendshape_scores(points: np.ndarray, threads: int = 1) -> np.ndarray:
+def blendshape_scores(points: np.ndarray, threads: int | None = None) -> np.ndarray:
     """The 52 ARKit blendshape scores ``(52,)`` in [0, 1], in head360's ARKit order
     (:data:`head360cli.mesh.arkit52.ARKIT52`), from ``(478, 3)`` points.
 

@@ -178,7 +178,23 @@ class TfliteModel:
         return [self._it.get_tensor(i).copy() for i in self._outputs]
 
 
+MAX_THREADS = 2
+"""LiteRT threads at most: the face mesh's pass takes 8.5 ms on one thread and 4.3 ms on
+two (2-core Xeon); these small models gain little from more."""
+
+
+def tflite_model(role: str, member: str | None = None, threads: int | None = None
+                 ) -> TfliteModel:
+    """The model for ``role`` (and ``member`` of a bundle), loaded once a process;
+    ``threads`` default: the process's budget (:func:`head360cli.threads.thread_budget`),
+    at most :data:`MAX_THREADS`."""
+    if threads is None:
+        from head360cli.threads import thread_budget
+
+        threads = min(MAX_THREADS, thread_budget())
+    return _tflite_model(role, member, threads)
+
+
 @functools.lru_cache(maxsize=16)
-def tflite_model(role: str, member: str | None = None, threads: int = 1) -> TfliteModel:
-    """The model for ``role`` (and ``member`` of a bundle), loaded once a process."""
+def _tflite_model(role: str, member: str | None, threads: int) -> TfliteModel:
     return TfliteModel(model_bytes(role, member), threads)

@@ -31,7 +31,7 @@ def _forget():
     from head360cli.perception import faces
     from head360cli.perception.ibug68 import load_ibug68_map
 
-    for cached in (runtime.perception_file, runtime.tflite_model, faces._yunet,
+    for cached in (runtime.perception_file, runtime._tflite_model, faces._yunet,
                    load_ibug68_map):
         cached.cache_clear()
 
