@@ -560,6 +560,11 @@ SEGMENTER_THRESHOLD = 0.5
 SURE_HAIR, SURE_NOT = 0.95, 0.02
 """Probabilities above and below which GrabCut's refinement keeps the segmenter's label as
 certain; between them it decides by colour."""
+EDGE_EPS = 100.0
+"""The guided filter's regularisation (grey levels squared) that makes the segmenter's
+map follow the photo's edges (radius 1 % of the photo's longer side): over the 104
+shared Figaro and CelebAMask photos, mean IoU 0.8093 without, 0.8107 at 100, 0.8056 at
+650, 0.8021 at 2500."""
 NEAR_FACE = 1.2
 """A hair region counts only if it comes within this many face sizes (the iBUG outline's
 height) of the face being fitted: hair of another person is dropped."""
@@ -569,8 +574,9 @@ def segment_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
                  refine: bool = True, work_size: int = 384) -> HairParse:
     """Hair, face and background masks from MediaPipe's hair segmenter
     (:func:`head360cli.perception.hair.hair_probability`), read on the photo and on its
-    mirror image and averaged; refined at the edges by GrabCut (the segmenter's sure
-    labels kept, the rest by colour); with ``landmarks`` (``(68, 2)``), the face below
+    mirror image and averaged, made to follow the photo's edges by a guided filter
+    (:data:`EDGE_EPS`); with ``refine``, GrabCut decides the uncertain band by colour
+    (the segmenter's sure labels kept); with ``landmarks`` (``(68, 2)``), the face below
     the brows is never hair and only hair near the face counts.
 
     Args:
@@ -586,6 +592,9 @@ def segment_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     h, w = rgb.shape[:2]
     prob = (hair_probability(rgb) + hair_probability(
         np.ascontiguousarray(rgb[:, ::-1]))[:, ::-1]) / 2
+    radius = max(2, round(0.01 * max(h, w)))
+    prob = np.clip(cv2.ximgproc.guidedFilter(rgb, prob.astype(np.float32), radius,
+                                             EDGE_EPS), 0.0, 1.0)
     face = np.zeros((h, w), bool)
     if landmarks is not None:
         lm = np.asarray(landmarks, np.float32)

@@ -58,7 +58,7 @@ def _overlay(rgb: np.ndarray, detected: np.ndarray, fitted: np.ndarray, verts2d:
 
 
 def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str = 0,
-                    detector: str = "hog", focal: float | None = None,
+                    detector: str = "auto", focal: float | None = None,
                     distance: float | None = None) -> dict[str, Any]:
     """Detect, fit the bilinear model, and write ``<stem>[_faceN]_shape.obj``,
     ``_overlay.png`` and ``_shape.json`` into ``out_dir``.
@@ -185,7 +185,7 @@ PRIOR_FILE = "hair_prior.pt"
 hair_prior.FILE_NAME`; a test keeps the two equal)."""
 
 
-def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "hog"):
+def face_to_parse(rgb: np.ndarray, face: int = 0, detector: str = "auto"):
     """The face ``parse-hair`` seeds its parse with: face ``face`` of
     :func:`~head360cli.fitting.landmarks.find_faces` (as ``fit``, but without the second
     search at twice the size); ``None`` when there is none (the photo is parsed without
