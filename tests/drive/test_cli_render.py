@@ -342,3 +342,30 @@ def test_dash_is_refused_where_standard_output_cannot_take_a_png(run_cli, head_f
     r = run_cli("render", head_file, "--size", "32", "-o", "-")
     assert r.code == 3 and "found a terminal" in r.err
     assert r.out == ""
+
+
+@pytest.mark.slow
+def test_a_fitted_head_is_neutral_by_default_and_smiles_with_expr_photo(
+        run_cli, fitted_astronaut, tmp_path):
+    """The astronaut smiles (mouthSmile about 1 in the fit's expression): rendered by
+    default her head is neutral; ``--expr photo`` gives her smile back, and it equals
+    rendering her own weights by name."""
+    from head360cli.io.headfile import read_head
+    from head360cli.mesh.arkit52 import ARKIT52, INDEX
+
+    head = read_head(fitted_astronaut.head)
+    own = np.asarray(head.arrays["expression"], np.float64)
+    assert own[[INDEX["mouthSmileLeft"], INDEX["mouthSmileRight"]]].mean() > 0.5
+    args = ("--size", "64", "--samples", "4")
+    run_cli("render", fitted_astronaut.head, *args, "-o", tmp_path / "n.png")
+    r = run_cli("render", fitted_astronaut.head, *args, "--expr", "photo",
+                "-o", tmp_path / "p.png")
+    assert r.code == 0, r.err
+    neutral, photo = (np.asarray(Image.open(tmp_path / f)).astype(int)
+                      for f in ("n.png", "p.png"))
+    assert np.abs(photo - neutral).max() > 40  # the smile came back
+    named = ",".join(f"{n}={own[i]:.6f}" for i, n in enumerate(ARKIT52)
+                     if own[i] > 0 and not n.startswith(("eyeBlink", "eyeSquint", "eyeWide")))
+    run_cli("render", fitted_astronaut.head, *args, "--expr", named, "-o", tmp_path / "b.png")
+    by_name = np.asarray(Image.open(tmp_path / "b.png")).astype(int)
+    assert np.abs(by_name - photo).max() <= 2

@@ -156,3 +156,18 @@ def test_views_frame_the_whole_head_with_its_hair(head_file):
     assert head_framing(short) == (RIG_TARGET, RIG_DISTANCE)  # as before
     assert head_framing(r.with_hair(style_index("afro"), r.hair_colour), hair=False) == (
         RIG_TARGET, RIG_DISTANCE)  # bald, the head alone fits
+
+
+def test_the_photos_expression_leaves_the_eyes_to_the_heads_own_rest():
+    """``--expr photo``: the head's own weights, with the eyes' at zero (every frame adds
+    the head's own eye openness, so they would count twice)."""
+    from head360cli.drive.views import photo_expression
+    from head360cli.mesh.arkit52 import INDEX
+
+    own = np.linspace(0.0, 1.0, 52)
+    w = photo_expression(own)
+    eyes = [INDEX[f"eye{p}{s}"] for p in ("Blink", "Squint", "Wide") for s in ("Left", "Right")]
+    assert (w[eyes] == 0).all()
+    others = np.setdiff1d(np.arange(52), eyes)
+    np.testing.assert_array_equal(w[others], own[others])
+    assert own[eyes].any()  # the input is untouched

@@ -57,3 +57,39 @@ def test_calibration_recovers_displaced_landmarks():
                          .max(1) > 0)[0]
     assert set(changed) <= set(CALIBRATED)
     assert np.allclose(new.landmark_bary.sum(1), 1.0) and (new.landmark_bary >= 0).all()
+
+
+def test_mesh_outline_is_the_longest_boundary_loop():
+    """A 4 x 4 grid of squares with one square's two triangles removed inside: the outer
+    ring (12 vertices) is the outline, not the hole's 4."""
+    from head360cli.fitting.calibrate import mesh_outline
+
+    n = 5
+    idx = np.arange(n * n).reshape(n, n)
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            if (i, j) == (1, 1):
+                continue
+            a, b, c, d = idx[i, j], idx[i, j + 1], idx[i + 1, j], idx[i + 1, j + 1]
+            faces += [(a, b, d), (a, d, c)]
+    outline = mesh_outline(np.array(faces))
+    ring = sorted(set(idx[0]) | set(idx[-1]) | set(idx[:, 0]) | set(idx[:, -1]))
+    assert outline.tolist() == ring
+
+
+def test_the_shipped_registration_belongs_to_the_shipped_model():
+    """419 of the 468 mesh points are fitted, on faces, noses and lips of the shipped
+    model; a registration for another model is ignored (the fit then uses the 68)."""
+    from head360cli.fitting import calibrate
+    from head360cli.mesh.bilinear import load_bilinear
+
+    model = load_bilinear()
+    keep, tri, bary = calibrate.load_dense_points(model)
+    assert len(keep) == len(tri) == len(bary) and 380 <= len(keep) <= 440
+    assert np.isin(model.region[tri], [1, 2, 3]).all()
+    np.testing.assert_allclose(bary.sum(1), 1.0, atol=1e-5)
+
+    other = type("Other", (), {})()
+    other.meta = {"sha256": "0" * 64}
+    assert calibrate.load_dense_points(other) is None

@@ -263,3 +263,70 @@ def test_a_smiling_portrait_fits_no_opposed_pair_together(shared_data):
         face.landmarks, img.size, focal=focal).expression
     u = dict(zip(ARKIT52, unheld, strict=True))
     assert len([(x, y) for x, y in OPPOSED if u[x] >= 0.5 and u[y] >= 0.5]) >= 3
+
+
+def _dense_truth(fitter, s, w, yaw, pitch, rng, dense):
+    """Projections of the dense surface points ``dense = (tri, bary)`` of the head
+    ``(s, w)`` seen as :func:`synthetic` sees it, with 1 px of noise."""
+    import torch
+
+    from head360cli.geometry.cameras import camera_on_sphere
+
+    c2w = camera_on_sphere(torch.tensor([yaw]), torch.tensor([pitch]), 0.6,
+                           target=(0.0, 0.0, 0.0)).double()[0].numpy()
+    w2c = np.linalg.inv(c2w)
+    verts = fitter.model.vertices(s, w)
+    pts = (verts[dense[0]] * dense[1][..., None]).sum(1)
+    cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
+    uv = F * cam[:, :2] / cam[:, 2:3] + np.array([W / 2, H / 2])
+    return uv + rng.normal(size=uv.shape)
+
+
+def test_dense_points_sharpen_the_identity():
+    """200 surface points of the face (seen with 1 px of noise) beside the 68: the head's
+    mean vertex error falls (measured 3.9 -> 3.3 mm over six heads), the 68 stay in the
+    output, and the dense points are reported; they are required once configured."""
+    model = load_bilinear()
+    rng = np.random.default_rng(7)
+    face = np.nonzero(np.isin(model.region, [1, 2, 3])[model.faces].all(1))[0]
+    tri = model.faces[rng.choice(face, 200, replace=False)]
+    bary = rng.dirichlet(np.ones(3), 200)
+    plain, dense = ShapeFitter(model), ShapeFitter(model, dense=(tri, bary))
+    std = np.sqrt(np.diag(model.code_cov))
+    errs = {"plain": [], "dense": []}
+    for _ in range(6):
+        s = rng.normal(size=model.rank) * std
+        w = np.zeros(52)
+        uv, _ = synthetic(plain, s, w, 15.0, 5.0, 1.5, rng)
+        d2 = _dense_truth(plain, s, w, 15.0, 5.0, rng, (tri, bary))
+        truth = model.vertices(s, w)
+        for name, fit in (("plain", plain.fit(uv, (W, H), focal=F)),
+                          ("dense", dense.fit(uv, (W, H), focal=F, dense2d=d2))):
+            errs[name].append(np.linalg.norm(model.vertices(fit.shape, fit.expression)
+                                             - truth, axis=1).mean())
+            assert fit.landmarks_fitted.shape == (68, 2)
+        assert fit.dense_fitted.shape == (200, 2)
+        assert np.linalg.norm(fit.dense_fitted - d2, axis=1).mean() < 3.0
+    assert np.mean(errs["dense"]) < 0.9 * np.mean(errs["plain"]), errs
+    with pytest.raises(BadInputError, match=r"expected \(200, 2\) finite dense points"):
+        dense.fit(uv, (W, H), focal=F)
+
+
+def test_the_expression_starts_from_and_is_pulled_towards_given_scores(fitter):
+    """Landmarks of a neutral face with scores that say 'smile': the ridge pulls towards
+    the scores, so the smile comes out above the neutral start's; scores outside [0, 1]
+    are clipped, the wrong shape refused."""
+    model = fitter.model
+    rng = np.random.default_rng(3)
+    uv, _ = synthetic(fitter, np.zeros(model.rank), np.zeros(52), 0.0, 0.0, 0.5, rng)
+    from head360cli.mesh.arkit52 import INDEX
+
+    scores = np.zeros(52)
+    scores[[INDEX["mouthSmileLeft"], INDEX["mouthSmileRight"]]] = 1.5
+    plain = fitter.fit(uv, (W, H), focal=F)
+    pulled = fitter.fit(uv, (W, H), focal=F, expression0=scores)
+    smile = [INDEX["mouthSmileLeft"], INDEX["mouthSmileRight"]]
+    assert pulled.expression[smile].mean() > plain.expression[smile].mean() + 0.02
+    assert (pulled.expression <= 1).all()
+    with pytest.raises(BadInputError, match=r"expected \(52,\) finite starting weights"):
+        fitter.fit(uv, (W, H), focal=F, expression0=np.zeros(3))
