@@ -289,7 +289,7 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
         md += ("\n\n### Real photos (../shared/data/landmarks68): NME by |yaw|\n\n"
                + (markdown_table(table, list(table[0])) if table else "(no face found)")
                + f"\n\nNo face found in: {', '.join(missed) or 'none'}. Detection with "
-               f"landmarks (YuNet, then the face mesh in three passes): median "
+               f"landmarks (BlazeFace, then YuNet; the face mesh in two passes): median "
                f"{np.median(det):.1f} ms per image (best of {REPEATS}). "
                f"Fit (68 landmarks and the mesh's points): median "
                f"{np.median([r['fit_ms'] for r in fitted]):.2f} ms (best of "
