@@ -171,6 +171,43 @@ def _found_by_yaw(data: Path) -> list[dict[str, Any]]:
     return table
 
 
+def expression_apart(root: Path, people: int = 20) -> dict[str, Any]:
+    """How well the fit keeps a photo's expression out of the identity: for the first
+    ``people`` of the London set, the mean distance (mm, over vertices) between the
+    neutral heads fitted to their neutral and their smiling portrait, the mean
+    mouthSmile of each, and the weights at their limit per fit."""
+    from head360cli.fitting.landmarks import find_faces
+    from head360cli.fitting.shape import default_focal
+    from head360cli.fitting.stages import fit_face
+    from head360cli.io.images import load_image
+    from head360cli.mesh.arkit52 import INDEX
+    from head360cli.mesh.bilinear import load_bilinear
+
+    model = load_bilinear()
+    smile = [INDEX["mouthSmileLeft"], INDEX["mouthSmileRight"]]
+    gaps, smiling, neutral, limit = [], [], [], []
+    for photo in sorted((root / "faces" / "london").glob("*_neutral.jpg"))[:people]:
+        fits = []
+        for p in (photo, photo.with_name(photo.name.replace("neutral", "smiling"))):
+            img = load_image(p).pixels
+            faces = find_faces(img, "auto", only=0)
+            if not faces:
+                break
+            size = img.shape[1::-1]
+            fits.append(fit_face(model, faces[0], size, default_focal(*size)))
+        if len(fits) < 2:
+            continue
+        a, b = (model.vertices(f.shape, np.zeros(52)) for f in fits)
+        gaps.append(1000 * float(np.linalg.norm(a - b, axis=1).mean()))
+        neutral.append(float(fits[0].expression[smile].mean()))
+        smiling.append(float(fits[1].expression[smile].mean()))
+        limit += [int((f.expression >= 0.999).sum()) for f in fits]
+    return {"people": len(gaps), "neutral_gap_mm": round(float(np.mean(gaps)), 3),
+            "mouth_smile_smiling": round(float(np.mean(smiling)), 3),
+            "mouth_smile_neutral": round(float(np.mean(neutral)), 3),
+            "weights_at_limit_per_fit": round(float(np.mean(limit)), 2)}
+
+
 def _real(fitter, detections: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """NME of the detected (mesh and dlib) and of the fitted landmarks for each detected
     photo; ``fitter`` None: the default fit (:func:`~head360cli.fitting.stages.
@@ -302,6 +339,14 @@ def bench_fit_shape(trials: int = 200, data: str | Path | None = None
                f"{pose['roll_mae_deg']} degrees; turned heads ({turned['photos']} photos "
                f"with 30 <= |yaw| < 90): yaw {turned['yaw_mae_deg']}, pitch "
                f"{turned['pitch_mae_deg']}, roll {turned['roll_mae_deg']} degrees.")
+    if root is not None and (root / "faces" / "london").is_dir():
+        apart = result["expression_apart"] = expression_apart(root)
+        md += ("\n\n### The photo's expression kept apart from the identity (London set)"
+               f"\n\n{apart['people']} people: their neutral heads fitted to the neutral "
+               f"and the smiling portrait differ by {apart['neutral_gap_mm']} mm (mean over "
+               f"vertices); mouthSmile {apart['mouth_smile_smiling']} smiling, "
+               f"{apart['mouth_smile_neutral']} neutral; "
+               f"{apart['weights_at_limit_per_fit']} weights at their limit per fit.")
     if root is not None and (root / "multiview" / "pointing04").is_dir():
         found = result["faces_found_multiview"] = _found_by_yaw(root)
         md += ("\n\n### Faces found by |yaw| (../shared/data/multiview/pointing04)\n\n"
