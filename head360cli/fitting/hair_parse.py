@@ -575,7 +575,10 @@ def segment_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     """Hair, face and background masks from MediaPipe's hair segmenter
     (:func:`head360cli.perception.hair.hair_probability`), read on the photo and on its
     mirror image and averaged, made to follow the photo's edges by a guided filter
-    (:data:`EDGE_EPS`); with ``refine``, GrabCut decides the uncertain band by colour
+    (:data:`EDGE_EPS`); a face tilted by 15 degrees or more (by its eyes) is read in a
+    copy turned upright, in steps of 30 degrees (the astronaut lying on her side: hair
+    IoU with her upright parse 0.69 as she lies); with ``refine``, GrabCut decides the
+    uncertain band by colour
     (the segmenter's sure labels kept); with ``landmarks`` (``(68, 2)``), the face below
     the brows is never hair and only hair near the face counts.
 
@@ -590,8 +593,22 @@ def segment_hair(rgb: np.ndarray, landmarks: np.ndarray | None = None, *,
     from head360cli.perception.hair import hair_probability
 
     h, w = rgb.shape[:2]
-    prob = (hair_probability(rgb) + hair_probability(
-        np.ascontiguousarray(rgb[:, ::-1]))[:, ::-1]) / 2
+    turn = 0.0
+    if landmarks is not None:  # the segmenter reads upright heads: a tilted one is turned
+        eyes = np.mean(landmarks[42:48], 0) - np.mean(landmarks[36:42], 0)
+        turn = 30.0 * round(float(np.degrees(np.arctan2(eyes[1], eyes[0]))) / 30.0)
+    if turn:
+        from head360cli.fitting.landmarks import turned_image
+
+        upright, forward = turned_image(rgb, turn)
+    else:
+        upright = rgb
+    prob = (hair_probability(upright) + hair_probability(
+        np.ascontiguousarray(upright[:, ::-1]))[:, ::-1]) / 2
+    if turn:
+        prob = cv2.warpAffine(prob.astype(np.float32), forward, (w, h),
+                              flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
     radius = max(2, round(0.01 * max(h, w)))
     prob = np.clip(cv2.ximgproc.guidedFilter(rgb, prob.astype(np.float32), radius,
                                              EDGE_EPS), 0.0, 1.0)

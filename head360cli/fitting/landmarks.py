@@ -450,8 +450,11 @@ def _mesh_faces(kind: str, img: np.ndarray, only: int | None, passes: int = MESH
         chosen = only in (None, rank)
         if chosen:
             mesh = face_mesh(img, b.box, b.keypoints[:2], passes, start=mesh)
+        # a face tilted or lying on its side: the shape fit reads its outline turned
+        # upright (DetectedFace.turn), in steps of 30 degrees as dlib's turned copies
+        turn = 30.0 * round(float(np.degrees(mesh.roi[3])) / 30.0)
         faces.append(DetectedFace(b.box, b.score, to_ibug68(mesh.points), b.detector,
-                                  mesh=mesh.points,
+                                  turn=turn + 0.0, mesh=mesh.points,
                                   blendshapes=blendshape_scores(mesh.points) if chosen
                                   else None))
     return faces

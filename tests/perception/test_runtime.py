@@ -87,7 +87,7 @@ def test_a_damaged_model_is_a_one_line_error_of_the_cli(models_copy, run_cli, tm
 
     photo = tmp_path / "a.png"
     skimage.io.imsave(photo, skimage.data.astronaut())
-    (models_copy / "face_detection_yunet_2023mar.onnx").write_bytes(b"not a model")
+    (models_copy / "face_landmarker.task").write_bytes(b"not a model")
     r = run_cli("fit", photo, "--stage", "shape", "-o", tmp_path / "out")
     assert r.code == 5 and r.err.count("\n") == 1 and "damaged or replaced" in r.err, r.err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
