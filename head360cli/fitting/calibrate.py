@@ -138,6 +138,10 @@ def calibrate_landmarks(model: BilinearModel, faces, rounds: int = 2, radius: fl
     return m, stats
 
 
+_DENSE_CACHE: dict = {}
+"""Registrations read so far, by (path, model hash)."""
+
+
 def load_dense_points(model: BilinearModel) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The face mesh's points the shape fit uses, as ``(mesh index (N,), tri (N, 3), bary
     (N, 3))`` on ``model``'s surface, or ``None`` when the file is missing or was made
@@ -162,9 +166,6 @@ def load_dense_points(model: BilinearModel) -> tuple[np.ndarray, np.ndarray, np.
                                   f"({exc})") from exc
     _DENSE_CACHE[key] = out
     return out
-
-
-_DENSE_CACHE: dict = {}
 
 
 def build_ibug68_map(folder: str | Path, progress=None) -> dict:

@@ -2,39 +2,34 @@
 
 The model reads a 512x512 RGB square (values in [0, 1]) with a fourth channel for the
 previous frame's mask (zero for a photo) and answers two logits per pixel (background,
-hair). It reads a square crop of the photo (the whole photo letterboxed, or a square
-about the face) and its answer is mapped back to the photo's pixels, zero outside the
-crop.
+hair). It reads the whole photo letterboxed into the square, and its answer is mapped
+back to the photo's pixels.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HAIR_SIDE", "hair_probability", "square_about"]
+__all__ = ["HAIR_SIDE", "hair_probability"]
 
 HAIR_SIDE = 512
 """The hair model's input side."""
 
 
-def square_about(centre: tuple[float, float], side: float) -> np.ndarray:
+def _square_about(centre: tuple[float, float], side: float) -> np.ndarray:
     """The ``(2, 3)`` affine map from photo pixels to a unit square (side 1) of ``side``
     pixels about ``centre``."""
     return np.array([[1.0 / side, 0.0, 0.5 - centre[0] / side],
                      [0.0, 1.0 / side, 0.5 - centre[1] / side]])
 
 
-def _run_square(rgb: np.ndarray, square: np.ndarray | None, out: int, run) -> np.ndarray:
-    """Warp ``rgb`` by ``square`` (photo -> unit square; ``None``: the whole photo,
-    letterboxed) to ``out`` pixels, ``run`` the model on it, and warp the ``(out, out)``
-    map back to ``(H, W)``, zero outside the square."""
+def _run_letterboxed(rgb: np.ndarray, out: int, run) -> np.ndarray:
+    """Warp ``rgb`` letterboxed to an ``out`` square, ``run`` the model on it, and warp
+    the ``(out, out)`` map back to ``(H, W)``."""
     import cv2
 
     h, w = rgb.shape[:2]
-    if square is None:
-        side = max(h, w)
-        square = square_about((w / 2, h / 2), side)
-    to_input = square * out
+    to_input = _square_about((w / 2, h / 2), max(h, w)) * out
     img = cv2.warpAffine(rgb, to_input, (out, out), flags=cv2.INTER_AREA
                          if to_input[0, 0] < 1 else cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT)
@@ -45,14 +40,11 @@ def _run_square(rgb: np.ndarray, square: np.ndarray | None, out: int, run) -> np
     return np.clip(back, 0.0, 1.0)
 
 
-def hair_probability(rgb: np.ndarray, square: np.ndarray | None = None,
-                     threads: int | None = None) -> np.ndarray:
+def hair_probability(rgb: np.ndarray, threads: int | None = None) -> np.ndarray:
     """``(H, W)`` float32 probability of hair for an ``(H, W, 3)`` uint8 RGB photo.
 
     Args:
         rgb: The photo.
-        square: Photo -> unit square map of the crop to read (:func:`square_about`);
-            ``None``: the whole photo.
         threads: LiteRT threads (default: the process's budget, at most 2).
     """
     from head360cli.perception.runtime import tflite_model
@@ -64,4 +56,4 @@ def hair_probability(rgb: np.ndarray, square: np.ndarray | None = None,
         logits = model(x4[None])[0][0]
         return 1.0 / (1.0 + np.exp(np.clip(logits[..., 0] - logits[..., 1], -60, 60)))
 
-    return _run_square(rgb, square, HAIR_SIDE, run)
+    return _run_letterboxed(rgb, HAIR_SIDE, run)
