@@ -407,6 +407,26 @@ def test_interrupt_exits_130(run_cli, monkeypatch):
     assert run_cli("inspect", SAMPLE_STREAM).code == 130
 
 
+def test_an_interrupt_inside_exec_of_a_string_still_exits_130(tmp_path):
+    """An interrupt landing in an import that makes a dataclass leaves exec() of a string;
+    CPython then noted it as unhandled and ``python -m head360cli`` ended by SIGINT (-2)
+    after head360's one line, though head360 handled it."""
+    (tmp_path / "interrupted_inspect.py").write_text(
+        "import sys, head360cli.report as r\n"
+        "def interrupt(*a, **k):\n"
+        "    exec('raise KeyboardInterrupt')\n"
+        "r.inspect_file = interrupt\n"
+        "from head360cli.cli import main\n"
+        f"sys.argv = ['head360', 'inspect', {str(SAMPLE_STREAM)!r}]\n"
+        "sys.exit(main())\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(REPO)]))
+    # run as a module, as ``python -m head360cli`` is: a script's exit takes another path
+    p = subprocess.run([sys.executable, "-m", "interrupted_inspect"], capture_output=True,
+                       text=True, cwd=REPO, env=env)
+    assert p.returncode == 130, p.stderr
+    assert p.stderr == "head360: interrupted\n"
+
+
 def test_console_script_exit_code_in_a_real_process(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("jawOpen\nabc\n")
