@@ -261,7 +261,7 @@ def _ignore_further_interrupts() -> None:
     # namedtuple being made by an import the interrupt landed in) as "unhandled", even
     # when head360 then handles it, and at exit kills itself by SIGINT (exit -2) in place
     # of 130. Each exec() of a string clears that note first: this one clears it.
-    exec("pass")  # noqa: S102 (a constant)
+    exec("pass")
 
 
 def _internal(exc: Exception, debug: bool, as_json: bool) -> int:
