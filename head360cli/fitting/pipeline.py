@@ -403,6 +403,10 @@ class FitSummary:
     """...and of the bald render."""
     image_size: list[int]
     """Width and height of the photo on disk."""
+    crop: dict[str, Any]
+    """Where the head file's ``pose`` and ``intrinsics`` see the photo: ``affine``, the
+    ``(2, 3)`` map from the photo's pixels on disk to the ``size`` x ``size`` crop they
+    render (``cv2.warpAffine`` of the photo with it gives the crop)."""
     face_width: float
     """The face box's width in pixels of the photo on disk."""
     face_detector: str
@@ -583,14 +587,14 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
         Image.fromarray(preview.sheet).save(tmp_preview, format="PNG", pnginfo=png_info())
         timings["write"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
-        summary = _summary(photo, cfg, seen, shape, parse, hair, placement, inv, lips,
+        summary = _summary(photo, cfg, seen, shape, frame, parse, hair, placement, inv, lips,
                            kept_inside, lids, preview, checks, warnings, dev, timings, paths)
         tmp_summary.write_text(dumps(summary.to_dict(), indent=1))
     return summary.to_dict()
 
 
-def _summary(photo, cfg: FitConfig, seen, shape, parse, hair, placement, inv, lips: float,
-             kept_inside: bool, lids, preview, checks, warnings: list[str], dev,
+def _summary(photo, cfg: FitConfig, seen, shape, frame, parse, hair, placement, inv,
+             lips: float, kept_inside: bool, lids, preview, checks, warnings: list[str], dev,
              timings: dict[str, float], paths: dict[str, Path]) -> FitSummary:
     """The :class:`FitSummary` of a fit's stages' results, rounded for reading."""
     from head360cli.synth.hair import HAIRSTYLES
@@ -600,6 +604,8 @@ def _summary(photo, cfg: FitConfig, seen, shape, parse, hair, placement, inv, li
 
     euler = shape.fit.euler_degrees()
     offset = placement.offset
+    on_disk = frame.affine.copy()  # the crop's map from the pixels fitted, which a large
+    on_disk[:, :2] *= seen.image.scale  # photo's are fewer of than those on disk
     return FitSummary(
         photo=str(photo), preset=cfg.preset, face=cfg.face,
         pose={**{k: round(v, 2) for k, v in euler.items()},
@@ -634,6 +640,7 @@ def _summary(photo, cfg: FitConfig, seen, shape, parse, hair, placement, inv, li
         psnr_face_input_view=round(preview.psnr_face, 2),
         psnr_face_input_view_bald=round(preview.psnr_bald, 2),
         image_size=list(seen.image.source_size),
+        crop={"affine": [rounded(row, 6) for row in on_disk], "size": int(frame.crop.shape[0])},
         face_width=round(float(seen.face.box[2] - seen.face.box[0]) / seen.image.scale, 1),
         face_detector=seen.face.detector, face_turn_degrees=seen.face.turn,
         checks=dataclasses.asdict(checks), warnings=warnings, device=str(dev),

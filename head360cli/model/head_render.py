@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import torch
@@ -303,23 +304,28 @@ class HeadRenderer:
     @torch.no_grad()
     def render(self, c2w: torch.Tensor, intrinsics: torch.Tensor,
                expression: np.ndarray | None = None, hair: bool = True,
-               batch: int | None = None) -> torch.Tensor:
+               batch: int | None = None, alpha: bool = False
+               ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Views ``(B, 3, H, W)`` in [0, 1] on white from cameras ``c2w (B, 4, 4)`` with
         ``intrinsics (3, 3)`` for ``self.size`` images, ``batch`` at a time.
-        ``expression``: ``(52,)`` for every view or ``(B, 52)``, one per view."""
+        ``expression``: ``(52,)`` for every view or ``(B, 52)``, one per view. With
+        ``alpha``, also the head's coverage ``(B, 1, H, W)`` in [0, 1]."""
         if expression is not None and np.ndim(expression) == 2:
             weights = np.asarray(expression)
         else:
             w = self.expression if expression is None else np.asarray(expression)
             weights = np.broadcast_to(w, (len(c2w), 52))
-        return torch.cat([torch.as_tensor(f) for f in
-                          self.frames(c2w, weights, intrinsics, hair, batch, uint8=False,
-                                      drive=expression is not None)])
+        out = list(self.frames(c2w, weights, intrinsics, hair, batch, uint8=False,
+                               drive=expression is not None, alpha=alpha))
+        if not alpha:
+            return torch.cat([torch.as_tensor(f) for f in out])
+        return (torch.cat([torch.as_tensor(f) for f, _ in out]),
+                torch.cat([torch.as_tensor(a) for _, a in out]))
 
     @torch.no_grad()
     def frames(self, c2w: torch.Tensor, weights: np.ndarray, intrinsics: torch.Tensor,
                hair: bool = True, batch: int | None = None, uint8: bool = True,
-               drive: bool = True) -> Iterator[np.ndarray | torch.Tensor]:
+               drive: bool = True, alpha: bool = False) -> Iterator[Any]:
         """Render frame after frame (an animation): camera ``c2w[i] (4, 4)`` and ARKit
         weights ``weights[i] (52,)`` (driving weights, see :meth:`drive`; with
         ``drive=False`` the mesh's own), ``batch`` frames per generator call (default: 1 on
@@ -330,8 +336,9 @@ class HeadRenderer:
 
         Yields:
             Per batch, ``(b, H, W, 3)`` uint8 frames (or ``(b, 3, H, W)`` float tensors in
-            [0, 1] with ``uint8=False``). Nothing is kept between batches, so memory does
-            not grow with the number of frames.
+            [0, 1] with ``uint8=False``); with ``alpha``, pairs of float frames and the
+            head's coverage ``(b, 1, H, W)`` in [0, 1]. Nothing is kept between batches,
+            so memory does not grow with the number of frames.
 
         Raises:
             ValueError: The cameras, weights or intrinsics are not of those shapes, not
@@ -347,11 +354,11 @@ class HeadRenderer:
         with self.gen.samples_per_ray(self.samples), self.gen.image_size(
                 None if self.size == self.gen.cfg.image_res else self.size):
             try:
-                yield from self._frames(c2w, weights, k, hair, batch, uint8)
+                yield from self._frames(c2w, weights, k, hair, batch, uint8, alpha)
             finally:
                 self.gen.network_dtype = own_dtype
 
-    def _runner_frames(self, c2w, weights, k, hair, uint8):
+    def _runner_frames(self, c2w, weights, k, hair, uint8, with_alpha):
         from head360cli.model.render import lit
 
         extra = ()
@@ -366,19 +373,26 @@ class HeadRenderer:
             verts = self._vertices(w).cpu().numpy()
             tex = plain if self._lid_amounts(w) is None else \
                 self._textures(w).detach().cpu().numpy()
-            if self.colour_gain is None:
+            if self.colour_gain is None and not with_alpha:
                 out = torch.from_numpy(self.runner(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
                                                    *extra))
             else:
                 rgb, alpha = self.runner.frame(verts, tex, c2w[i:i + 1].cpu().numpy(), kk,
                                                *extra)
-                out = lit(torch.from_numpy(rgb), torch.from_numpy(alpha),
-                          self.colour_gain.cpu()).clamp(0, 1)
-            yield to_uint8(out) if uint8 else out
+                out = torch.from_numpy(rgb)
+                if self.colour_gain is not None:
+                    out = lit(out, torch.from_numpy(alpha), self.colour_gain.cpu()).clamp(0, 1)
+            if with_alpha:
+                if alpha is None:
+                    raise ValueError("expected a graph with an alpha output for the head's "
+                                     "coverage, found one without (export it again)")
+                yield out, torch.from_numpy(alpha).clamp(0, 1)
+            else:
+                yield to_uint8(out) if uint8 else out
 
-    def _frames(self, c2w, weights, k, hair, batch, uint8):
+    def _frames(self, c2w, weights, k, hair, batch, uint8, with_alpha):
         if self.runner is not None:
-            yield from self._runner_frames(c2w, weights, k, hair, uint8)
+            yield from self._runner_frames(c2w, weights, k, hair, uint8, with_alpha)
             return
         from head360cli.model.render import lit
         from head360cli.model.reuse import DecodeReuse
@@ -397,4 +411,7 @@ class HeadRenderer:
             out = res["rgb"].clamp(0, 1)  # RefineNet may overshoot
             if self.colour_gain is not None:  # as the exported graphs' runner does
                 out = lit(out, res["alpha"], self.colour_gain.to(out.dtype)).clamp(0, 1)
-            yield to_uint8(out) if uint8 else out.cpu()
+            if with_alpha:
+                yield out.cpu(), res["alpha"].clamp(0, 1).cpu()
+            else:
+                yield to_uint8(out) if uint8 else out.cpu()

@@ -60,6 +60,22 @@ def test_lips_counted_closed_keep_the_generated_inside_of_the_mouth(
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_the_summary_s_crop_map_gives_the_photo_the_head_was_fitted_in(fitted_astronaut):
+    """``crop.affine`` takes the photo to the crop the head file's pose and intrinsics
+    render: the preview's first panel is that crop."""
+    import cv2
+    from PIL import Image
+
+    s = fitted_astronaut.summary
+    size = s["crop"]["size"]
+    photo = np.asarray(Image.open(fitted_astronaut.photo).convert("RGB"))
+    crop = cv2.warpAffine(photo, np.array(s["crop"]["affine"]), (size, size),
+                          flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    preview = np.asarray(Image.open(s["files"]["preview"]).convert("RGB"))
+    assert np.abs(crop.astype(int) - preview[:, :size].astype(int)).mean() < 1.0
+
+
 def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     from head360cli.io.headfile import read_head
 

@@ -253,3 +253,18 @@ def test_a_malformed_light_is_refused(renderer):
     for bad in ([1.0, 1.0], [1.0, np.nan, 1.0], [1.0, 0.0, 1.0], [1.0, -1.0, 1.0]):
         with pytest.raises(ValueError, match="expected a colour gain of 3 positive finite"):
             _lit_copy(renderer, bad)
+
+
+def test_render_gives_the_head_s_coverage_with_the_same_images(renderer):
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    cams = view_cameras([0.0, 90.0], 0.0)
+    k = view_intrinsics(renderer.size)
+    plain = renderer.render(cams, k)
+    rgb, alpha = renderer.render(cams, k, alpha=True)
+    assert torch.equal(rgb, plain)
+    assert alpha.shape == (2, 1, renderer.size, renderer.size)
+    assert float(alpha.min()) >= 0.0 and float(alpha.max()) <= 1.0
+    assert 0.1 < float((alpha > 0.5).float().mean()) < 0.9  # a head, and room around it
+    off = (1.0 - rgb.permute(0, 2, 3, 1)[alpha[:, 0] < 0.01]).abs()
+    assert float(off.mean()) < 0.01 and float(off.quantile(0.99)) < 0.1  # white
