@@ -433,10 +433,12 @@ def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
         except Exception as exc:  # reported, not fatal: one photo must not stop the rest
             rows.append({"photo": photo.name, "error": str(exc)})
             continue
-        dist = _distances(out, _descriptor(load_image(photo).pixels), device)
+        rgb = load_image(photo).pixels
+        dist = _distances(out, _descriptor(rgb), device)
         rows.append({"photo": photo.name, "psnr_face": s["psnr_face_input_view"],
                      "psnr_face_bald": s["psnr_face_input_view_bald"],
                      "descriptor_distance": dist, "hair": s["hair_style"]["name"],
+                     "colour_outliers": colour_outliers(out, rgb, device),
                      "mouth_inside": s["inversion"]["mouth_inside"],
                      "seconds": s["timings"]["total"]})
     ok = [r for r in rows if "error" not in r]
@@ -455,7 +457,32 @@ def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
         "distance_0": mean(at_0), "distance_30": mean(at_30),
         "distance_0_renders": [sum(d is not None for d in at_0), len(at_0)],
         "distance_30_renders": [sum(d is not None for d in at_30), len(at_30)],
+        "colour_outliers": mean([r["colour_outliers"] for r in ok]),
         "seconds": mean([r["seconds"] for r in ok])}}
+
+
+OUTLIER_YAWS = (0.0, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0)
+"""Yaws of the renders whose colours :func:`colour_outliers` counts."""
+
+
+def colour_outliers(head_file: Path, rgb: np.ndarray, device: str = "cpu") -> float | None:
+    """The share of the head's pixels, over renders from :data:`OUTLIER_YAWS`, whose
+    colour the photo's parsed skin and hair do not have
+    (:func:`~head360cli.bench.colours.outlier_share`); ``None`` where the photo shows
+    no face."""
+    from head360cli.bench.colours import outlier_share, photo_palette_of
+    from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    palette = photo_palette_of(rgb)
+    if palette is None:
+        return None
+    head = load_head_renderer(head_file, device=device, precision="fp32")
+    cams = view_cameras(OUTLIER_YAWS, 0.0, head_framing(head))
+    images, alpha = head.render(cams, view_intrinsics(head.size), alpha=True)
+    images = (images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    shares = [x for x in outlier_share(images, alpha[:, 0].numpy(), palette) if x is not None]
+    return round(float(np.mean(shares)), 4) if shares else None
 
 
 def _cold_fit(photo: Path, preset: str, work: Path, timeout: float = 1800.0,
@@ -755,8 +782,8 @@ def _markdown(r: dict[str, Any]) -> str:
     if "real" in r:
         lines += ["", "## Real photos", "",
                   "| preset | face PSNR | same, bald | descriptor distance 0 deg | at +-30 deg "
-                  "| s per fit | one fit from the command line: fit s, wall s |",
-                  "|---|---|---|---|---|---|---|"]
+                  "| colour outliers | s per fit | one fit from the command line: fit s, "
+                  "wall s |", "|---|---|---|---|---|---|---|---|"]
         for p, v in r["real"].items():
             m = v["mean"]
 
@@ -769,7 +796,8 @@ def _markdown(r: dict[str, Any]) -> str:
             lines.append(f"| {p} | {f(m['psnr_face'], '.2f')} | "
                          f"{f(m['psnr_face_bald'], '.2f')} | {f(m['distance_0'])}"
                          f"{found('distance_0_renders')} | {f(m['distance_30'])}"
-                         f"{found('distance_30_renders')} | {f(m['seconds'], '.1f')} | "
+                         f"{found('distance_30_renders')} | "
+                         f"{_pct(m.get('colour_outliers'))} | {f(m['seconds'], '.1f')} | "
                          f"{_cold_cell(v.get('cold'))} |")
     if r.get("sweep"):
         lines += ["", "## Inversion steps against quality (first photo, fast preset)", "",

@@ -140,6 +140,42 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
     _save_and_emit(result, md, out_dir, "fit")
 
 
+@bench_group.command("multiview")
+@click.option("--preset", "presets", multiple=True, type=click.Choice(["fast", "quality"]),
+              help="Presets to measure (repeat; default both).")
+@click.option("--person", "people", multiple=True, type=click.IntRange(1),
+              help="People of the set to fit (repeat; default all).")
+@click.option("--series", "series", multiple=True, type=click.IntRange(1, 2),
+              help="Photo series of each person (repeat; default 1).")
+@click.option("--sheet-person", default=2, show_default=True,
+              help="Whose renders the contact sheet shows.")
+@BENCH_OUT
+@common_options
+def bench_multiview_cmd(presets: tuple[str, ...], people: tuple[int, ...],
+                        series: tuple[int, ...], sheet_person: int, out_dir: str) -> None:
+    """360 degrees on real photos: fit each person's frontal photo, turn the head to the
+    yaws of their other photos (-90 to +90 degrees) and compare: dlib descriptor distance
+    render-real, faces found, the real turn's own distance, head silhouette IoU; and a
+    contact sheet (real photos above, renders below). Needs ../shared/data/multiview.
+
+    \b
+    Examples:
+      head360 bench multiview
+      head360 bench multiview --preset fast --person 1 --person 2
+      head360 bench multiview --series 1 --series 2 --out results/
+    """
+    from head360cli.bench.multiview import bench_multiview
+    from head360cli.devices import resolve_device
+
+    device = str(resolve_device(current_settings().device))
+    result, md = bench_multiview(presets=presets or ("fast", "quality"),
+                                 people=people or None, series=series or (1,),
+                                 sheet_person=sheet_person, out_dir=out_dir, device=device,
+                                 progress=None if current_settings().quiet else
+                                 (lambda t: click.echo(f"bench multiview: {t}", err=True)))
+    _save_and_emit(result, md, out_dir, "multiview")
+
+
 @bench_group.command("generator")
 @click.option("--weights", "weights", multiple=True, type=InputPath(dir_okay=False),
               help="Generator weights; repeat to compare (labelled by file name). "
