@@ -92,7 +92,7 @@ def test_markdown_lists_every_part():
          "real": {"fast": {"mean": {"psnr_face": 22.0, "psnr_face_bald": 25.0,
                                     "distance_0": None, "distance_0_renders": [0, 2],
                                     "distance_30": 0.7, "distance_30_renders": [3, 4],
-                                    "seconds": 13.0},
+                                    "colour_outliers": 0.0712, "seconds": 13.0},
                            "cold": {"photo": "a.png", "wall_s": 16.0, "total_s": 13.5}}},
          "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}],
          "stability": {"photo": "a.png", "draws": 1, "range_psnr_face": 1.5,
@@ -108,7 +108,7 @@ def test_markdown_lists_every_part():
                  "| parsed by GrabCut with the learned prior | 40.00% | 70.00% | - | - |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 | +9.9 / +4.5 | 27.00 | 26.00 |",
                  "| fast | 22.00 | 25.00 | - (0 of 2 renders with a face) | 0.700 (3 of 4 "
-                 "renders with a face) | 13.0 | 13.5, 16.0 (a.png) |",
+                 "renders with a face) | 7.12% | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",
                  "| none | 22.00 | 25.00 | - | bob | black |",
                  "| 1 | 20.50 | 25.25 | - | lob | black |",
