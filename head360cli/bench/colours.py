@@ -2,42 +2,33 @@
 
 Streaks of backdrop or clothing colour on the cheeks, a blue-green tint on the neck, hair
 of a colour the photo's hair is not: each puts pixels on the head whose colour lies far
-from every colour of the photo's skin and hair. :func:`photo_palette` samples those
-colours (CIELAB) from the parsed photo; :func:`outlier_share` counts, in renders of the
-fitted head, the head pixels further than :data:`OUTLIER_DELTA_E` from all of them.
+from every colour of the photo's skin and hair. :func:`photo_palette_of` samples those
+colours (:func:`~head360cli.fitting.colours.palette`) from the parsed photo;
+:func:`outlier_share` counts, in renders of the fitted head, the head pixels further than
+:data:`OUTLIER_DELTA_E` from all of them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["OUTLIER_DELTA_E", "outlier_share", "photo_palette", "photo_palette_of"]
+from head360cli.fitting.colours import palette, palette_distance
+
+__all__ = ["OUTLIER_DELTA_E", "as_grey", "outlier_share", "photo_palette_of"]
 
 OUTLIER_DELTA_E = 15.0
 """CIE76 colour difference beyond which a rendered pixel is an outlier (about three times
 what tells two colours apart side by side)."""
-PALETTE_SIZE = 4000
-"""Photo pixels sampled into the palette (a fixed seed)."""
 MIN_ALPHA = 0.9
 """A rendered pixel counts as the head's where its coverage is at least this."""
 
 
-def _lab(rgb: np.ndarray) -> np.ndarray:
-    """``(..., 3)`` CIELAB of uint8 sRGB ``(..., 3)``."""
-    import cv2
+def as_grey(images: np.ndarray) -> np.ndarray:
+    """``(..., 3)`` uint8 images in grey (BT.601 weights), each channel the same."""
+    from head360cli.fitting.texture import LUMA
 
-    flat = np.ascontiguousarray(rgb.reshape(-1, 1, 3)).astype(np.float32) / 255.0
-    return cv2.cvtColor(flat, cv2.COLOR_RGB2Lab).reshape(*rgb.shape[:-1], 3)
-
-
-def photo_palette(rgb: np.ndarray, mask: np.ndarray, seed: int = 0) -> np.ndarray:
-    """``(N, 3)`` CIELAB colours of the ``mask (H, W)`` pixels of ``rgb (H, W, 3)``
-    (at most :data:`PALETTE_SIZE`, drawn with ``seed``)."""
-    pixels = rgb[np.asarray(mask, bool)]
-    if len(pixels) > PALETTE_SIZE:
-        pick = np.random.default_rng(seed).choice(len(pixels), PALETTE_SIZE, replace=False)
-        pixels = pixels[pick]
-    return _lab(pixels)
+    grey = (images.astype(np.float64) @ np.array(LUMA)).round().clip(0, 255)
+    return np.repeat(grey[..., None], 3, -1).astype(np.uint8)
 
 
 def photo_palette_of(rgb: np.ndarray) -> np.ndarray | None:
@@ -54,24 +45,20 @@ def photo_palette_of(rgb: np.ndarray) -> np.ndarray | None:
     if not faces:
         return None
     parse = parse_hair(rgb, faces[0].landmarks)
-    return photo_palette(rgb, parse.hair | parse.face)
+    return palette(rgb, parse.hair | parse.face)
 
 
-def outlier_share(renders: np.ndarray, alphas: np.ndarray, palette: np.ndarray,
+def outlier_share(renders: np.ndarray, alphas: np.ndarray, colours: np.ndarray,
                   delta_e: float = OUTLIER_DELTA_E) -> list[float | None]:
     """Per render, the share of the head's pixels (``alphas (B, H, W)`` at least
-    :data:`MIN_ALPHA`) of ``renders (B, H, W, 3)`` uint8 whose CIELAB colour is further
-    than ``delta_e`` from every colour of ``palette (N, 3)``; ``None`` for a render
-    with no head pixel."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(palette)
+    :data:`MIN_ALPHA`) of ``renders (B, H, W, 3)`` uint8 whose colour is further than
+    ``delta_e`` from every colour of the palette ``colours (N, 3)``; ``None`` for a
+    render with no head pixel."""
     out: list[float | None] = []
     for img, a in zip(renders, alphas, strict=True):
         head = a >= MIN_ALPHA
         if not head.any():
             out.append(None)
             continue
-        dist, _ = tree.query(_lab(img[head]), k=1)
-        out.append(float((dist > delta_e).mean()))
+        out.append(float((palette_distance(img[head], colours) > delta_e).mean()))
     return out

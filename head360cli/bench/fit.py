@@ -468,11 +468,12 @@ OUTLIER_YAWS = (0.0, 45.0, -45.0, 90.0, -90.0, 135.0, -135.0, 180.0)
 def colour_outliers(head_file: Path, rgb: np.ndarray, device: str = "cpu") -> float | None:
     """The share of the head's pixels, over renders from :data:`OUTLIER_YAWS`, whose
     colour the photo's parsed skin and hair do not have
-    (:func:`~head360cli.bench.colours.outlier_share`); ``None`` where the photo shows
-    no face."""
-    from head360cli.bench.colours import outlier_share, photo_palette_of
+    (:func:`~head360cli.bench.colours.outlier_share`; for a grey photo, whose grey only
+    is fitted, the renders' grey); ``None`` where the photo shows no face."""
+    from head360cli.bench.colours import as_grey, outlier_share, photo_palette_of
     from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
     from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.io.images import is_greyscale
 
     palette = photo_palette_of(rgb)
     if palette is None:
@@ -481,6 +482,8 @@ def colour_outliers(head_file: Path, rgb: np.ndarray, device: str = "cpu") -> fl
     cams = view_cameras(OUTLIER_YAWS, 0.0, head_framing(head))
     images, alpha = head.render(cams, view_intrinsics(head.size), alpha=True)
     images = (images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    if is_greyscale(rgb):  # a grey photo's fit keeps the model's colour: its grey counts
+        images = as_grey(images)
     shares = [x for x in outlier_share(images, alpha[:, 0].numpy(), palette) if x is not None]
     return round(float(np.mean(shares)), 4) if shares else None
 

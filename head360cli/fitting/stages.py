@@ -320,8 +320,28 @@ def make_bald_target(seen: PhotoFace, frame: Framing, parse, first: dict) -> Bal
         raise BadInputError("expected a visible face region to fit the texture to, found "
                             f"{int(weight.sum())} pixels (is the face covered?)")
     valid = crop_mask(np.ones(seen.image.pixels.shape[:2], bool), frame.affine, res)
-    mask = weight.astype(np.float32) + 0.25 * (alpha & ~weight & ~hair & valid)
+    mask = weight.astype(np.float32) + 0.25 * skin_coloured(
+        frame.crop, weight, alpha & ~weight & ~hair & valid)
     return BaldTarget(target, weight, mask, hair, face, valid)
+
+
+SKIN_DELTA_E = 15.0
+"""CIE76 difference from every colour of the photo's face skin beyond which a pixel
+around the face (the head's render covers it, the parse calls it neither face nor hair)
+is kept out of the texture's loss: a collar, the backdrop, a microphone."""
+
+
+def skin_coloured(crop: np.ndarray, skin: np.ndarray, around: np.ndarray) -> np.ndarray:
+    """``(R, R)`` bool: the pixels of ``around`` whose colour in ``crop (R, R, 3)`` the
+    ``skin (R, R)`` pixels have, within :data:`SKIN_DELTA_E`. The render's neck and
+    sides cover the photo's shirt collar and backdrop; fitted to those, the texture put
+    blue-green streaks on cheeks and collars on necks, seen from every side."""
+    from head360cli.fitting.colours import palette, palette_distance
+
+    keep = np.zeros_like(around)
+    if skin.any() and around.any():
+        keep[around] = palette_distance(crop[around], palette(crop, skin)) <= SKIN_DELTA_E
+    return keep
 
 
 def invert(gen, seen: PhotoFace, shape: Shape, frame: Framing, bald: BaldTarget, start,

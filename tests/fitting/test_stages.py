@@ -49,3 +49,21 @@ def test_a_fit_that_went_wrong_says_so():
     assert check_fit(few, 30.0).warnings(30.0) == []
     many = _weights(**dict.fromkeys(unpaired[:MANY_AT_LIMIT], 1.0))
     assert len(check_fit(many, 30.0).warnings(30.0)) == 1
+
+
+def test_only_skin_coloured_pixels_around_the_face_join_the_texture_loss():
+    from head360cli.fitting.stages import skin_coloured
+
+    crop = np.zeros((32, 32, 3), np.uint8)
+    crop[:] = (40, 120, 130)  # a blue-green collar and backdrop
+    crop[:16] = (200, 150, 130)  # skin above
+    crop[16:20, :8] = (185, 138, 120)  # the neck's skin in shadow, a shade darker
+    skin = np.zeros((32, 32), bool)
+    skin[:12] = True
+    around = np.zeros((32, 32), bool)
+    around[12:] = True
+    keep = skin_coloured(crop, skin, around)
+    assert keep[12:16].all() and keep[16:20, :8].all()
+    assert not keep[16:20, 8:].any() and not keep[20:].any()
+    assert not keep[:12].any()  # only pixels of ``around``
+    assert not skin_coloured(crop, np.zeros_like(skin), around).any()  # no skin seen
