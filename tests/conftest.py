@@ -20,6 +20,15 @@ if os.environ.get("CI"):
     settings.register_profile("ci", derandomize=True)
     settings.load_profile("ci")
 
+# The suite tests what Ctrl-C does. A shell without job control starts a background job
+# (`.ci/run &`) with SIGINT ignored, which Python and head360 then leave ignored, as they
+# should: every Ctrl-C test failed. The suite puts the default back for itself and the
+# processes it starts.
+import signal  # noqa: E402
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
 
 @dataclass
 class CliResult:
