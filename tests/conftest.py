@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,8 +25,6 @@ if os.environ.get("CI"):
 # (`.ci/run &`) with SIGINT ignored, which Python and head360 then leave ignored, as they
 # should: every Ctrl-C test failed. The suite puts the default back for itself and the
 # processes it starts.
-import signal  # noqa: E402
-
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
