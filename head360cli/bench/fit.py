@@ -474,6 +474,7 @@ def colour_outliers(head_file: Path, rgb: np.ndarray, device: str = "cpu") -> fl
     from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.io.images import is_greyscale
+    from head360cli.model.head_render import to_uint8
 
     palette = photo_palette_of(rgb)
     if palette is None:
@@ -481,7 +482,7 @@ def colour_outliers(head_file: Path, rgb: np.ndarray, device: str = "cpu") -> fl
     head = load_head_renderer(head_file, device=device, precision="fp32")
     cams = view_cameras(OUTLIER_YAWS, 0.0, head_framing(head))
     images, alpha = head.render(cams, view_intrinsics(head.size), alpha=True)
-    images = (images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    images = to_uint8(images)
     if is_greyscale(rgb):  # a grey photo's fit keeps the model's colour: its grey counts
         images = as_grey(images)
     shares = [x for x in outlier_share(images, alpha[:, 0].numpy(), palette) if x is not None]

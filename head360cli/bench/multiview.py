@@ -121,6 +121,7 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
     from head360cli.io.headfile import read_head
     from head360cli.io.images import load_image
     from head360cli.mesh.template import template
+    from head360cli.model.head_render import to_uint8
 
     by_pan = {r["pan_deg"]: r for r in rows if r["tilt_deg"] == 0}
     pans = sorted(by_pan)
@@ -152,7 +153,7 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
         cams = torch.tensor(np.stack([orbit(c2w, p) for p in pans]))
         rgb, alpha = head.render(cams, torch.tensor(k), expression=photo_expression(
             head.expression), alpha=True)
-        renders = (rgb.permute(0, 2, 3, 1).numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
+        renders = to_uint8(rgb)
         alpha = alpha[:, 0].numpy()
         per_pan = []
         for i, p in enumerate(pans):
