@@ -47,17 +47,34 @@ def bench_group() -> None:
 @bench_group.command("synth")
 @click.option("--identities", "-n", default=100, show_default=True,
               help="Identities in the timed corpus subset.")
+@click.option("--pose-heads", default=8, show_default=True,
+              help="Held-out heads whose pose is read from their renders' landmarks "
+                   "(0: skip).")
+@click.option("--detector", type=click.Choice(["auto", "hog"]), default="auto",
+              show_default=True, help="Landmarks for the pose: the face mesh or dlib.")
+@click.option("--skin-scan", type=InputPath(exists=True, file_okay=False), default=None,
+              help="Also read the pose of heads with this head scan's skin.")
 @BENCH_OUT
 @common_options
-def bench_synth_cmd(identities: int, out_dir: str) -> None:
+def bench_synth_cmd(identities: int, pose_heads: int, detector: str, skin_scan: str | None,
+                    out_dir: str) -> None:
     """Corpus renderer: ms per 256x256 view by antialiasing samples and batch size, and
-    the time to write a corpus subset (target: at most 50 ms per view on 2 cores)."""
+    the time to write a corpus subset (target: at most 50 ms per view on 2 cores); the
+    heads' face proportions against ICT-FaceKit's; the pose the fit's landmarks read on
+    corpus renders (goal: within 3 degrees).
+
+    \b
+    Example:
+      head360 bench synth --skin-scan ../shared/assets/lps_head_scan
+    """
     from head360cli.bench.synth import bench_synth
 
     cpu_only_warning("bench synth")
-    if identities < 1:
-        raise BadInputError(f"expected --identities >= 1, found {identities}")
-    result, md = bench_synth(identities=identities)
+    if identities < 1 or pose_heads < 0:
+        raise BadInputError(f"expected --identities >= 1 and --pose-heads >= 0, found "
+                            f"{identities} and {pose_heads}")
+    result, md = bench_synth(identities=identities, pose_heads=pose_heads,
+                             skin_scan=skin_scan or "", detector=detector)
     _save_and_emit(result, md, out_dir, "synth")
 
 

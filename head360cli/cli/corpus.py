@@ -45,9 +45,15 @@ from head360cli.errors import BadInputError
 @click.option("--preview", is_flag=True,
               help="Only write contact sheets (identities x views, the 52 expressions, "
               "the 30 hairstyles) into OUTDIR.")
+@click.option("--skin-scan", type=InputPath(exists=True, file_okay=False), default=None,
+              help="Folder of a head scan (head.obj, lambertian.jpg) whose skin detail "
+                   "every head takes, e.g. ../shared/assets/lps_head_scan.")
+@click.option("--soft-hair", is_flag=True,
+              help="Hairlines that follow each style's line and thin out at the edge.")
 @common_options
 def synth(outdir: str, identities: int, expressions: int, views: int, size: int, seed: int,
-          split: str, start: int, samples: str, preview: bool) -> None:
+          split: str, start: int, samples: str, preview: bool, skin_scan: str | None,
+          soft_hair: bool) -> None:
     """Write the SynHead-P synthetic head corpus (deterministic from --seed) into OUTDIR.
 
     Each view is rendered with and without hair, with hair and face masks; index.jsonl
@@ -60,6 +66,7 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
       head360 synth corpus/ --split test -n 10    10 held-out identities
       head360 synth corpus/ -n 100 -e 53 -v 72    the full SynHead100-sized corpus
       head360 synth previews/ --preview           contact sheets only
+      head360 synth corpus/ --skin-scan ../shared/assets/lps_head_scan --soft-hair
     """
     from head360cli.progress import progress_bar
 
@@ -68,13 +75,15 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
     if preview:
         from head360cli.synth.corpus import write_previews
 
-        paths = write_previews(outdir, seed=seed, split=split)
+        paths = write_previews(outdir, seed=seed, split=split, skin_scan=skin_scan or "",
+                               soft_hair=soft_hair)
         emit({"previews": paths}, "\n".join(f"wrote {p}" for p in paths))
         return
     from head360cli.synth.corpus import CorpusConfig, write_corpus
 
     cfg = CorpusConfig(identities=identities, expressions=expressions, views=views,
-                       size=size, seed=seed, split=split, samples=int(samples), start=start)
+                       size=size, seed=seed, split=split, samples=int(samples), start=start,
+                       skin_scan=skin_scan or "", soft_hair=soft_hair)
     summary = write_corpus(
         cfg, outdir,
         progress=lambda it, total: progress_bar(it, total, "identities",
@@ -180,11 +189,16 @@ PRESETS = {
 @click.option("--init", "init", type=InputPath(dir_okay=False, exists=True), default=None,
               help="Start a new run from these generator weights (their configuration "
                    "replaces --preset and the ablation flags).")
+@click.option("--skin-scan", type=InputPath(exists=True, file_okay=False), default=None,
+              help="Train on corpus heads whose skin takes this head scan's detail.")
+@click.option("--soft-hair", is_flag=True,
+              help="Train on soft hairlines (the weights then fit their hair so).")
 @common_options
 def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
           identities: int, seed: int, planes: str, no_refine: bool, no_detach: bool,
           no_hair: bool, lr: float, group: int, workers: int, featured_share: float,
-          export: str | None, init: str | None) -> None:
+          export: str | None, init: str | None, skin_scan: str | None,
+          soft_hair: bool) -> None:
     """Train the generator on SynHead-P (resumes a run folder that has a checkpoint).
 
     \b
@@ -212,7 +226,8 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
     resuming = (Path(run_dir) / CHECKPOINT).is_file()
     if resuming:  # the checkpoint's configuration replaces all but these
         warn_unused(("preset", "planes", "no_refine", "no_hair", "batch", "identities", "seed",
-                 "lr", "group", "workers", "featured_share", "no_detach", "init"),
+                     "lr", "group", "workers", "featured_share", "no_detach", "init",
+                     "skin_scan", "soft_hair"),
                 f"when resuming {run_dir} (its checkpoint's configuration is used)")
     elif init is not None:  # the initial weights' configuration replaces these
         warn_unused(("preset", "planes", "no_refine", "no_hair"),
@@ -221,7 +236,8 @@ def train(run_dir: str, preset: str, steps: int, minutes: float, batch: int,
                               hair=not no_hair)
     cfg = TrainConfig(identities=identities, seed=seed, steps=steps, minutes=minutes,
                       batch=batch, lr=lr, detach=not no_detach, group=group,
-                      workers=workers, featured_share=featured_share, init=init or "")
+                      workers=workers, featured_share=featured_share, init=init or "",
+                      skin_scan=skin_scan or "", soft_hair=soft_hair)
     last = run_training(run_dir, cfg, gen_cfg, device=device, progress=not current_settings().quiet)
     result: dict[str, Any] = {"run": run_dir, "last": last}
     trained = "l1" in last  # a resumed run at --steps already trains nothing

@@ -52,6 +52,10 @@ class GeneratorConfig:
     """Build the hair branch (hairstyle and colour -> hair planes on the style's mesh)."""
     hair_styles: int = 30
     """Hairstyles the hair branch knows (the corpus's style library)."""
+    soft_hair: bool = False
+    """Hairstyle meshes with soft hairlines, as in the corpus it was trained on
+    (:func:`head360cli.synth.hair.build_hair`); ``False``: hairlines stepped from grid
+    row to grid row."""
     hair_embed_dim: int = 16
     """Length of a hairstyle's learnt embedding; the hair colour (RGB) is appended."""
     hair_texture_res: int = 64

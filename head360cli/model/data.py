@@ -100,12 +100,17 @@ class Views:
         size: Image resolution.
         texture_size: Atlas size of the synthetic heads.
         device: Where the corpus renderer runs (the targets stay there).
+        skin_scan: Folder of a head scan whose skin detail the heads take (``""``: none;
+            see :func:`head360cli.synth.scene.make_head`).
+        soft_hair: Soft hairlines (:func:`head360cli.synth.hair.build_hair`).
     """
 
     def __init__(self, identities: int, split: str = "train", seed: int = 0,
-                 size: int = 256, texture_size: int = 512, device: str = "cpu") -> None:
+                 size: int = 256, texture_size: int = 512, device: str = "cpu",
+                 skin_scan: str = "", soft_hair: bool = False) -> None:
         self.identities, self.split, self.seed, self.size = identities, split, seed, size
         self.texture_size = texture_size
+        self.skin_scan, self.soft_hair = skin_scan, soft_hair
         self.device = torch.device(device)
         self.intrinsics = intrinsics_from_fov(RIG_FOV_DEG, size, size).to(self.device)
         self.rig, _, _ = rig72()
@@ -119,7 +124,8 @@ class Views:
             from head360cli.synth.scene import make_head, prepare_render
 
             head = make_head(index, self.split, self.seed, texture_size=self.texture_size,
-                             hair_style=style, hair_colour=colour)
+                             hair_style=style, hair_colour=colour,
+                             skin_scan=self.skin_scan or None, soft_hair=self.soft_hair)
             prepare_render(head, self.device)
             self._heads[key] = head
         return self._heads[key]
@@ -144,10 +150,13 @@ class Views:
             with concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
                 with sigint_ignored():  # the pool's processes start with the first jobs
                     jobs = [pool.submit(_make_head, (i, self.split, self.seed,
-                                                     self.texture_size)) for i in todo]
+                                                     self.texture_size, self.skin_scan,
+                                                     self.soft_hair))
+                            for i in todo]
                 heads = [job.result() for job in jobs]
         else:
-            heads = [make_head(i, self.split, self.seed, texture_size=self.texture_size)
+            heads = [make_head(i, self.split, self.seed, texture_size=self.texture_size,
+                               skin_scan=self.skin_scan or None, soft_hair=self.soft_hair)
                      for i in todo]
         for i, head in zip(todo, heads, strict=True):
             prepare_render(head, self.device)
@@ -203,5 +212,6 @@ class Views:
 def _make_head(args):
     from head360cli.synth.scene import make_head
 
-    index, split, seed, size = args
-    return make_head(index, split, seed, texture_size=size)
+    index, split, seed, size, skin_scan, soft_hair = args
+    return make_head(index, split, seed, texture_size=size, skin_scan=skin_scan or None,
+                     soft_hair=soft_hair)

@@ -224,7 +224,7 @@ class HeadRenderer:
         self.hair = None
         if self.gen.cfg.hair:
             hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None],
-                            self.hair_offset[None])
+                            self.hair_offset[None], soft=self.gen.cfg.soft_hair)
             if hair.meshes[0] is not None:
                 with torch.no_grad():
                     self.hair = self.gen.prepare_hair(hair.to(self.device))

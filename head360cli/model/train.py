@@ -91,6 +91,12 @@ class TrainConfig:
     """Generator weights (``save_generator``'s file) to start a new run from instead of a
     random initialisation: the networks and the training codes (``""``: none). The
     generator configuration is then the weights' own."""
+    skin_scan: str = ""
+    """Folder of a head scan whose skin detail the corpus heads take (``""``: painted
+    noise, the corpus the shipped generator was trained on)."""
+    soft_hair: bool = False
+    """Train on soft hairlines; the generator then records it
+    (``GeneratorConfig.soft_hair``) and fits its hair so at run time."""
 
     def __post_init__(self) -> None:
         """Refuse settings no run can train with (the CLI checks its options first, with
@@ -224,6 +230,8 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
         if init["codes"].shape[0] != cfg.identities:
             raise ValueError(f"{cfg.init}: expected codes for {cfg.identities} identities, "
                              f"found {init['codes'].shape[0]}")
+    if state is None:  # the hair meshes at run time are those it learns from
+        gen_cfg = dataclasses.replace(gen_cfg, soft_hair=cfg.soft_hair)
     torch.manual_seed(cfg.seed)
     model = _Model(Generator(gen_cfg, *_topology()), cfg.identities).to(device)
     if init is not None:
@@ -243,7 +251,8 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     run = model
     if world > 1:  # a bald-only step leaves the hair branch without gradients
         run = nn.parallel.DistributedDataParallel(model, find_unused_parameters=gen_cfg.hair)
-    views = Views(cfg.identities, "train", cfg.seed, gen_cfg.image_res, device=device)
+    views = Views(cfg.identities, "train", cfg.seed, gen_cfg.image_res, device=device,
+                  skin_scan=cfg.skin_scan, soft_hair=gen_cfg.soft_hair)
     bald_share = cfg.bald_share if (cfg.detach and gen_cfg.hair) else (
         0.0 if gen_cfg.hair else 1.0)
     base_lrs = [cfg.lr, cfg.code_lr]

@@ -98,8 +98,15 @@ def _noise(rng: np.random.Generator, size: int, scale: int) -> np.ndarray:
 
 
 def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
-                  identity: IdentityParams, look: Appearance, size: int = 512) -> np.ndarray:
+                  identity: IdentityParams, look: Appearance, size: int = 512,
+                  scan: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The albedo atlas of one identity.
+
+    Args:
+        scan: ``(fine, mid)`` layers of a scanned skin on this atlas
+            (:func:`head360cli.synth.skin.skin_layers`): the skin takes their detail and
+            the face their slower colour changes, on the identity's own tone; ``None``
+            paints noise instead.
 
     Returns:
         ``(size, size, 3)`` float32 in [0, 1].
@@ -117,7 +124,8 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
     base = light * (1 - look.skin_tone) + deep * look.skin_tone
     red = np.array([0.06, -0.03, -0.02]) * look.redness
     skin = np.broadcast_to(base + red, pos.shape).copy()
-    skin *= (1 + 0.035 * fine + 0.05 * blotch)[..., None]
+    noise = 1.0 if scan is None else 0.3  # a scan brings its own detail
+    skin *= (1 + noise * (0.035 * fine + 0.05 * blotch))[..., None]
     front = smoothstep(0.02, 0.06, z)
 
     # Cheeks and nose a little warmer; the ear's inside darker.
@@ -152,6 +160,22 @@ def paint_texture(verts: np.ndarray, topo: Topology, frame: HeadFrame,
             fold += 0.6 * crow * (0.5 + 0.5 * np.cos((y - lv["eye"]) / 0.002 * np.pi))
         wrinkle = age * (0.07 * lines * forehead + 0.12 * fold) * front
         skin *= (1 - wrinkle)[..., None]
+    if scan is not None:
+        scan_fine, scan_mid = scan
+        # The scan's slower colour changes on the face's front, but not where the
+        # painted lips, brows and eyes go (the scan's own sit a little elsewhere on this head).
+        brow_zone = smoothstep(0.012, 0.004, np.abs(y - lv["brow"] - 0.004))
+        eye_zone = np.zeros_like(x)
+        for c in frame.eye_centres:
+            eye_zone = np.maximum(eye_zone, smoothstep(0.026, 0.016, np.hypot(
+                x - c[0], (y - c[1]) * 1.4)))
+        keep_mid = front * (1 - lips) * (1 - brow_zone) * (1 - eye_zone)
+        skin *= 1 + (scan_mid - 1) * keep_mid[..., None]
+        # The scan's stubble shows in its detail: shaved heads keep a third of it.
+        beard = (smoothstep(lv["nose_base"] - 0.004, lv["nose_base"] - 0.012, y)
+                 * smoothstep(lv["throat"] - 0.01, lv["menton"], y) * (1 - lips))
+        keep = 1 - beard * (1 - max(look.stubble, 0.35))
+        skin *= 1 + (scan_fine - 1) * keep[..., None]
     # Eyebrows: an arched band of short hairs above each eye.
     brow = np.zeros_like(x)
     for c in frame.eye_centres:

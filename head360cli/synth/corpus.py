@@ -58,6 +58,12 @@ class CorpusConfig:
     """Antialiasing samples per pixel (1, 2 or 4)."""
     start: int = 0
     """Index of the first identity (to write a split in parts)."""
+    skin_scan: str = ""
+    """Folder of a head scan (``head.obj``, ``lambertian.jpg``) whose skin detail every
+    head's texture takes; ``""`` paints noise instead."""
+    soft_hair: bool = False
+    """Hairlines that follow each style's line and thin out at the edge, instead of
+    stepping from grid row to grid row."""
 
     def __post_init__(self) -> None:
         """Refuse settings no corpus can be written with (the CLI checks its options first;
@@ -125,7 +131,8 @@ def _write_identity(cfg: CorpusConfig, index: int, folder: Path, rel: str) -> li
     from head360cli.synth.hair import HAIRSTYLES
     from head360cli.synth.scene import make_head, render_head
 
-    head = make_head(index, cfg.split, cfg.seed)
+    head = make_head(index, cfg.split, cfg.seed, skin_scan=cfg.skin_scan or None,
+                     soft_hair=cfg.soft_hair)
     c2w_all, yaw_all, pitch_all = rig72()
     k = intrinsics_from_fov(RIG_FOV_DEG, cfg.size, cfg.size)
     records = []
@@ -289,7 +296,8 @@ def _grid(tiles: list[np.ndarray], cols: int) -> np.ndarray:
 
 
 def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 160,
-                   identities: int = 8, split: str = "train") -> list[str]:
+                   identities: int = 8, split: str = "train", skin_scan: str = "",
+                   soft_hair: bool = False) -> list[str]:
     """Contact sheets: identities x views; all 52 expressions of one identity; all 30
     hairstyles on one identity. The three are written as one set once all are rendered
     (an interrupted run leaves an earlier run's sheets as they were). Returns the PNG
@@ -320,7 +328,8 @@ def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 16
     pitches = [0.0, 0.0, 0.0, 20.0, 0.0, -20.0]
     c2w = camera_on_sphere(torch.tensor(yaws), torch.tensor(pitches), RIG_DISTANCE)
     tiles = []
-    heads = [make_head(i, split, seed) for i in range(identities)]
+    heads = [make_head(i, split, seed, skin_scan=skin_scan or None, soft_hair=soft_hair)
+             for i in range(identities)]
     for head in heads:
         r = render_head(head, np.zeros(52), c2w, k, size, samples=4)
         tiles += [_to_u8(img.permute(1, 2, 0)) for img in r.rgb]
@@ -346,7 +355,7 @@ def write_previews(outdir: str | os.PathLike[str], seed: int = 0, size: int = 16
     tiles = []
     for sid, style in enumerate(HAIRSTYLES):
         head.hair_style, head.hair_colour = sid, colours[sid % len(colours)]
-        head.hair = build_hair(head.verts, head.frame, sid)
+        head.hair = build_hair(head.verts, head.frame, sid, soft=soft_hair)
         head.hair_tex = hair_texture(HAIR_COLOURS[head.hair_colour], 256, sid)
         head.__dict__.pop("_render_cache", None)  # the hair changed
         r = render_head(head, np.zeros(52), three_q, k, size, samples=4)

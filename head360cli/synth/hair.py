@@ -250,8 +250,15 @@ def _base_grid(verts: np.ndarray, frame: HeadFrame, bottom: float,
     return pts, nrm
 
 
-def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle
-                            ) -> tuple[np.ndarray, np.ndarray]:
+def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle,
+                            soft: bool = False
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which grid points the style covers and how thick its hair is there.
+
+    Returns:
+        ``(covered (R, C) bool, thick (R, C), pts (R, C, 3), edge (R, C) bool)``: with
+        ``soft``, the points below the hairline moved onto it (``edge``).
+    """
     lv = frame.levels
     phi = np.broadcast_to(_column_angles()[None], pts.shape[:2])
     y = pts[..., 1]
@@ -267,6 +274,29 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle
     side_line = np.minimum(face_line, side_y)
     line = face_line * (1 - temple) + (side_line * (1 - behind) + back_y * behind) * temple
     covered = y >= line
+    if soft:
+        # One more row below each column's hairline, its points slid up onto the line
+        # (the zero of y - line between the rows): the edge follows the line between
+        # grid rows instead of stepping from row to row, and tapers to a thin edge.
+        f = y - line
+        below = np.zeros_like(covered)
+        below[1:] = covered[:-1] & ~covered[1:]
+        r, j = np.nonzero(below)
+        t = np.clip(f[r - 1, j] / np.maximum(f[r - 1, j] - f[r, j], 1e-9), 0.0, 1.0)
+        pts = pts.copy()
+        pts[r, j] = pts[r - 1, j] + t[:, None] * (pts[r, j] - pts[r - 1, j])
+        covered = covered | below
+        # Where the line falls steeply from column to column (temples, sides), a row
+        # lower is not enough: a point beside a covered one slides sideways onto the line.
+        right, left = np.roll(covered, -1, axis=1), np.roll(covered, 1, axis=1)
+        side = ~covered & (right ^ left)
+        r, j = np.nonzero(side)
+        nb = np.where(right[r, j], (j + 1) % covered.shape[1], j - 1)
+        t = np.clip(f[r, nb] / np.maximum(f[r, nb] - f[r, j], 1e-9), 0.0, 1.0)
+        pts[r, j] = pts[r, nb] + t[:, None] * (pts[r, j] - pts[r, nb])
+        below |= side
+        covered = covered | side
+        y = pts[..., 1]
     if style.strip > 0:
         # A band across the top: within strip * 8 cm of the midplane.
         covered &= (np.abs(pts[..., 0]) < style.strip * 0.08) & (y >= lv["nose_base"])
@@ -278,7 +308,10 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle
     if style.part is not None:
         thick = thick * (1 - 0.6 * np.exp(-0.5 * ((phi - style.part) / 0.06) ** 2)
                          * (y > lv["forehead"]))
-    return covered, thick
+    edge = below if soft else np.zeros_like(covered)
+    if soft:
+        thick = np.where(edge, 0.25 * thick, thick)
+    return covered, thick, pts, edge
 
 
 def _shell(base: np.ndarray, normal: np.ndarray, covered: np.ndarray, thick: np.ndarray,
@@ -433,7 +466,7 @@ def _extras(style: HairStyle, frame: HeadFrame, head_top: float, back_z: float
 
 
 def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
-               normals: np.ndarray | None = None) -> HairMesh:
+               normals: np.ndarray | None = None, soft: bool = False) -> HairMesh:
     """Fit a hairstyle to a head.
 
     Args:
@@ -442,6 +475,9 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
         style: A :class:`HairStyle` or its index in :data:`HAIRSTYLES`.
         normals: ``(V, 3)`` :func:`head_normals` of ``verts``, when already made (for
             several styles on one head); made here otherwise.
+        soft: Hairlines that follow the style's line between grid rows and thin out at
+            the edge; ``False`` steps from row to row (the hair the shipped generator
+            learnt).
 
     Returns:
         The hair mesh (empty for ``bald``).
@@ -452,7 +488,7 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
         return HairMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 2)))
     bottom = min(frame.levels["menton"] - style.length, frame.levels["neck_bottom"])
     base, normal = _base_grid(verts, frame, bottom, normals)
-    covered, thick = _coverage_and_thickness(base, frame, style)
+    covered, thick, base, _ = _coverage_and_thickness(base, frame, style, soft)
     pieces = [_shell(base, normal, covered, thick, style, frame)]
     head_top = float(verts[:, 1].max())
     back_z = float(verts[:, 2].min())
@@ -466,13 +502,13 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
     return HairMesh(np.concatenate(all_v), np.concatenate(all_f), np.concatenate(all_uv))
 
 
-def fit_hair(verts: np.ndarray, style: HairStyle | int) -> HairMesh:
+def fit_hair(verts: np.ndarray, style: HairStyle | int, soft: bool = False) -> HairMesh:
     """Fit a hairstyle to any head of this topology, its frame read off the vertices
     (:func:`head360cli.synth.sculpt.frame_from_vertices`); for a corpus head this is the
     same mesh as :func:`build_hair` with the head's own frame."""
     from head360cli.synth.sculpt import frame_from_vertices
 
-    return build_hair(verts, frame_from_vertices(verts), style)
+    return build_hair(verts, frame_from_vertices(verts), style, soft=soft)
 
 
 def fit_hairs(verts: np.ndarray, styles: list[int]) -> dict[int, HairMesh]:

@@ -53,7 +53,8 @@ class SynthHead:
 
 
 def make_head(index: int, split: str = "train", seed: int = 0, texture_size: int = 512,
-              hair_style: int | None = None, hair_colour: str | None = None) -> SynthHead:
+              hair_style: int | None = None, hair_colour: str | None = None,
+              skin_scan: str | None = None, soft_hair: bool = False) -> SynthHead:
     """Build corpus head ``index``: balanced sex (even = female), ages spread over 16-70.
 
     Args:
@@ -63,6 +64,9 @@ def make_head(index: int, split: str = "train", seed: int = 0, texture_size: int
         texture_size: Atlas size.
         hair_style: Style id (default: ``index % 30``).
         hair_colour: Colour name (default: drawn, greyer with age).
+        skin_scan: Folder of a head scan whose skin detail the texture takes
+            (:func:`head360cli.synth.skin.scan_skin`); ``None`` paints noise.
+        soft_hair: Soft hairlines (:func:`head360cli.synth.hair.build_hair`).
     """
     s = head_seed(seed, split, index)
     rng = np.random.default_rng([s, 0x5EED])
@@ -72,7 +76,12 @@ def make_head(index: int, split: str = "train", seed: int = 0, texture_size: int
     look = sample_appearance(s, identity)
     verts, frame = build_head(identity)
     deltas = blendshape_deltas(verts, frame)
-    texture = paint_texture(verts, topology(), frame, identity, look, texture_size)
+    scan = None
+    if skin_scan:
+        from head360cli.synth.skin import scan_skin
+
+        scan = scan_skin(skin_scan, texture_size)
+    texture = paint_texture(verts, topology(), frame, identity, look, texture_size, scan)
     style = index % len(HAIRSTYLES) if hair_style is None else hair_style
     if hair_colour is None:
         names = list(HAIR_COLOURS)
@@ -82,7 +91,7 @@ def make_head(index: int, split: str = "train", seed: int = 0, texture_size: int
             hair_colour = "black" if rng.random() < 0.7 else "dark brown"
         else:
             hair_colour = names[int(rng.integers(0, 8))]
-    hair = build_hair(verts, frame, style)
+    hair = build_hair(verts, frame, style, soft=soft_hair)
     hair_tex = hair_texture(HAIR_COLOURS[hair_colour], texture_size // 2, s)
     return SynthHead(index, split, identity, look, verts, frame, deltas, texture, style,
                      hair_colour, hair, hair_tex)

@@ -369,3 +369,22 @@ def test_a_sparse_texture_change_gives_the_planes_of_the_changed_texture(parts, 
         a = gen(verts, c2w, k, texture=texture + change.detach())
         b = gen(verts, c2w, k, head_planes=sparse.detach())
     torch.testing.assert_close(a["rgb"], b["rgb"], atol=1e-5, rtol=1e-5)
+
+
+def test_soft_hair_is_the_configs_and_older_weights_have_stepped_hair(parts):
+    """A generator trained on soft hairlines gets them at run time; a configuration
+    saved before the setting existed reads as stepped."""
+    import numpy as np
+
+    from head360cli.model.generator import hair_for
+    from head360cli.synth.hair import fit_hair
+
+    saved = dataclasses.asdict(GeneratorConfig())
+    saved.pop("soft_hair")
+    assert GeneratorConfig.from_dict(saved).soft_hair is False
+    neutral = parts[1][0].numpy()
+    for soft in (False, True):
+        verts = hair_for(neutral, [17], [[0.2, 0.1, 0.05]], soft=soft).meshes[0][0].numpy()
+        expected = fit_hair(neutral, 17, soft=soft).verts
+        np.testing.assert_allclose(verts, expected, atol=1e-6)
+    assert not np.allclose(fit_hair(neutral, 17).verts, fit_hair(neutral, 17, soft=True).verts)

@@ -57,10 +57,11 @@ def test_init_starts_a_new_run_from_exported_weights(tmp_path):
     save_generator(tmp_path / "run" / CHECKPOINT, tmp_path / "g.pt")
     shipped = torch.load(tmp_path / "g.pt", weights_only=True)
     other = dataclasses.replace(TINY, hidden=TINY.hidden * 2)  # the weights' config wins
-    more = dataclasses.replace(CFG, init=str(tmp_path / "g.pt"), seed=1)
+    # on a corpus with soft hairlines: the new weights record them, for run time
+    more = dataclasses.replace(CFG, init=str(tmp_path / "g.pt"), seed=1, soft_hair=True)
     train(tmp_path / "more", more, other, progress=False, stop_at=1)
     state = torch.load(tmp_path / "more" / CHECKPOINT, weights_only=False)
-    assert state["generator_config"] == TINY.to_dict()
+    assert state["generator_config"] == dataclasses.replace(TINY, soft_hair=True).to_dict()
     assert state["train_config"]["init"] == str(tmp_path / "g.pt")
     moved = [k for k, v in shipped["generator"].items()
              if not torch.equal(v, state["model"]["generator." + k])]
