@@ -264,9 +264,14 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @cli.command()
 @click.argument("head", type=_HEAD, required=False,
                 callback=stdin_path("a head file"))
-@click.option("--arkit", required=True, type=InputPath(allow_dash=True),
+@click.option("--arkit", default=None, type=InputPath(allow_dash=True),
               help="ARKit-52 CSV stream (Live Link Face, MediaPipe names, generic), or - "
               "for standard input.")
+@click.option("--video", default=None, type=InputPath(allow_dash=True),
+              help="Instead of --arkit: a video (or folder of frames, or - for standard "
+              "input) whose face is tracked and drives the head as it is read.")
+@click.option("--side-by-side", is_flag=True,
+              help="With --video: each input frame beside the animated head.")
 @click.option("-o", "--out", default=None, type=OutputPath(),
               help="Video: .mp4, .gif, or a folder for PNG frames (default, without "
               "--mesh-sequence: <stream stem>.mp4, never over an existing file).")
@@ -301,19 +306,21 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
 @_quality_options
 @_backend_options
 @common_options
-def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
-            head_pose: bool,
+def animate(head: str | None, arkit: str | None, video: str | None, side_by_side: bool,
+            out: str | None, mesh_dir: str | None, head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
             yaw: float, pitch: float, on_bad: str, stream_fps: float | None,
             workers: int | None, batch: int | None,
             samples: int | None, size: int | None, exact: bool, precision: str,
             no_hair: bool, backend: str, onnx_path: str) -> None:
-    """Drive a head with an ARKit-52 blendshape stream.
+    """Drive a head with an ARKit-52 blendshape stream, or with a face tracked in a video.
 
     Only the mesh is recomputed per frame, and with a still camera only the parts of the
     head it moved are decoded again; frames stream to the encoder, so memory does not grow
     with the length of the take. Without HEAD, the model's mean head is driven (to try a
-    stream before any photo is fitted).
+    stream before any photo is fitted). With --video, frames are tracked and rendered a
+    few at a time in this process (--start, --end, --fps for a folder and --on-bad apply
+    to the video; for the worker processes' speed, 'head360 track' first).
 
     \b
     Examples:
@@ -324,18 +331,29 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
       cat take.csv | head360 animate me.h360 --arkit - -o talk.mp4
       head360 animate me.h360 --arkit take.csv --mesh-sequence frames/
       head360 animate me.h360 --arkit take.csv --backend onnx --onnx gen.onnx -o talk.mp4
+      head360 animate me.h360 --video clip.mp4 --side-by-side -o both.mp4
     """
     from head360cli.drive.animate import AnimateConfig
     from head360cli.drive.animate import animate as run
     from head360cli.io.arkit import read_arkit_csv
 
-    if head == "/dev/stdin" and arkit in ("-", "/dev/stdin"):
+    if (arkit is None) == (video is None):
+        raise BadInputError("expected one driver, --arkit STREAM or --video CLIP, found "
+                            + ("both" if arkit else "neither"))
+    source = arkit if arkit is not None else video
+    if head == "/dev/stdin" and source in ("-", "/dev/stdin"):
         raise BadInputError("expected at most one input on standard input, found both the "
-                            "head and --arkit: give one of them as a file")
+                            f"head and {'--arkit' if arkit else '--video'}: give one of "
+                            "them as a file")
+    if video is not None and mesh_dir is not None:
+        raise BadInputError("expected --mesh-sequence with --arkit, found it with --video: "
+                            "track the video first (head360 track) and animate the stream")
+    if side_by_side and video is None:
+        raise BadInputError("expected --side-by-side with --video, found it with --arkit")
     if out is None and mesh_dir is None:  # as fit names its head after the photo
         from head360cli.io.sources import input_stem
 
-        out = f"{'stream' if arkit == '-' else input_stem(arkit)}.mp4"
+        out = f"{'stream' if source == '-' else input_stem(source)}.mp4"
         if Path(out).exists():  # a name the user did not choose never replaces a file
             raise BadInputError(f"expected -o OUT (the default {out} exists already)")
     from head360cli.io.video import MAX_FPS, MIN_FPS
@@ -366,6 +384,14 @@ def animate(head: str | None, arkit: str, out: str | None, mesh_dir: str | None,
         if why is not None:
             warn(f"--workers {workers} is not used with {why}: this process renders "
                   "every frame")
+    if video is not None:
+        warn_unused(("smooth", "stream_fps", "workers", "batch"),
+                    "with --video (the tracker filters; this process renders)")
+        _animate_video(head, video, out, side_by_side, head_pose, fps, start, end, yaw,
+                       pitch, on_bad, no_hair, backend, onnx_path, samples, size, exact,
+                       precision)
+        return
+    assert arkit is not None
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         from head360cli.io.sources import missing
 
@@ -479,6 +505,44 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
               "(swap-hair --hair NAME)")
     emit(res, f"wrote {out}: hair {res['hair_style']['name']} (was "
           f"{HAIRSTYLES[was].name}, style {was})")
+
+
+def _animate_video(head: str | None, video: str, out: str, side_by_side: bool,
+                   head_pose: bool, fps: float | None, start: float | None,
+                   end: float | None, yaw: float, pitch: float, on_bad: str, no_hair: bool,
+                   backend: str, onnx_path: str, samples: int | None, size: int | None,
+                   exact: bool, precision: str) -> None:
+    """``animate --video``: track and render in one pass (see
+    :func:`head360cli.drive.animate.animate_video`)."""
+    from head360cli.drive.animate import AnimateConfig, animate_video
+    from head360cli.perception.track import TrackConfig
+
+    track = TrackConfig(start=start, end=end, on_bad=on_bad, fps=fps)
+    cfg = AnimateConfig(head_pose=head_pose, yaw=yaw, pitch=pitch, hair=not no_hair)
+    scratch = None
+    if head is None:
+        import tempfile
+
+        warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
+             "PHOTO and give the .h360)")
+        scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
+        head = str(_mean_head_file(Path(scratch.name)))
+    try:
+        default = None if backend == "onnx" else ANIMATE_SAMPLES  # the graph's own
+        renderer = _backend_renderer(head, backend, onnx_path,
+                                     default if samples is None else samples, size, precision)
+        if exact:
+            renderer.reuse = None
+        res = animate_video(renderer, video, out, cfg, track, side_by_side,
+                            progress=progress_printer())
+    finally:
+        if scratch is not None:
+            scratch.cleanup()
+    for warning in res.get("warnings", []):
+        warn(warning)
+    emit(res, f"tracked and animated {res['frames']} frames ({res['duration_s']:.2f} s at "
+              f"{res['fps']:.2f} fps; a face in {res['frames_with_face']} of "
+              f"{res['frames_decoded']}), {res['render_fps']:.1f} frames/s\n  wrote {out}")
 
 
 def _mean_head_file(folder: Path) -> Path:

@@ -1,5 +1,5 @@
-"""The commands that read a photo: ``fit``, ``parse-hair``, ``classify-hair`` and
-``demo``."""
+"""The commands that read a photo or a video: ``fit``, ``parse-hair``, ``classify-hair``,
+``demo`` and ``track``."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from head360cli.cli.base import (
     HAIR_PARSER,
     NO_PRIOR,
     PHOTO,
+    InputPath,
     OutputPath,
     cli,
     common_options,
@@ -261,3 +262,62 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
     emit(r, f"fitted the astronaut in {r['fit']['timings']['total']:.1f} s; hair "
           f"{r['fit']['hair_style']['name']}; wrote "
           + ", ".join([*r["fit"]["files"].values(), r["turntable"]]))
+
+
+@cli.command()
+@click.argument("source", metavar="INPUT", type=InputPath(exists=True, allow_dash=True))
+@click.option("-o", "--out", required=True, type=OutputPath(dir_okay=False),
+              help="The CSV stream to write (written whole at the end, never half).")
+@click.option("--format", "fmt", type=click.Choice(["livelinkface", "mediapipe", "generic"]),
+              default="livelinkface", show_default=True,
+              help="livelinkface: Timecode, BlendshapeCount, the app's 52 columns and 9 "
+                   "rotations; mediapipe: timestamp_ms and MediaPipe's names and order; "
+                   "generic: time in seconds and the 52 ARKit names.")
+@click.option("--smooth", type=float, default=1.5, show_default=True,
+              help="One Euro filter cutoff in Hz when still (lower: smoother); 0: off.")
+@click.option("--face", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Which face when several show: 0 = the largest, 1 = the next...")
+@click.option("--start", type=float, default=None, help="Seconds into the input to start.")
+@click.option("--end", type=float, default=None, help="Seconds into the input to stop.")
+@click.option("--on-bad", type=click.Choice(["hold", "skip", "error"]), default="hold",
+              show_default=True,
+              help="A frame without a face: hold the last reading, skip the frame, or stop.")
+@click.option("--fps", type=float, default=None,
+              help="Frame rate of a folder of frames (default 30), or in place of a video's.")
+@common_options
+def track(source: str, out: str, fmt: str, smooth: float, face: int, start: float | None,
+          end: float | None, on_bad: str, fps: float | None) -> None:
+    """Track a face through a video into an ARKit-52 stream: 52 blendshape weights, head
+    and eye rotations, at the video's frame rate.
+
+    INPUT is a video (mp4, mov, webm, gif, ...), a folder of frames (read in name order),
+    or - for a video on standard input. The stream reads back with 'head360 inspect' and
+    drives 'head360 animate --arkit'.
+
+    \b
+    Examples:
+      head360 track clip.mp4 -o take.csv
+      head360 track frames/ --fps 25 --format generic -o take.csv
+      cat clip.webm | head360 track - -o take.csv --smooth 0 --json
+      head360 track clip.mp4 -o take.csv && head360 animate me.h360 --arkit take.csv -o me.mp4
+    """
+    from head360cli.io.arkit import write_arkit_csv
+    from head360cli.io.atomic import check_file_target
+    from head360cli.perception.track import TrackConfig, track_video
+
+    if Path(out).suffix.lower() not in (".csv", ".txt"):
+        raise BadInputError(f"expected an output ending in .csv, found {out!r}")
+    cfg = TrackConfig(face=face, start=start, end=end, smooth=smooth, on_bad=on_bad, fps=fps)
+    check_file_target(out)  # before the video is read
+    cpu_only_warning("track", "tracks")
+    show = progress_printer()
+    bar = None if show is None else (lambda done, total: show("track", done, total))
+    stream, summary = track_video(source, cfg, progress=bar)
+    flavor = {"livelinkface": "livelinkface", "mediapipe": "mediapipe", "generic": "arkit"}[fmt]
+    write_arkit_csv(stream, out, flavor=flavor)
+    for message in summary["warnings"]:
+        warn(message)
+    summary["out"], summary["format"] = out, fmt
+    emit(summary, f"tracked {summary['frames_with_face']} of {summary['frames']} frames "
+                  f"({summary['tracking_fps']:g} frames/s tracking, "
+                  f"{summary['fps_all_in']:g} with decoding) -> {out}")

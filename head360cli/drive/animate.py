@@ -293,3 +293,105 @@ def _animate(renderer, stream, out, cfg: AnimateConfig, mesh_dir, progress, work
             result["gpu_peak_mib"] = peak
         result["files"]["video"] = str(out)
     return result
+
+
+VIDEO_CHUNK = 32
+"""Frames tracked before they are rendered, in :func:`animate_video` (memory holds at most
+this many input frames, whatever the clip's length)."""
+
+
+def animate_video(renderer, video, out: str | Path, cfg: AnimateConfig | None = None,
+                  track=None, side_by_side: bool = False, progress: Any = None
+                  ) -> dict[str, Any]:
+    """Track the face through a video and drive the head with it, in one streaming pass:
+    frames are read, tracked, rendered (in this process) and written
+    :data:`VIDEO_CHUNK` at a time, so that memory does not grow with the clip.
+
+    Args:
+        renderer: A :class:`~head360cli.model.head_render.HeadRenderer`.
+        video: A video file, a folder of frames or ``-`` (see
+            :func:`head360cli.io.frames.open_frames`).
+        out: The video to write (mp4, gif, or a folder for PNG frames).
+        cfg: Camera, hair and head pose (``fps``, ``start``, ``end``, ``smooth`` and
+            ``workers`` are not used: the video's own rate, ``track``'s cut and filter).
+        track: A :class:`~head360cli.perception.track.TrackConfig` (its cut, filter, face
+            and policy for frames without a face: held frames before the first face show
+            the head at rest; skipped ones are left out of the video).
+        side_by_side: Put each input frame, scaled to the render's height, left of the
+            head.
+        progress: ``progress(stage, done, total)`` callback.
+
+    Returns:
+        A summary: frames, fps, the tracker's counts, seconds, frames per second.
+    """
+    from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
+    from head360cli.io.frames import open_frames
+    from head360cli.io.video import VideoWriter, check_video_target
+    from head360cli.perception.track import TrackConfig, track_frames
+
+    cfg = cfg or AnimateConfig()
+    track = track or TrackConfig()
+    check_video_target(out)
+    t0 = time.perf_counter()
+    base = view_cameras(cfg.yaw, cfg.pitch, head_framing(renderer, cfg.hair))[0]
+    k = view_intrinsics(renderer.size)
+    counts: dict[str, Any] = {}
+    written = 0
+    with open_frames(video, track.fps) as frames:
+        total = frames.count
+        chunk: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
+        with VideoWriter(out, fps=frames.fps) as writer:
+
+            def flush() -> None:
+                nonlocal written
+                if not chunk:
+                    return
+                weights = np.stack([c[0] for c in chunk])
+                rot = np.stack([c[1] for c in chunk])
+                cams = (head_pose_cameras(rot, base) if cfg.head_pose
+                        else base[None].expand(len(chunk), 4, 4))
+                rendered = (f for batch in renderer.frames(cams, weights, k, hair=cfg.hair)
+                            for f in batch)
+                for (_, _, rgb), frame in zip(chunk, rendered, strict=True):
+                    writer.write(frame if rgb is None else _beside(rgb, frame))
+                    written += 1
+                    if progress:
+                        progress("animate", written, total or written)
+                chunk.clear()
+
+            for _, _, rgb, reading in track_frames(frames, track, None, counts):
+                if reading is None and track.on_bad == "skip":
+                    continue
+                w = np.zeros(52, np.float32) if reading is None else reading.weights
+                r = np.zeros(3, np.float32) if reading is None else reading.head
+                chunk.append((w, r, rgb if side_by_side else None))
+                if len(chunk) == VIDEO_CHUNK:
+                    flush()
+            flush()
+            if written == 0:
+                from head360cli.errors import NoFaceError
+
+                raise NoFaceError(f"expected a face in some frame, found none in the "
+                                  f"{counts.get('decoded', 0)} frames of {frames.name}")
+        fps = frames.fps
+    seconds = time.perf_counter() - t0
+    result = {"frames": written, "fps": float(fps), "duration_s": written / float(fps),
+              "frames_decoded": counts["decoded"], "frames_with_face": counts["with_face"],
+              "frames_held": counts["held"], "frames_skipped": counts["skipped"],
+              "seconds": seconds, "render_fps": written / max(seconds, 1e-9),
+              "files": {"video": str(out)}}
+    if counts["held"] or counts["skipped"]:
+        verb = "held" if track.on_bad == "hold" else "skipped"
+        result["warnings"] = [f"no face in {counts['held'] + counts['skipped']} of "
+                              f"{counts['decoded']} frames ({verb})"]
+    return result
+
+
+def _beside(photo: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """The input frame scaled to the render's height (an even width) left of it."""
+    import cv2
+
+    h = frame.shape[0]
+    w = max(2, round(photo.shape[1] * h / photo.shape[0] / 2) * 2)
+    small = cv2.resize(photo, (w, h), interpolation=cv2.INTER_AREA)
+    return np.concatenate([small, frame[..., :3]], axis=1)

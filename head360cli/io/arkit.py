@@ -828,7 +828,7 @@ def write_arkit_csv(
     stream: ArkitStream,
     target: str | Path | IO[str],
     *,
-    flavor: Literal["livelinkface", "arkit"] = "livelinkface",
+    flavor: Literal["livelinkface", "arkit", "mediapipe"] = "livelinkface",
     decimals: int = 10,
     start_seconds: float = 0.0,
 ) -> None:
@@ -838,8 +838,10 @@ def write_arkit_csv(
         stream: The stream to write.
         target: A path or an open text stream.
         flavor: ``"livelinkface"`` (``Timecode,BlendshapeCount``, capitalised names in the
-            app's order, 9 rotation columns) or ``"arkit"`` (``time`` in seconds, then the
-            52 names in Apple's order, then rotations if present).
+            app's order, 9 rotation columns), ``"arkit"`` (``time`` in seconds, then the
+            52 names in Apple's order, then rotations if present) or ``"mediapipe"``
+            (``timestamp_ms``, then the 51 names MediaPipe's Face Landmarker scores, in
+            its order, then rotations if present).
         decimals: Digits after the decimal point.
         start_seconds: Time of day of the first frame, for Live Link Face timecodes.
     """
@@ -867,7 +869,7 @@ def write_arkit_csv(
             ]
             for i in range(n)
         )
-    elif flavor == "arkit":
+    elif flavor in ("arkit", "mediapipe"):
         rot_names: list[str] = []
         rot_parts: list[np.ndarray] = []
         if head is not None:
@@ -877,17 +879,25 @@ def write_arkit_csv(
             rot_names += list(ROTATION_COLUMNS[3:])
             rot_parts.append(eyes)
         rot = np.concatenate(rot_parts, axis=1) if rot_parts else np.zeros((n, 0))
-        header = ["time", *ARKIT52, *rot_names]
+        if flavor == "arkit":
+            names, scale, time_name = list(ARKIT52), 1.0, "time"
+        else:
+            from head360cli.mesh.arkit52 import MEDIAPIPE_BLENDSHAPES
+
+            names, scale, time_name = list(MEDIAPIPE_BLENDSHAPES[1:]), 1000.0, "timestamp_ms"
+        cols = [INDEX[name] for name in names]
+        header = [time_name, *names, *rot_names]
         rows = (
             [
-                f"{float(stream.timestamps[i]):.6f}",
-                *(fmt.format(v) for v in stream.weights[i]),
+                f"{scale * float(stream.timestamps[i]):.6f}",
+                *(fmt.format(v) for v in stream.weights[i, cols]),
                 *(fmt.format(v) for v in rot[i]),
             ]
             for i in range(n)
         )
     else:
-        raise BadInputError(f"expected flavor livelinkface or arkit, found {flavor!r}")
+        raise BadInputError(f"expected flavor livelinkface, arkit or mediapipe, found "
+                            f"{flavor!r}")
 
     if isinstance(target, (str, Path)):
         from head360cli.io.atomic import atomic_path

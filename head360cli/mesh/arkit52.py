@@ -15,6 +15,7 @@ import re
 __all__ = [
     "ARKIT52",
     "INDEX",
+    "MEDIAPIPE_BLENDSHAPES",
     "MERGED_SPLITS",
     "MIRROR",
     "MIRROR_INDEX",
@@ -172,3 +173,19 @@ def split_part(column: str) -> str | None:
     match = _SIDE_SUFFIX.search(column.strip())
     assert match is not None
     return "Left" if match.group(1).lower().startswith("l") else "Right"
+
+
+MEDIAPIPE_BLENDSHAPES = (
+    "_neutral", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft",
+    "browOuterUpRight", "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft",
+    "eyeBlinkRight", "eyeLookDownLeft", "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight",
+    "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeSquintLeft",
+    "eyeSquintRight", "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft", "jawOpen",
+    "jawRight", "mouthClose", "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft",
+    "mouthFrownRight", "mouthFunnel", "mouthLeft", "mouthLowerDownLeft",
+    "mouthLowerDownRight", "mouthPressLeft", "mouthPressRight", "mouthPucker", "mouthRight",
+    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
+    "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
+    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight")
+"""The order of the 52 scores of MediaPipe's blendshape model (its first, ``_neutral``, is
+not an ARKit shape; it has no ``tongueOut``)."""

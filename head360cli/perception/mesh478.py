@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 
 __all__ = ["BLENDSHAPE_POINTS", "MESH_SIDE", "ROI_SCALE", "FaceMesh", "blendshape_scores",
-           "crop_transform", "face_mesh"]
+           "crop_transform", "face_mesh", "follow"]
 
 MESH_SIDE = 256
 """The landmark model's input side in pixels."""
@@ -112,13 +112,7 @@ def face_mesh(rgb: np.ndarray, box: tuple[float, float, float, float],
         pts, presence, done = start.points, start.presence, start.passes
         centre, side, angle = np.array(start.roi[:2]), start.roi[2], start.roi[3]
     for _ in range(passes - done):
-        angle = _eye_angle(pts[RIGHT_EYE_CORNER, :2], pts[LEFT_EYE_CORNER, :2])
-        c, s = np.cos(angle), np.sin(angle)
-        local = (pts[:468, :2] - pts[:468, :2].mean(0)) @ np.array([[c, -s], [s, c]])
-        lo, hi = local.min(0), local.max(0)
-        mid = (lo + hi) / 2
-        centre2 = pts[:468, :2].mean(0) + np.array([[c, -s], [s, c]]) @ mid
-        side2 = float((hi - lo).max()) * ROI_SCALE
+        centre2, side2, angle = _roi_about(pts)
         pts2, presence2 = _run(rgb, centre2, side2, angle, threads)
         if presence2 < MIN_PRESENCE and presence2 < presence:
             break
@@ -128,6 +122,26 @@ def face_mesh(rgb: np.ndarray, box: tuple[float, float, float, float],
                     max(passes, done))
 
 
+def _roi_about(pts: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """The crop about a reading's points: centre, side (:data:`ROI_SCALE` times their
+    extent) and turn (the eyes level)."""
+    angle = _eye_angle(pts[RIGHT_EYE_CORNER, :2], pts[LEFT_EYE_CORNER, :2])
+    c, s = np.cos(angle), np.sin(angle)
+    local = (pts[:468, :2] - pts[:468, :2].mean(0)) @ np.array([[c, -s], [s, c]])
+    lo, hi = local.min(0), local.max(0)
+    centre = pts[:468, :2].mean(0) + np.array([[c, -s], [s, c]]) @ ((lo + hi) / 2)
+    return centre, float((hi - lo).max()) * ROI_SCALE, angle
+
+
+def follow(rgb: np.ndarray, previous: FaceMesh, threads: int | None = None) -> FaceMesh:
+    """The face in a new frame, read in one pass cropped about ``previous`` (the reading
+    of the frame before), as MediaPipe tracks a face from frame to frame. Its presence
+    says whether the face is still there."""
+    centre, side, angle = _roi_about(previous.points)
+    pts, presence = _run(rgb, centre, side, angle, threads)
+    return FaceMesh(pts, presence, (float(centre[0]), float(centre[1]), side, angle), 1)
+
+
 def blendshape_scores(points: np.ndarray, threads: int | None = None) -> np.ndarray:
     """The 52 ARKit blendshape scores ``(52,)`` in [0, 1], in head360's ARKit order
     (:data:`head360cli.mesh.arkit52.ARKIT52`), from ``(478, 3)`` points.
@@ -135,7 +149,7 @@ def blendshape_scores(points: np.ndarray, threads: int | None = None) -> np.ndar
     The model (MediaPipe's) answers 52 scores in its own order, whose first is a
     ``_neutral`` score and which lacks ``tongueOut``; ``tongueOut`` reads 0.
     """
-    from head360cli.mesh.arkit52 import ARKIT52
+    from head360cli.mesh.arkit52 import ARKIT52, MEDIAPIPE_BLENDSHAPES
     from head360cli.perception.runtime import tflite_model
 
     model = tflite_model("face_landmarker", "face_blendshapes.tflite", threads)
@@ -144,16 +158,3 @@ def blendshape_scores(points: np.ndarray, threads: int | None = None) -> np.ndar
     return np.array([by_name.get(n, 0.0) for n in ARKIT52], np.float32).clip(0.0, 1.0)
 
 
-MEDIAPIPE_BLENDSHAPES = (
-    "_neutral", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft",
-    "browOuterUpRight", "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft",
-    "eyeBlinkRight", "eyeLookDownLeft", "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight",
-    "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeSquintLeft",
-    "eyeSquintRight", "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft", "jawOpen",
-    "jawRight", "mouthClose", "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft",
-    "mouthFrownRight", "mouthFunnel", "mouthLeft", "mouthLowerDownLeft",
-    "mouthLowerDownRight", "mouthPressLeft", "mouthPressRight", "mouthPucker", "mouthRight",
-    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
-    "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight")
-"""The blendshape model's output order (its first score is not an ARKit shape)."""
