@@ -9,7 +9,7 @@ import numpy as np
 from head360cli.io.arkit import ArkitStream
 from head360cli.mesh.arkit52 import ARKIT52
 
-__all__ = ["plot_stream"]
+__all__ = ["plot_fidelity", "plot_stream"]
 
 # Distinct colours (BGR for OpenCV), one per plotted curve.
 _COLOURS = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148),
@@ -83,3 +83,39 @@ def plot_stream(stream: ArkitStream, path: str | os.PathLike[str], top: int = 8)
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), img):
             raise BadInputError(f"could not write the plot to {str(path)!r}")
+
+
+def plot_fidelity(series: dict, path: str | os.PathLike[str], title: str = "") -> None:
+    """Draw driving and tracked weights over time, one panel per blendshape, as a PNG.
+
+    Args:
+        series: ``{"t": (N,) seconds, "names": [...], "driving": [(N,) ...],
+            "tracked": [(N,) ...]}`` (see :func:`head360cli.bench.fidelity.head_fidelity`).
+        path: Output ``.png`` path (written atomically).
+        title: A line above the panels.
+    """
+    import cv2
+
+    from head360cli.io.atomic import atomic_path
+
+    t = np.asarray(series["t"], np.float64)
+    if len(t) < 2:
+        t = np.array([0.0, 1.0])
+    names = list(series["names"])
+    rows = max(1, len(names))
+    width, height = 1000, 40 + 150 * rows
+    img = np.full((height, width, 3), 255, dtype=np.uint8)
+    cv2.putText(img, title, (60, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (40, 40, 40), 1,
+                cv2.LINE_AA)
+    for k, name in enumerate(names):
+        d = np.asarray(series["driving"][k], np.float64)
+        tr = np.asarray(series["tracked"][k], np.float64)
+        if len(d) < 2:
+            d, tr = np.repeat(d, 2), np.repeat(tr, 2)
+        y0 = 60 + 150 * k
+        _panel(img, (60, y0, 800, y0 + 110), t, [d, tr], ["driving", "tracked"], (0.0, 1.0),
+               name)
+    cv2.putText(img, f"time: 0 .. {float(t[-1]):.2f} s", (60, height - 8),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (90, 90, 90), 1, cv2.LINE_AA)
+    with atomic_path(path) as tmp:
+        cv2.imwrite(str(tmp), img)

@@ -20,13 +20,14 @@ stream given with ``--stream``.
   head rotation moves most (the camera moves every frame, so every point is decoded),
   against the same command without ``--head-pose``; each by default (a process per core)
   and with ``--workers 1``.
-- Expression fidelity: dlib's 68 landmarks on animated frames; the correlation of mouth
-  opening (inner lips over the eye distance) with jawOpen and of eye opening (lids over
-  eye width) with eyeBlink, over a capture, with a 95 % bootstrap interval over the
-  frames; for the fitted astronaut and for heads sampled from the model (no fit: what
-  the generator itself shows), at the generator's size or ``--fidelity-size``; and for
-  held-out SynHead-P heads rendered by the corpus renderer itself (ground truth: what
-  dlib reads off faces that are exactly right, the ceiling of the other columns).
+- Expression fidelity, read with the face tracker (:mod:`head360cli.bench.fidelity`):
+  first the tracker itself (its frames per second on 640 x 480 frames; how well its
+  mouthSmile separates the London set's neutral and smiling portraits), then each Live
+  Link Face capture driving the fitted astronaut (every ``stride``-th frame, tracked):
+  Pearson r per blendshape, for the six with goals and the mean over the 20 the capture
+  moves most, beside held-out SynHead-P heads rendered by the corpus renderer with the
+  same weights (faces exactly right: the tracker's own ceiling on these heads); a plot of
+  the most active shapes over time.
 - Hair swap: PSNR of the face (the landmarks' hull, less the pixels either hairstyle
   covers) between the head with its own hair and with each other style; and over the
   whole hull.
@@ -36,9 +37,7 @@ stream given with ``--stream``.
   call), is left out.
 
 Every part runs on ``device`` except the ground-truth fidelity column (the corpus
-renderer, on the CPU). With ``head_path`` no photo is fitted, so neither dlib's detector
-nor its model files are needed unless the fidelity parts run (``fidelity=False`` leaves
-them out): what a GPU machine without dlib can measure.
+renderer, on the CPU). With ``head_path`` no photo is fitted.
 """
 
 from __future__ import annotations
@@ -53,26 +52,11 @@ from typing import Any
 
 import numpy as np
 
-from head360cli.fitting.landmarks import mouth_opening
-
-__all__ = ["bench_animate", "correlation", "eye_opening", "mouth_opening"]
-
-FIDELITY_SAMPLES = 2
-"""Heads sampled from the model (``head360 sample --seed 0``) whose fidelity is measured
-beside the fitted astronaut's."""
-
-FIDELITY_MEASURES = (
-    ("jaw_open_vs_mouth_opening", "jawOpen", "mouth opening"),
-    ("blink_right_vs_left_image_eye_opening", "eyeBlinkRight", "left image eye opening"),
-    ("blink_left_vs_right_image_eye_opening", "eyeBlinkLeft", "right image eye opening"),
-)
-"""Each fidelity correlation: its result key, the ARKit weight and the image measure, in
-the column order of :func:`mesh_openings` (the image's left eye is the subject's right)."""
+__all__ = ["bench_animate", "correlation", "eye_opening"]
 
 FIDELITY_REFERENCE = 2
-"""Held-out SynHead-P heads whose ground-truth renders (the corpus renderer's, no
-generator) dlib reads beside the generator's frames: the ceiling of the fidelity
-columns."""
+"""Held-out SynHead-P heads rendered by the corpus renderer with each capture's weights:
+the tracker's reading of faces that are exactly right."""
 
 SWAP_STYLES = (0, 2, 7, 9, 12, 17, 22, 28)
 """Hairstyles the swap measurement puts on the head (bald, short, long, voluminous)."""
@@ -327,23 +311,6 @@ def _head_pose(head: Path, capture: Path, turn: float, work: Path,
             "fps_still_one_process": round(runs["still_one"]["render_fps"], 2)}
 
 
-def mesh_openings(r, weights: np.ndarray, c2w, intrinsics) -> np.ndarray:
-    """``(N, 3)`` mouth, image-left eye and image-right eye openings of the head's own 68
-    landmarks (on the animated mesh, projected with ``c2w (4, 4)``): what a perfect
-    landmark detector would read off the frames of ``weights (N, 52)``."""
-    import torch
-
-    from head360cli.geometry.cameras import project
-
-    # the renderer's own meshes of the driving weights (its eyes from the head's own)
-    verts = r.vertices(np.asarray(weights)).cpu().numpy().astype(np.float64)
-    pts = np.stack([r.model.landmark_points(v) for v in verts])
-    px, _ = project(torch.as_tensor(pts, dtype=torch.float32),
-                    c2w.expand(len(pts), 4, 4), intrinsics)
-    return np.array([[mouth_opening(p), eye_opening(p, "left"), eye_opening(p, "right")]
-                     for p in px.numpy().astype(np.float64)])
-
-
 def correlation(a, b, rounds: int = 1000, seed: int = 0) -> dict[str, Any] | None:
     """Pearson correlation of ``a`` and ``b`` ``(N,)`` with its 95 % bootstrap interval
     (``rounds`` resamples of the N pairs, percentiles 2.5 and 97.5; ``rounds=0``: no
@@ -363,99 +330,6 @@ def correlation(a, b, rounds: int = 1000, seed: int = 0) -> dict[str, Any] | Non
         return {"r": r, "interval_95": None}
     lo, hi = np.percentile(boot, [2.5, 97.5])
     return {"r": r, "interval_95": [round(float(lo), 4), round(float(hi), 4)]}
-
-
-def _dlib_openings(frames) -> tuple[np.ndarray, np.ndarray]:
-    """dlib's mouth and eye openings of ``frames`` (an iterable of ``(H, W, 3)`` uint8):
-    ``(indices of the frames with a face (F,), openings (F, 3))``, columns as in
-    :data:`FIDELITY_MEASURES`."""
-    from head360cli.errors import NoFaceError
-    from head360cli.fitting.landmarks import LandmarkDetector
-
-    det = LandmarkDetector("hog")
-    seen, found = [], []
-    for i, frame in enumerate(frames):
-        try:
-            lm = det.detect_one(frame).landmarks
-        except NoFaceError:
-            continue
-        seen.append([mouth_opening(lm), eye_opening(lm, "left"), eye_opening(lm, "right")])
-        found.append(i)
-    return np.asarray(found, int), np.asarray(seen, np.float64).reshape(-1, 3)
-
-
-def _correlations(w: np.ndarray, found: np.ndarray, seen: np.ndarray, stride: int
-                  ) -> dict[str, Any]:
-    """The fidelity result of frames with weights ``w (N, 52)`` of which ``found`` had a
-    face with openings ``seen``: each correlation, its interval and the jaw's range."""
-    from head360cli.mesh.arkit52 import INDEX
-
-    image = {key: correlation(w[found, INDEX[weight]], seen[:, col])
-             or {"r": None, "interval_95": None}
-             for col, (key, weight, _) in enumerate(FIDELITY_MEASURES)}
-    jaw = w[found, INDEX["jawOpen"]]
-    return {"frames": len(w), "stride": stride, "faces_found": len(found),
-            "interval_95": {key: c["interval_95"] for key, c in image.items()},
-            **{key: c["r"] for key, c in image.items()},
-            "jaw_open_range": [round(float(jaw.min()), 3), round(float(jaw.max()), 3)]
-            if len(found) else None}
-
-
-def _fidelity(head: Path, stream, stride: int, size: int | None = None,
-              device: str = "cpu") -> dict[str, Any]:
-    """dlib's reading of a head file's frames driven by every ``stride``-th frame of
-    ``stream``, at ``size`` pixels (default: the renderer's), with the same measures read
-    off the mesh's own landmarks (``mesh``)."""
-    from head360cli.drive.views import view_cameras, view_intrinsics
-    from head360cli.fitting.pipeline import load_head_renderer
-    from head360cli.mesh.arkit52 import INDEX
-
-    r = load_head_renderer(head, device=device, samples=8, size=size)
-    w = stream.weights[::stride]
-    cams = view_cameras(0.0, 0.0).expand(len(w), 4, 4)
-    found, seen = _dlib_openings(
-        frame for batch in r.frames(cams, w, view_intrinsics(r.size)) for frame in batch)
-    # the same measures from the mesh's own landmarks: the animation's geometry, without
-    # the renderer and the detector in between (exact, so no interval)
-    mesh = mesh_openings(r, w[found], cams[0], view_intrinsics(r.size)) if len(found) \
-        else np.zeros((0, 3))
-    exact = {key: (correlation(w[found, INDEX[weight]], mesh[:, col], rounds=0)
-                   or {"r": None})["r"]
-             for col, (key, weight, _) in enumerate(FIDELITY_MEASURES)}
-    return {**_correlations(w, found, seen, stride), "size": r.size, "mesh": exact}
-
-
-def _fidelity_reference(stream, stride: int, size: int,
-                        heads: int = FIDELITY_REFERENCE) -> list[dict[str, Any]]:
-    """dlib's reading of the same frames rendered by the corpus renderer itself: held-out
-    SynHead-P heads (test split, corpus seed 0, bald), ground truth with no generator and
-    no fit in between. What dlib makes of faces that are exactly right bounds what it
-    can read off the generator's frames."""
-    from head360cli.drive.views import view_cameras, view_intrinsics
-    from head360cli.model.head_render import to_uint8
-    from head360cli.synth.scene import make_head, prepare_render, render_head
-
-    w = stream.weights[::stride]
-    cam, k = view_cameras(0.0, 0.0), view_intrinsics(size)
-    out = []
-    for i in range(heads):
-        head = make_head(i, "test", 0)
-        prepare_render(head, "cpu")
-        found, seen = _dlib_openings(
-            to_uint8(render_head(head, wj, cam, k, size, with_hair=False).rgb)[0]
-            for wj in w)
-        out.append({"head": f"SynHead-P test {i}", "size": size,
-                    **_correlations(w, found, seen, stride)})
-    return out
-
-
-def _fidelity_sampled(stream, stride: int, work: Path, size: int | None = None,
-                      device: str = "cpu") -> list[dict[str, Any]]:
-    """:func:`_fidelity` of the heads ``head360 sample --seed 0`` draws first."""
-    from head360cli.drive.sample import sample_heads, write_samples
-
-    paths = write_samples(sample_heads(FIDELITY_SAMPLES, seed=0), work / "sampled")
-    return [{"head": p.name, **_fidelity(p, stream, stride, size, device)} for p in paths]
 
 
 def _swap(head: Path, device: str = "cpu") -> dict[str, Any]:
@@ -504,7 +378,8 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
                   progress=None, fidelity_size: int | None = None,
                   stream_path: str | Path | None = None, device: str = "cpu",
                   head_path: str | Path | None = None,
-                  fidelity: bool = True) -> tuple[dict[str, Any], str]:
+                  fidelity: bool = True, plot: str | Path | None = None
+                  ) -> tuple[dict[str, Any], str]:
     """Run every part; returns ``(result, markdown)``.
 
     Args:
@@ -521,7 +396,9 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
             device than the CPU the reuse part is replaced by the frames-per-call part.
         head_path: A head file to measure instead of fitting the astronaut photo (the fit
             needs dlib and its model files).
-        fidelity: Whether to run the expression-fidelity parts (dlib on frames).
+        fidelity: Whether to run the expression-fidelity parts (the face tracker).
+        plot: Where to draw the driving and tracked weights of the first capture's most
+            active blendshapes (a PNG), if anywhere.
     """
     import torch
 
@@ -571,15 +448,8 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         say("throughput and error against image size")
         result["resolution"] = _resolution(head, weights, device=device)
         if fidelity:
-            say("expression fidelity (dlib landmarks on frames)")
-            result["fidelity"] = _fidelity(head, stream, stride, fidelity_size, device)
-            say(f"expression fidelity of {FIDELITY_SAMPLES} heads sampled from the model")
-            result["fidelity_sampled"] = _fidelity_sampled(stream, stride, work,
-                                                           fidelity_size, device)
-            say(f"expression fidelity of {FIDELITY_REFERENCE} SynHead-P ground-truth "
-                "renders")
-            result["fidelity_reference"] = _fidelity_reference(stream, stride,
-                                                               result["fidelity"]["size"])
+            result.update(_fidelity(head, data, stream, capture, stride, fidelity_size,
+                                    device, say, plot))
         say("hair swap: face before and after")
         result["swap"] = _swap(head, device)
         if memory and capture is not None:
@@ -593,35 +463,93 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
     return result, _markdown(result)
 
 
+def _fidelity(head: Path, data: Path | None, stream, capture: Path | None, stride: int,
+              size: int | None, device: str, say, plot: str | Path | None
+              ) -> dict[str, Any]:
+    """The tracker's speed and its reading of the London portraits, then each capture
+    (every Live Link Face take in ``data``, else ``stream``) through the head and
+    through the corpus renderer."""
+    from head360cli.bench.fidelity import (
+        corpus_fidelity,
+        head_fidelity,
+        smile_separation,
+        tracking_speed,
+    )
+
+    out: dict[str, Any] = {}
+    say("the tracker: frames per second on 640 x 480 frames")
+    out["tracker_speed"] = tracking_speed()
+    london = data / "faces" / "london" if data is not None else None
+    if london is not None and london.is_dir():
+        say("the tracker on the London set's neutral and smiling portraits")
+        out["tracker_smile"] = smile_separation(london)
+    takes = [(capture.name if capture else "synthetic", stream)]
+    if data is not None:
+        from head360cli.io.arkit import read_arkit_csv
+
+        found = sorted((data / "arkit").glob("livelinkface_*.csv"))
+        if found:
+            takes = [(p.name, read_arkit_csv(p, on_bad="hold")) for p in found]
+    out["fidelity"] = []
+    for name, take in takes:
+        say(f"expression fidelity: {name} through the head, tracked")
+        fid = head_fidelity(head, take, stride, size, device)
+        say(f"expression fidelity: {name} through {FIDELITY_REFERENCE} SynHead-P heads "
+            "(corpus renderer), tracked")
+        ref = corpus_fidelity(take, stride, FIDELITY_REFERENCE, fid["size"])
+        out["fidelity"].append({"take": name, "head": fid, "reference": ref})
+    if plot is not None and out["fidelity"]:
+        from head360cli.viz import plot_fidelity
+
+        first = out["fidelity"][0]
+        Path(plot).parent.mkdir(parents=True, exist_ok=True)
+        plot_fidelity(first["head"]["series"], plot, title=f"{first['take']}: driving "
+                      "(solid) and tracked (thin) weights")
+        out["plot"] = str(plot)
+    return out
+
+
 def _fidelity_markdown(r: dict[str, Any]) -> list[str]:
     """The expression-fidelity section of :func:`_markdown`."""
-    f = r["fidelity"]
-    size = f" at {f['size']} x {f['size']}" if "size" in f else ""
-    lines = ["", "## Expression fidelity (dlib landmarks on frames)", "",
-             f"{f['faces_found']} of {f['frames']} frames (one in {f['stride']}){size} with "
-             "a face found. The mesh column reads the same measures off the mesh's own "
-             "landmarks (no renderer, no detector).", ""]
-    sampled = r.get("fidelity_sampled", [])
-    reference = r.get("fidelity_reference", [])
-    columns = (["weight", "image measure", "correlation, dlib on frames",
-                "same, mesh landmarks"]
-               + [f"sampled head {i}, dlib on frames" for i in range(len(sampled))]
-               + [f"{x['head']} ground truth, dlib" for x in reference])
-    lines += ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    m = f.get("mesh", {})
+    from head360cli.bench.fidelity import NAMED, TOP_ACTIVE
 
-    def cell(fid, key):
-        ci = fid.get("interval_95", {}).get(key)
-        return f"{fid[key]}" + (f" ({ci[0]:.2f} to {ci[1]:.2f})" if ci else "")
+    lines = ["", "## Expression fidelity, read with the face tracker", ""]
+    sp = r.get("tracker_speed")
+    if sp:
+        lines += [f"The tracker on {sp['size'][0]} x {sp['size'][1]} frames: "
+                  f"{sp['fps_tracking']:.1f} frames/s tracking, {sp['fps_with_decoding']:.1f} "
+                  "with decoding an mp4 (goal 60).", ""]
+    sm = r.get("tracker_smile")
+    if sm:
+        differ = ", ".join(f"{n} {sm['auc'][n]:.3f}" for n in sm["differ"][:8])
+        lines += [f"On the London set's {sm['pairs']} neutral and smiling portrait pairs "
+                  f"({sm['missed']} without a face found): mouthSmile's ROC AUC "
+                  f"{sm['auc_mouth_smile']:.3f} (goal 0.95); the blendshapes that differ "
+                  f"most: {differ}.", ""]
+    for f in r.get("fidelity", []):
+        h, refs = f["head"], f["reference"]
+        cols = ["blendshape", f"head ({h['faces_found']} of {h['frames']} frames)"]
+        cols += [f"{x['head']} (corpus renderer)" for x in refs]
+        lines += [f"### {f['take']}: Pearson r, driving against tracked (one frame in "
+                  f"{h['stride']}, {h['size']} px)", "",
+                  "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
 
-    lines += [f"| {weight} | {measure} | {cell(f, key)} | {m.get(key)} |"
-              + "".join(f" {cell(x, key)} |" for x in [*sampled, *reference])
-              for key, weight, measure in FIDELITY_MEASURES]
-    if sampled or reference:
-        lines += ["", "Brackets: 95 % bootstrap interval over the frames. The sampled "
-                  "heads come from `head360 sample --seed 0` (no fit); the ground-truth "
-                  "columns are the corpus renderer's own frames of held-out SynHead-P "
-                  "heads (no generator): what dlib reads off faces that are exactly right."]
+        def cell(x, name):
+            v = x["r"].get(name)
+            return "-" if v is None else f"{v:.3f}"
+
+        for name in NAMED:
+            lines.append(f"| {name} | {cell(h, name)} |"
+                         + "".join(f" {cell(x, name)} |" for x in refs))
+        mean = h["mean_r_top_active"]
+        lines.append(f"| mean over the {TOP_ACTIVE} most active | "
+                     f"{'-' if mean is None else format(mean, '.3f')} |"
+                     + "".join(f" {x['mean_r_top_active']:.3f} |" for x in refs))
+        lines += ["", "All 52 for the head: " + ", ".join(
+            f"{n} {'-' if v is None else format(v, '.2f')}" for n, v in h["r"].items())
+            + " ('-': constant in the capture or in the tracked frames).", ""]
+    if r.get("plot"):
+        lines += [f"Plot: {r['plot']}", ""]
     return lines
 
 

@@ -253,7 +253,7 @@ def bench_generator_cmd(weights: tuple[str, ...], train_ids: int, test_ids: int,
               default=None, help="Measure this head file instead of fitting the astronaut "
                                  "photo (no fit, so no dlib unless fidelity is measured).")
 @click.option("--no-fidelity", is_flag=True,
-              help="Skip the expression-fidelity parts (dlib landmarks on frames).")
+              help="Skip the expression-fidelity parts (the face tracker on frames).")
 @BENCH_OUT
 @common_options
 def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
@@ -261,9 +261,10 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
                       no_fidelity: bool, out_dir: str) -> None:
     """Animation: frames per second with and without reuse of decoded points between
     frames, against samples and precision (with PSNR), peak memory over a whole capture,
-    a turning head (--head-pose), expression fidelity by dlib landmarks (fitted and
-    sampled heads, with bootstrap intervals, beside dlib on ground-truth SynHead-P
-    renders of the same frames), face PSNR across hair swaps.
+    a turning head (--head-pose), expression fidelity read with the face tracker (its
+    speed and its reading of real neutral and smiling faces; per-blendshape Pearson r of
+    each Live Link Face capture through the head, beside SynHead-P heads rendered with
+    the same weights, and a plot, animate_fidelity.png), face PSNR across hair swaps.
 
     With --device cuda the heads are rendered on the GPU, and frames per second against
     frames per generator call (animate --batch) replace the reuse part, a CPU path.
@@ -308,6 +309,8 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
                                fidelity_size=fidelity_size, stream_path=stream_path,
                                device=device, head_path=head_path,
                                fidelity=not no_fidelity,
+                               plot=None if no_fidelity else
+                               Path(out_dir) / "animate_fidelity.png",
                                progress=None if current_settings().quiet else
                                (lambda t: click.echo(f"bench animate: {t}", err=True)))
     _save_and_emit(result, md, out_dir, "animate")
