@@ -130,3 +130,30 @@ def test_animate_track_animate_again_gives_the_same_weights(run_cli, head_file, 
     assert diff.mean() < 0.2 and np.percentile(diff, 95) < 0.45, diff.mean(0)
     turn = np.degrees(np.abs(w2.head_rotation - w1.head_rotation)).mean(0)
     assert (turn < 5.0).all(), turn
+
+
+def test_track_reads_a_video_on_standard_input(face_frames, tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    import cv2
+
+    from head360cli.io.video import VideoWriter
+
+    clip = tmp_path / "clip.mp4"
+    with VideoWriter(clip, fps=25.0) as writer:
+        for p in sorted(face_frames.glob("*.png")):
+            writer.write(cv2.imread(str(p))[:, :, ::-1])
+    out = tmp_path / "take.csv"
+    spool = tmp_path / "spool"  # where the copy of standard input goes
+    spool.mkdir()
+    env = {**os.environ, "TMPDIR": str(spool)}
+    r = subprocess.run([sys.executable, "-m", "head360cli", "track", "-", "-o", str(out),
+                        "--json", "--quiet"], input=clip.read_bytes(), capture_output=True,
+                       timeout=120, env=env)
+    assert r.returncode == 0, r.stderr.decode()
+    summary = json.loads(r.stdout)
+    assert summary["input"] == "standard input" and summary["frames_with_face"] == 8
+    assert summary["fps"] == pytest.approx(25.0)
+    assert not list(spool.iterdir())  # no temporary copy left behind
