@@ -504,7 +504,7 @@ def _fidelity(head: Path, data: Path | None, stream, capture: Path | None, strid
         first = out["fidelity"][0]
         Path(plot).parent.mkdir(parents=True, exist_ok=True)
         plot_fidelity(first["head"]["series"], plot, title=f"{first['take']}: driving "
-                      "(solid) and tracked (thin) weights")
+                      "(blue) and tracked (orange) weights")
         out["plot"] = str(plot)
     return out
 
