@@ -404,22 +404,10 @@ def animate(head: str | None, arkit: str | None, video: str | None, side_by_side
     stream = read_arkit_csv(arkit, on_bad=on_bad, fps=stream_fps)
     for warning in stream.warnings:
         warn(warning)
-    scratch = None  # the mean head's file when no HEAD is given, removed at the end
-    if head is None:
-        import tempfile
-
-        warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
-              "PHOTO and give the .h360)")
-        scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
-        head = str(_mean_head_file(Path(scratch.name)))
+    head, scratch = _head_or_mean(head)
 
     def load():
-        default = None if backend == "onnx" else ANIMATE_SAMPLES  # the graph's own
-        r = _backend_renderer(head, backend, onnx_path,
-                              default if samples is None else samples, size, precision)
-        if exact:
-            r.reuse = None
-        return r
+        return _animate_renderer(head, backend, onnx_path, samples, size, precision, exact)
 
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
                         yaw=yaw, pitch=pitch, hair=not no_hair, workers=workers,
@@ -507,6 +495,31 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
           f"{HAIRSTYLES[was].name}, style {was})")
 
 
+def _head_or_mean(head: str | None):
+    """The head file to animate, and the temporary folder holding the model's mean head
+    when none was given (the caller removes it at the end), else ``None``."""
+    if head is not None:
+        return head, None
+    import tempfile
+
+    warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
+         "PHOTO and give the .h360)")
+    scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
+    return str(_mean_head_file(Path(scratch.name))), scratch
+
+
+def _animate_renderer(head: str, backend: str, onnx_path: str, samples: int | None,
+                      size: int | None, precision: str, exact: bool):
+    """The renderer ``animate`` drives: ``--samples`` or animate's default (a graph's own
+    with ``--backend onnx``); ``--exact`` turns off the reuse of decoded points."""
+    default = None if backend == "onnx" else ANIMATE_SAMPLES
+    r = _backend_renderer(head, backend, onnx_path, default if samples is None else samples,
+                          size, precision)
+    if exact:
+        r.reuse = None
+    return r
+
+
 def _animate_video(head: str | None, video: str, out: str, side_by_side: bool,
                    head_pose: bool, fps: float | None, start: float | None,
                    end: float | None, yaw: float, pitch: float, on_bad: str, no_hair: bool,
@@ -519,20 +532,10 @@ def _animate_video(head: str | None, video: str, out: str, side_by_side: bool,
 
     track = TrackConfig(start=start, end=end, on_bad=on_bad, fps=fps)
     cfg = AnimateConfig(head_pose=head_pose, yaw=yaw, pitch=pitch, hair=not no_hair)
-    scratch = None
-    if head is None:
-        import tempfile
-
-        warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
-             "PHOTO and give the .h360)")
-        scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
-        head = str(_mean_head_file(Path(scratch.name)))
+    head, scratch = _head_or_mean(head)
     try:
-        default = None if backend == "onnx" else ANIMATE_SAMPLES  # the graph's own
-        renderer = _backend_renderer(head, backend, onnx_path,
-                                     default if samples is None else samples, size, precision)
-        if exact:
-            renderer.reuse = None
+        renderer = _animate_renderer(head, backend, onnx_path, samples, size, precision,
+                                     exact)
         res = animate_video(renderer, video, out, cfg, track, side_by_side,
                             progress=progress_printer())
     finally:
