@@ -89,6 +89,13 @@ def test_animate_video_puts_the_input_beside_the_head(run_cli, head_file, face_f
     r = run_cli("animate", head_file, "--video", face_frames, "--mesh-sequence",
                 tmp_path / "m")
     assert r.code == 3 and "--mesh-sequence" in r.err
+    blank = tmp_path / "blank"
+    blank.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(blank / f"{i}.png"), np.full((120, 160, 3), 200, np.uint8))
+    r = run_cli("animate", head_file, "--video", blank, "-o", tmp_path / "none.mp4")
+    assert r.code == 4 and "found none in the 3 frames" in r.err
+    assert not (tmp_path / "none.mp4").exists()
 
 
 @pytest.mark.slow

@@ -368,7 +368,7 @@ def animate_video(renderer, video, out: str | Path, cfg: AnimateConfig | None = 
                 if len(chunk) == VIDEO_CHUNK:
                     flush()
             flush()
-            if written == 0:
+            if counts["with_face"] == 0:  # a clip of the head at rest: not written
                 from head360cli.errors import NoFaceError
 
                 raise NoFaceError(f"expected a face in some frame, found none in the "

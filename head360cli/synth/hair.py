@@ -252,12 +252,12 @@ def _base_grid(verts: np.ndarray, frame: HeadFrame, bottom: float,
 
 def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle,
                             soft: bool = False
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which grid points the style covers and how thick its hair is there.
 
     Returns:
-        ``(covered (R, C) bool, thick (R, C), pts (R, C, 3), edge (R, C) bool)``: with
-        ``soft``, the points below the hairline moved onto it (``edge``).
+        ``(covered (R, C) bool, thick (R, C), pts (R, C, 3))``: with ``soft``, the points
+        just outside the hairline moved onto it, their hair a quarter as thick.
     """
     lv = frame.levels
     phi = np.broadcast_to(_column_angles()[None], pts.shape[:2])
@@ -308,10 +308,9 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle,
     if style.part is not None:
         thick = thick * (1 - 0.6 * np.exp(-0.5 * ((phi - style.part) / 0.06) ** 2)
                          * (y > lv["forehead"]))
-    edge = below if soft else np.zeros_like(covered)
     if soft:
-        thick = np.where(edge, 0.25 * thick, thick)
-    return covered, thick, pts, edge
+        thick = np.where(below, 0.25 * thick, thick)
+    return covered, thick, pts
 
 
 def _shell(base: np.ndarray, normal: np.ndarray, covered: np.ndarray, thick: np.ndarray,
@@ -488,7 +487,7 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
         return HairMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 2)))
     bottom = min(frame.levels["menton"] - style.length, frame.levels["neck_bottom"])
     base, normal = _base_grid(verts, frame, bottom, normals)
-    covered, thick, base, _ = _coverage_and_thickness(base, frame, style, soft)
+    covered, thick, base = _coverage_and_thickness(base, frame, style, soft)
     pieces = [_shell(base, normal, covered, thick, style, frame)]
     head_top = float(verts[:, 1].max())
     back_z = float(verts[:, 2].min())
