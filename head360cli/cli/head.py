@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import click
@@ -404,23 +406,20 @@ def animate(head: str | None, arkit: str | None, video: str | None, side_by_side
     stream = read_arkit_csv(arkit, on_bad=on_bad, fps=stream_fps)
     for warning in stream.warnings:
         warn(warning)
-    head, scratch = _head_or_mean(head)
-
-    def load():
-        return _animate_renderer(head, backend, onnx_path, samples, size, precision, exact)
-
     cfg = AnimateConfig(fps=fps, start=start, end=end, smooth=smooth, head_pose=head_pose,
                         yaw=yaw, pitch=pitch, hair=not no_hair, workers=workers,
                         batch=batch)
     # given the loader, run() starts the processes that render frames on a CPU before
     # it loads the head (with --device auto on a GPU machine they end unused)
     on_cpu = backend == "torch" and not on_gpu
-    try:
+    with _head_or_mean(head) as path:
+
+        def load():
+            return _animate_renderer(path, backend, onnx_path, samples, size, precision,
+                                     exact)
+
         res = run(load if on_cpu else load(), stream, out, cfg, mesh_dir=mesh_dir,
                   progress=progress_printer())
-    finally:
-        if scratch is not None:
-            scratch.cleanup()
     for warning in res.get("warnings", []):
         warn(warning)
     text = (f"animated {res['frames']} frames ({res['duration_s']:.2f} s at "
@@ -495,17 +494,19 @@ def swap_hair(head: str | None, hair_style: str | None, colour: str | None,
           f"{HAIRSTYLES[was].name}, style {was})")
 
 
-def _head_or_mean(head: str | None):
-    """The head file to animate, and the temporary folder holding the model's mean head
-    when none was given (the caller removes it at the end), else ``None``."""
+@contextlib.contextmanager
+def _head_or_mean(head: str | None) -> Iterator[str]:
+    """The head file to animate: ``head``, or the model's mean head in a temporary folder
+    (removed when the block ends) when none was given."""
     if head is not None:
-        return head, None
+        yield head
+        return
     import tempfile
 
     warn("no HEAD given: driving the model's mean head (fit yours with head360 fit "
          "PHOTO and give the .h360)")
-    scratch = tempfile.TemporaryDirectory(prefix="head360-mean-")
-    return str(_mean_head_file(Path(scratch.name))), scratch
+    with tempfile.TemporaryDirectory(prefix="head360-mean-") as scratch:
+        yield str(_mean_head_file(Path(scratch)))
 
 
 def _animate_renderer(head: str, backend: str, onnx_path: str, samples: int | None,
@@ -532,15 +533,11 @@ def _animate_video(head: str | None, video: str, out: str, side_by_side: bool,
 
     track = TrackConfig(start=start, end=end, on_bad=on_bad, fps=fps)
     cfg = AnimateConfig(head_pose=head_pose, yaw=yaw, pitch=pitch, hair=not no_hair)
-    head, scratch = _head_or_mean(head)
-    try:
-        renderer = _animate_renderer(head, backend, onnx_path, samples, size, precision,
+    with _head_or_mean(head) as path:
+        renderer = _animate_renderer(path, backend, onnx_path, samples, size, precision,
                                      exact)
         res = animate_video(renderer, video, out, cfg, track, side_by_side,
                             progress=progress_printer())
-    finally:
-        if scratch is not None:
-            scratch.cleanup()
     for warning in res.get("warnings", []):
         warn(warning)
     emit(res, f"tracked and animated {res['frames']} frames ({res['duration_s']:.2f} s at "
