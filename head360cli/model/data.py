@@ -75,19 +75,30 @@ class Batch:
     identity: torch.Tensor
     with_hair: torch.Tensor
     hair: Hair
+    albedo: torch.Tensor | None = None
+    """``(B, 3, R, R)`` the heads' albedo atlases (``Views(albedo_res=R)``), or ``None``."""
+    hair_albedo: torch.Tensor | None = None
+    """``(B, 3, r, r)`` their hair's strand textures (``Views(hair_albedo_res=r)``), or
+    ``None``."""
 
     def to(self, device: torch.device | str) -> Batch:
-        return Batch(**{f.name: getattr(self, f.name).to(device)
+        return Batch(**{f.name: None if getattr(self, f.name) is None
+                        else getattr(self, f.name).to(device)
                         for f in dataclasses.fields(self)})
 
     @staticmethod
     def cat(parts: list[Batch]) -> Batch:
         fields = {f.name: torch.cat([getattr(p, f.name) for p in parts])
-                  for f in dataclasses.fields(Batch) if f.name not in ("intrinsics", "hair")}
+                  for f in dataclasses.fields(Batch)
+                  if f.name not in ("intrinsics", "hair", "albedo", "hair_albedo")}
         hair = Hair([m for p in parts for m in p.hair.meshes],
                     torch.cat([p.hair.style for p in parts]),
                     torch.cat([p.hair.colour for p in parts]))
-        return Batch(intrinsics=parts[0].intrinsics, hair=hair, **fields)
+        albedo, hair_albedo = (
+            None if getattr(parts[0], name) is None else
+            torch.cat([getattr(p, name) for p in parts]) for name in ("albedo", "hair_albedo"))
+        return Batch(intrinsics=parts[0].intrinsics, hair=hair, albedo=albedo,
+                     hair_albedo=hair_albedo, **fields)
 
 
 class Views:
@@ -103,11 +114,14 @@ class Views:
         skin_scan: Folder of a head scan whose skin detail the heads take (``""``: none;
             see :func:`head360cli.synth.scene.make_head`).
         soft_hair: Soft hairlines (:func:`head360cli.synth.hair.build_hair`).
+        albedo_res: Give batches the heads' albedo atlases at this size (0: none).
+        hair_albedo_res: And their hair's strand textures at this size (0: none).
     """
 
     def __init__(self, identities: int, split: str = "train", seed: int = 0,
                  size: int = 256, texture_size: int = 512, device: str = "cpu",
-                 skin_scan: str = "", soft_hair: bool = False) -> None:
+                 skin_scan: str = "", soft_hair: bool = False, albedo_res: int = 0,
+                 hair_albedo_res: int = 0) -> None:
         self.identities, self.split, self.seed, self.size = identities, split, seed, size
         self.texture_size = texture_size
         self.skin_scan, self.soft_hair = skin_scan, soft_hair
@@ -115,6 +129,19 @@ class Views:
         self.intrinsics = intrinsics_from_fov(RIG_FOV_DEG, size, size).to(self.device)
         self.rig, _, _ = rig72()
         self._heads: dict[tuple, object] = {}
+        self.albedo_res, self.hair_albedo_res = albedo_res, hair_albedo_res
+        self._albedo: dict[tuple[int, str], torch.Tensor] = {}
+
+    def albedo(self, index: int, part: str = "texture") -> torch.Tensor:
+        """``(1, 3, R, R)`` head ``index``'s skin atlas at ``albedo_res`` (``part=
+        "hair_tex"``: its hair's strand texture at ``hair_albedo_res``), kept."""
+        key = (index, part)
+        if key not in self._albedo:
+            size = self.albedo_res if part == "texture" else self.hair_albedo_res
+            tex = torch.as_tensor(getattr(self.head(index), part)).permute(2, 0, 1)[None]
+            self._albedo[key] = torch.nn.functional.interpolate(
+                tex.float(), size=(size, size), mode="area").to(self.device)
+        return self._albedo[key]
 
     def head(self, index: int, style: int | None = None, colour: str | None = None):
         """Corpus head ``index``, optionally with another hairstyle and colour (built once,
@@ -187,11 +214,16 @@ class Views:
         hair = Hair([mesh] * b, torch.full((b,), head.hair_style, device=self.device),
                     colour_rgb.expand(b, 3))
         hair_alpha = out.labels[:, :1] if with_hair else torch.zeros_like(out.alpha)
+        own = style is None and colour is None
+        albedo = (self.albedo(index).expand(b, -1, -1, -1) if self.albedo_res and own
+                  else None)
+        hair_albedo = (self.albedo(index, "hair_tex").expand(b, -1, -1, -1)
+                       if self.hair_albedo_res and own else None)
         return Batch(verts[None].expand(b, -1, -1).contiguous(), c2w, self.intrinsics,
                      out.rgb, out.alpha, hair_alpha,
                      torch.full((b,), index, dtype=torch.long, device=self.device),
                      torch.full((b,), with_hair, dtype=torch.bool, device=self.device),
-                     hair)
+                     hair, albedo, hair_albedo)
 
     def sample(self, rng: np.random.Generator, batch: int, bald_share: float = 0.5,
                group: int = 1, featured: float = 0.0) -> Batch:

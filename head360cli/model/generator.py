@@ -159,7 +159,8 @@ def near_rays(near: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 class Generator(nn.Module):
-    """The head generator: head branch, hair branch, volume renderer and RefineNet.
+    """The paper's hex-plane head generator: head branch, hair branch, volume renderer and
+    RefineNet.
 
     Args:
         cfg: Sizes.
@@ -167,6 +168,9 @@ class Generator(nn.Module):
         uv: ``(T, 2)`` texture coordinates.
         faces_uv: ``(F, 3)`` indices into ``uv``.
     """
+
+    kind = "hexplane"
+    """Which generator this is (``DeferredGenerator.kind`` is ``"deferred"``)."""
 
     def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
                  faces_uv: np.ndarray) -> None:

@@ -399,7 +399,8 @@ class HeadRenderer:
 
         moves = not bool((c2w == c2w[:1]).all())
         reuse = (DecodeReuse(self.reuse, self._still_vertices, camera_moves=moves)
-                 if self.reuse is not None and batch == 1 and len(c2w) > 1 else None)
+                 if self.reuse is not None and batch == 1 and len(c2w) > 1
+                 and self.gen.kind == "hexplane" else None)
         self.last_reuse = reuse
         for i in range(0, len(c2w), batch):
             cams = c2w[i:i + batch].to(self.device)

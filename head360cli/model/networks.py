@@ -12,7 +12,8 @@ from torch import nn
 from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
 
-__all__ = ["Decoder", "HairTextureGenerator", "RefineNet", "TextureGenerator",
+__all__ = ["Decoder", "HairTextureGenerator", "PixelShader", "RefineNet", "ScreenNet",
+           "TextureGenerator",
            "onednn_decodes"]
 
 
@@ -275,3 +276,73 @@ class RefineNet(nn.Module):
                            mode="bilinear", align_corners=False)
         out = up + res
         return out[:, :3], out[:, 3:].clamp(0.0, 1.0)
+
+
+SHADER_BLOCK = 32768
+"""Points the pixel shader decodes at a time. Its hidden activations for a whole batch
+(350k points x 64 channels: 90 MB) are larger than glibc's largest heap block, so each was
+a fresh mapping whose page faults cost more than the arithmetic; in blocks of 32k points
+(8 MB) the heap reuses them."""
+
+
+class PixelShader(nn.Module):
+    """The deferred renderer's per-point decoder: neural-texture features, surface normal
+    and view direction (head coordinates) and a hair flag -> colour and ``extra`` image
+    features.
+
+    The texture's first three channels act as albedo: the colour is ``albedo * gain +
+    offset`` with ``gain`` and ``offset`` from the network, so a photo's colours can be
+    written into those channels directly (the fit's projection) and the network adds the
+    studio light it learnt.
+    """
+
+    def __init__(self, channels: int, hidden: int, extra: int) -> None:
+        super().__init__()
+        self.extra = extra
+        self.net = nn.Sequential(nn.Linear(channels + 7, hidden), nn.ReLU(),
+                                 nn.Linear(hidden, hidden), nn.ReLU(),
+                                 nn.Linear(hidden, 6 + extra))
+        with torch.no_grad():  # start as a plain albedo read: gain 1, offset 0
+            self.net[-1].weight.mul_(0.1)
+            self.net[-1].bias.zero_()
+
+    def forward(self, feats: torch.Tensor, normal: torch.Tensor, view: torch.Tensor,
+                hair: torch.Tensor) -> torch.Tensor:
+        """``feats (n, C)``, ``normal (n, 3)``, ``view (n, 3)``, ``hair (n, 1)`` ->
+        ``(n, 3 + extra)``: RGB, then the extra features."""
+        x = torch.cat([feats, normal, view, hair], -1)
+        if exporting():
+            out = self.net(x)
+        else:  # blocks small enough for the allocator to reuse (see SHADER_BLOCK)
+            out = torch.cat([self.net(part) for part in x.split(SHADER_BLOCK)])
+        rgb = feats[:, :3] * (1.0 + out[:, :3]) + out[:, 3:6]
+        return torch.cat([rgb, out[:, 6:]], -1)
+
+
+class ScreenNet(nn.Module):
+    """The deferred renderer's image network: two 3x3 convolutions over the shaded image
+    (colour, extra features, coverage) that add a residual to colour and coverage, for
+    edges and what one surface point alone cannot know. Its reach is two pixels, so a
+    change of one texel changes the image only within two pixels of where it is seen."""
+
+    reach = 2
+    """Pixels around a change within which the output can change."""
+
+    def __init__(self, inputs: int, width: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(inputs, width, 3, padding=1), nn.ReLU(),
+                                 nn.Conv2d(width, 4, 3, padding=1))
+        nn.init.zeros_(self.net[-1].weight)
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, image: torch.Tensor, coverage: torch.Tensor) -> tuple[torch.Tensor,
+                                                                           torch.Tensor]:
+        """``image (B, 3 + E, H, W)`` premultiplied by ``coverage (B, 1, H, W)`` ->
+        ``(rgb on white (B, 3, H, W), alpha (B, 1, H, W))``."""
+        x = torch.cat([image, coverage], 1)
+        if x.device.type == "cpu" and not exporting():
+            x = x.contiguous(memory_format=torch.channels_last)
+        res = self.net(x).contiguous()
+        alpha = (coverage + res[:, 3:]).clamp(0.0, 1.0)
+        rgb = image[:, :3] + (1.0 - coverage) + res[:, :3]
+        return rgb, alpha

@@ -34,7 +34,8 @@ from head360cli.io.jsontext import dumps
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.generator import Generator
 
-__all__ = ["TrainConfig", "load_generator", "read_checkpoint", "save_generator", "train"]
+__all__ = ["TrainConfig", "build_generator", "load_generator", "read_checkpoint",
+           "save_generator", "train"]
 
 CHECKPOINT = "checkpoint.pt"
 WEIGHTS_FORMAT = 1
@@ -97,6 +98,10 @@ class TrainConfig:
     soft_hair: bool = False
     """Train on soft hairlines; the generator then records it
     (``GeneratorConfig.soft_hair``) and fits its hair so at run time."""
+    albedo_weight: float = 1.0
+    """Deferred generator: weight of the L1 loss between the neural texture's first three
+    channels and the corpus head's albedo atlas (what makes them albedo, so a fit can
+    write a photo's colours there)."""
 
     def __post_init__(self) -> None:
         """Refuse settings no run can train with (the CLI checks its options first, with
@@ -124,7 +129,7 @@ class TrainConfig:
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise bad(name, "finite and > 0")
         for name in ("minutes", "code_prior", "low_res_weight", "mask_weight",
-                     "hair_weight"):
+                     "hair_weight", "albedo_weight"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad(name, "finite and >= 0")
         for name in ("bald_share", "featured_share", "final_lr"):
@@ -145,15 +150,27 @@ class _Model(nn.Module):
 
     def forward(self, batch, jitter: bool = True):
         hair = batch.hair if self.generator.cfg.hair else None
-        return self.generator(batch.verts, batch.c2w, batch.intrinsics,
-                              code=self.codes[batch.identity], hair=hair, jitter=jitter)
+        # each identity's texture made once, however many of its views the batch holds
+        ids, inverse = torch.unique(batch.identity, return_inverse=True)
+        texture = self.generator.texture(self.codes[ids])[inverse]
+        return self.generator(batch.verts, batch.c2w, batch.intrinsics, texture=texture,
+                              hair=hair, jitter=jitter)
 
 
-def _topology():
-    from head360cli.mesh.bilinear import load_bilinear
+def build_generator(cfg: GeneratorConfig) -> nn.Module:
+    """A generator of ``cfg`` (deferred or hex-plane) on the head template's topology,
+    its weights freshly initialised."""
+    from head360cli.synth.sculpt import topology
 
-    m = load_bilinear()
-    return m.faces, m.uv, m.faces_uv
+    topo = topology()
+    if cfg.renderer == "deferred":
+        from head360cli.model.deferred import DeferredGenerator
+
+        return DeferredGenerator(cfg, topo.faces, topo.uv, topo.faces_uv,
+                                 topo.normal_groups)
+    if cfg.renderer != "hexplane":
+        raise ValueError(f"expected renderer deferred or hexplane, found {cfg.renderer!r}")
+    return Generator(cfg, topo.faces, topo.uv, topo.faces_uv)
 
 
 def losses(out: dict[str, torch.Tensor], batch, cfg: TrainConfig) -> dict[str, torch.Tensor]:
@@ -167,6 +184,18 @@ def losses(out: dict[str, torch.Tensor], batch, cfg: TrainConfig) -> dict[str, t
              + (out["alpha_low"] - alpha_low).abs().mean()}
     parts["total"] = (parts["l1"] + cfg.low_res_weight * parts["l1_low"]
                       + cfg.mask_weight * parts["mask"])
+    if batch.albedo is not None and cfg.albedo_weight > 0:
+        res = batch.albedo.shape[-1]
+        tex = out["texture"][:, :3]
+        if tex.shape[-1] != res:
+            tex = F.interpolate(tex, size=(res, res), mode="area")
+        parts["albedo"] = (tex - batch.albedo).abs().mean()
+        if batch.hair_albedo is not None and "hair_texture" in out and \
+                bool(batch.with_hair.any()):
+            worn = batch.with_hair
+            parts["albedo"] = parts["albedo"] + (
+                out["hair_texture"][worn, :3] - batch.hair_albedo[worn]).abs().mean()
+        parts["total"] = parts["total"] + cfg.albedo_weight * parts["albedo"]
     if cfg.detach:
         parts["hair"] = (out["hair_alpha"] - batch.hair_alpha).abs().mean()
         parts["total"] = parts["total"] + cfg.hair_weight * parts["hair"]
@@ -233,7 +262,7 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     if state is None:  # the hair meshes at run time are those it learns from
         gen_cfg = dataclasses.replace(gen_cfg, soft_hair=cfg.soft_hair)
     torch.manual_seed(cfg.seed)
-    model = _Model(Generator(gen_cfg, *_topology()), cfg.identities).to(device)
+    model = _Model(build_generator(gen_cfg), cfg.identities).to(device)
     if init is not None:
         model.generator.load_state_dict(init["generator"])
         with torch.no_grad():
@@ -252,7 +281,11 @@ def train(out: str | Path, cfg: TrainConfig | None = None,
     if world > 1:  # a bald-only step leaves the hair branch without gradients
         run = nn.parallel.DistributedDataParallel(model, find_unused_parameters=gen_cfg.hair)
     views = Views(cfg.identities, "train", cfg.seed, gen_cfg.image_res, device=device,
-                  skin_scan=cfg.skin_scan, soft_hair=gen_cfg.soft_hair)
+                  skin_scan=cfg.skin_scan, soft_hair=gen_cfg.soft_hair,
+                  albedo_res=(min(gen_cfg.texture_res, 256) if gen_cfg.renderer == "deferred"
+                              and cfg.albedo_weight > 0 else 0),
+                  hair_albedo_res=(gen_cfg.hair_texture_res if gen_cfg.renderer == "deferred"
+                                   and cfg.albedo_weight > 0 and gen_cfg.hair else 0))
     bald_share = cfg.bald_share if (cfg.detach and gen_cfg.hair) else (
         0.0 if gen_cfg.hair else 1.0)
     base_lrs = [cfg.lr, cfg.code_lr]
@@ -426,7 +459,7 @@ def load_generator(path: str | Path | None = None, device: str = "cpu"
     path = installed_generator(path)
     w, cfg = _read_weights(path)
     try:
-        gen = Generator(cfg, *_topology())
+        gen = build_generator(cfg)
         gen.load_state_dict(w["generator"])
     except (KeyError, RuntimeError) as exc:  # missing, extra or mis-shaped tensors
         raise FileFormatError(f"{path}: expected head360 generator weights ({exc})") from exc

@@ -1,0 +1,307 @@
+"""The deferred generator: (mesh vertices, texture code or neural texture, hair, camera)
+-> image, by deferred neural rendering.
+
+    t --TextureGenerator--> neural texture (C, R, R)
+    style, colour --HairTextureGenerator--> hair texture (C, r, r)
+    posed head + hair meshes --gbuffer (rasterized once per view, S samples a pixel)-->
+        per sample point: texture coordinates, normal, view direction, hair flag
+    neural texture read at each point's own surface point --PixelShader--> colour and
+        features --mean over the samples--> --ScreenNet (3x3, 3x3)--> RGB and alpha
+
+Each pixel reads only the texels of the surface it shows, so a texel's change shows only
+where its surface is seen (within the image network's two pixels). The texture's first
+three channels act as albedo (see :class:`~head360cli.model.networks.PixelShader`), which
+is what lets a fit write a photo's colours into it.
+
+It takes the same arguments as the hex-plane :class:`~head360cli.model.generator.
+Generator` and returns the same outputs, so fitting, animation and the benches drive
+either; what serves only the hex-planes (samples per ray, plane rasters, decoded-point
+reuse) is accepted and has nothing to do here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from head360cli.model.config import GeneratorConfig
+from head360cli.model.gbuffer import GBuffer, MeshPart, gbuffer
+from head360cli.model.generator import Hair, _hair_groups
+from head360cli.model.networks import (
+    HairTextureGenerator,
+    PixelShader,
+    ScreenNet,
+    TextureGenerator,
+)
+
+__all__ = ["DeferredGenerator", "read_texels"]
+
+
+def read_texels(table: torch.Tensor, base: torch.Tensor, res: torch.Tensor,
+               uv: torch.Tensor) -> torch.Tensor:
+    """Bilinear reads of textures stored texel by texel in one table.
+
+    Args:
+        table: ``(T, C)`` texels of several square textures, each row by row.
+        base: ``(n,)`` the first row of each point's texture in ``table``.
+        res: ``(n,)`` that texture's side.
+        uv: ``(n, 2)`` where to read it, in [0, 1] (v down; texel centres at
+            ``(i + 0.5) / res``, the border texels held beyond them).
+
+    Returns:
+        ``(n, C)``; its gradient reaches only the four texels each point reads.
+    """
+    side = res.to(uv.dtype)
+    x = (uv[:, 0] * side - 0.5).clamp(min=0.0)
+    y = (uv[:, 1] * side - 0.5).clamp(min=0.0)
+    top = res - 1
+    x0 = x.floor().long().clamp(max=top)
+    y0 = y.floor().long().clamp(max=top)
+    wx = (x - x0.to(x.dtype)).clamp(0.0, 1.0)[:, None]
+    wy = (y - y0.to(y.dtype)).clamp(0.0, 1.0)[:, None]
+    x1 = (x0 + 1).clamp(max=top)
+    y1 = (y0 + 1).clamp(max=top)
+
+    def at(yy: torch.Tensor, xx: torch.Tensor) -> torch.Tensor:
+        return table.index_select(0, base + yy * res + xx)
+
+    return ((at(y0, x0) * (1 - wx) + at(y0, x1) * wx) * (1 - wy)
+            + (at(y1, x0) * (1 - wx) + at(y1, x1) * wx) * wy)
+
+
+class DeferredGenerator(nn.Module):
+    """The deferred head generator: texture generators, pixel shader, image network.
+
+    Args:
+        cfg: Sizes (``renderer="deferred"``).
+        faces: ``(F, 3)`` triangles of the head topology.
+        uv: ``(T, 2)`` texture coordinates.
+        faces_uv: ``(F, 3)`` indices into ``uv``.
+        normal_groups: ``(G, K)`` vertices welded for normals (the template's), or
+            ``None``.
+    """
+
+    kind = "deferred"
+    """Which generator this is (the hex-plane ``Generator.kind`` is ``"hexplane"``)."""
+
+    def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
+                 faces_uv: np.ndarray, normal_groups: np.ndarray | None = None) -> None:
+        super().__init__()
+        if cfg.pixel_samples not in (1, 2, 4):
+            raise ValueError(f"expected pixel_samples 1, 2 or 4, found {cfg.pixel_samples}")
+        self.cfg = cfg
+        self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
+        self.register_buffer("uv", torch.as_tensor(np.asarray(uv), dtype=torch.float32))
+        self.register_buffer("faces_uv",
+                             torch.as_tensor(np.asarray(faces_uv), dtype=torch.long))
+        self.normal_groups = (None if normal_groups is None else
+                              torch.as_tensor(np.asarray(normal_groups), dtype=torch.long))
+        self.network_dtype: torch.dtype | None = None
+        """Run the shader and the image network in this dtype under autocast (``None``:
+        float32); renders only."""
+        self.cull_rays = self.hair_rays_only = True  # hex-plane settings; nothing here
+        self.texture_generator = TextureGenerator.from_config(cfg)
+        self.shader = PixelShader(cfg.texture_channels, cfg.hidden, cfg.shader_extra)
+        self.refine = ScreenNet(3 + cfg.shader_extra + 1, cfg.refine_width) \
+            if cfg.refine else None
+        if cfg.hair:
+            self.hair_texture_generator = HairTextureGenerator(cfg)
+
+    def _apply(self, fn, recurse: bool = True):  # keep the plain tensor on the device
+        out = super()._apply(fn, recurse)
+        if self.normal_groups is not None:
+            self.normal_groups = fn(self.normal_groups)
+        return out
+
+    @contextlib.contextmanager
+    def _override(self, **changes: Any) -> Iterator[None]:
+        own = self.cfg
+        self.cfg = dataclasses.replace(own, **changes)
+        try:
+            yield
+        finally:
+            self.cfg = own
+
+    def samples_per_ray(self, samples: int | None) -> contextlib.AbstractContextManager:
+        """Nothing to change: a deferred render has no rays (kept so that callers drive
+        either generator)."""
+        return self._override()
+
+    def pixel_samples(self, samples: int | None) -> contextlib.AbstractContextManager:
+        """Render with ``samples`` subpixel samples a pixel (1, 2 or 4) inside the
+        ``with`` block (``None``: the configured count)."""
+        if samples is None:
+            return self._override()
+        if samples not in (1, 2, 4):
+            raise ValueError(f"expected 1, 2 or 4 samples a pixel, found {samples}")
+        return self._override(pixel_samples=int(samples))
+
+    def image_size(self, size: int | None) -> contextlib.AbstractContextManager:
+        """Render ``size`` x ``size`` images inside the ``with`` block (``None``: the
+        trained size); the low-resolution copies keep their ratio.
+
+        Raises:
+            ValueError: ``size`` is not a multiple of ``image_res / render_res``.
+        """
+        if size is None:
+            return self._override()
+        ratio = self.cfg.image_res // self.cfg.render_res
+        if size < ratio * 8 or size % ratio:
+            raise ValueError(f"expected an image size that is a multiple of {ratio} and at "
+                             f"least {ratio * 8}, found {size}")
+        return self._override(image_res=int(size), render_res=int(size) // ratio)
+
+    def texture(self, code: torch.Tensor) -> torch.Tensor:
+        """``(B, code_dim)`` -> neural texture ``(B, C, R, R)``."""
+        return self.texture_generator(code)
+
+    def plane_raster(self, verts: torch.Tensor) -> None:
+        """Nothing: a deferred render rasterizes per camera (kept for callers of both
+        generators; pass ``view_rays`` to keep a fixed camera's G-buffer)."""
+        return None
+
+    def prepare_hair(self, hair: Hair) -> Hair:
+        """The same hair with its textures made now (kept in ``Hair.planes``), so that
+        renders of many frames or views reuse them."""
+        items = [i for i, m in enumerate(hair.meshes) if m is not None]
+        textures: list[torch.Tensor | None] = [None] * len(hair.meshes)
+        if items:
+            idx = torch.tensor(items, device=hair.style.device)
+            tex = self.hair_texture_generator(hair.style[idx], hair.colour[idx])
+            made: dict[int, torch.Tensor] = {}
+            for j, i in enumerate(items):  # one texture per mesh object (views of a head)
+                textures[i] = made.setdefault(id(hair.meshes[i]), tex[j:j + 1])
+        return dataclasses.replace(hair, planes=textures)
+
+    def gbuffer(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
+                hair: Hair | None = None) -> GBuffer:
+        """The G-buffer of posed heads ``verts (B, V, 3)`` (and their hair) from cameras
+        ``c2w (B, 4, 4)`` with ``intrinsics (B, 3, 3)`` at the current image size."""
+        head = MeshPart(verts, self.faces, self.uv, self.faces_uv, self.normal_groups)
+        parts = []
+        if hair is not None:
+            items = [i for i, m in enumerate(hair.meshes) if m is not None]
+            for g in _hair_groups(hair, items):
+                hv, hf, huv = hair.meshes[g[0]]
+                parts.append((MeshPart(hv[None], hf, huv, hf),
+                              torch.tensor(g, device=verts.device)))
+        return gbuffer(head, c2w, intrinsics, self.cfg.image_res, self.cfg.pixel_samples,
+                       parts)
+
+    def _net(self, net: nn.Module, *args: torch.Tensor):
+        """``net(*args)``, in :attr:`network_dtype` when one is set; float32 outputs."""
+        if self.network_dtype is None:
+            return net(*args)
+        with torch.autocast(args[0].device.type, dtype=self.network_dtype):
+            out = net(*args)
+        return tuple(o.float() for o in out) if isinstance(out, tuple) else out.float()
+
+    def shade(self, buf: GBuffer, texture: torch.Tensor, hair: Hair | None
+              ) -> torch.Tensor:
+        """Shaded sample points of ``buf`` as images ``(B, 3 + extra, H, W)``,
+        premultiplied by coverage and averaged over the samples. Only covered points are
+        read and decoded."""
+        b, c, res = texture.shape[0], texture.shape[1], texture.shape[-1]
+        r, h, w = buf.mask.shape
+        index = buf.index()
+        view_of = (index // (h * w)) % b
+        tables = [texture.permute(0, 2, 3, 1).reshape(-1, c)]
+        base = view_of * (res * res)
+        side = torch.full_like(index, res)
+        is_hair = buf.hair.reshape(-1).index_select(0, index)
+        if hair is not None and bool(is_hair.any()):
+            start = b * res * res
+            first = torch.zeros(b, dtype=torch.long, device=index.device)
+            sides = torch.zeros(b, dtype=torch.long, device=index.device)
+            items = [i for i, m in enumerate(hair.meshes) if m is not None]
+            for g in _hair_groups(hair, items):
+                tex = hair.planes[g[0]][0]
+                tables.append(tex.permute(1, 2, 0).reshape(-1, c))
+                first[g] = start
+                sides[g] = tex.shape[-1]
+                start += tex.shape[-1] ** 2
+            base = torch.where(is_hair, first[view_of], base)
+            side = torch.where(is_hair, sides[view_of], side)
+        table = torch.cat(tables) if len(tables) > 1 else tables[0]
+        uv = buf.uv.reshape(-1, 2).index_select(0, index)
+        feats = read_texels(table, base, side, uv)
+        normal = buf.normal.reshape(-1, 3).index_select(0, index)
+        view = buf.view.reshape(-1, 3).index_select(0, index)
+        values = self._net(self.shader, feats, normal, view,
+                           is_hair[:, None].to(feats.dtype))
+        out = values.new_zeros(r * h * w, values.shape[1]).index_copy(0, index, values)
+        return buf.mean(out.view(r, h, w, -1).permute(0, 3, 1, 2))
+
+    def forward(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, *,
+                code: torch.Tensor | None = None, texture: torch.Tensor | None = None,
+                hair: Hair | None = None, jitter: bool = False, reuse: Any = None,
+                plane_raster: Any = None, head_planes: torch.Tensor | None = None,
+                view_rays: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Render heads.
+
+        Args:
+            verts: ``(B, V, 3)`` posed mesh in head coordinates (metres).
+            c2w: ``(B, 4, 4)`` camera-to-world (OpenCV axes).
+            intrinsics: ``(B, 3, 3)`` or ``(3, 3)`` for an ``image_res`` image.
+            code: ``(B, code_dim)`` texture codes, or
+            texture: ``(B, C, R, R)`` neural textures (inversion optimises these).
+            hair: The items' hair; ``None`` renders bald heads.
+            jitter, reuse, plane_raster: Hex-plane options; nothing here.
+            head_planes: Not for this generator (change the texture instead).
+            view_rays: A dict the caller keeps between renders of the same ``verts``,
+                cameras and hair that change only the texture: the first render keeps
+                its G-buffer there, the others read it.
+
+        Returns:
+            ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
+            ``(B, 1, H, W)``, their ``*_low`` copies and ``depth_low`` at
+            ``render_res``, the ``texture``, and with hair ``hair_texture (B, C, r,
+            r)`` (zero for bald items).
+        """
+        c = self.cfg
+        if head_planes is not None:
+            raise ValueError("expected a texture: the deferred generator has no head "
+                             "planes")
+        if texture is None:
+            if code is None:
+                raise ValueError("expected a texture code or a neural texture, found neither")
+            texture = self.texture(code)
+        if hair is not None and not c.hair:
+            raise ValueError("expected no hair: this generator was built without a hair "
+                             "branch")
+        b = verts.shape[0]
+        k = intrinsics.expand(b, 3, 3)
+        if hair is not None and hair.planes is None:
+            hair = self.prepare_hair(hair)
+        if view_rays is not None and "gbuffer" in view_rays:
+            buf = view_rays["gbuffer"]
+        else:
+            with torch.no_grad():
+                buf = self.gbuffer(verts, c2w, k, hair)
+            if view_rays is not None:
+                view_rays["gbuffer"] = buf
+        image = self.shade(buf, texture, hair)
+        coverage = buf.mean(buf.mask[:, None].to(image.dtype))
+        hair_alpha = buf.mean(buf.hair[:, None].to(image.dtype))
+        if self.refine is not None:
+            rgb, alpha = self._net(self.refine, image, coverage)
+        else:
+            rgb, alpha = image[:, :3] + (1.0 - coverage), coverage
+        ratio = c.image_res // c.render_res
+        low = [F.avg_pool2d(x, ratio) for x in (rgb, alpha, hair_alpha)]
+        depth = F.avg_pool2d(buf.depth[:b, None], ratio)
+        out = {"rgb": rgb, "alpha": alpha, "hair_alpha": hair_alpha, "rgb_low": low[0],
+               "alpha_low": low[1], "hair_alpha_low": low[2], "depth_low": depth,
+               "texture": texture}
+        if hair is not None and any(p is not None for p in hair.planes):
+            made = next(p for p in hair.planes if p is not None)
+            out["hair_texture"] = torch.cat([made * 0 if p is None else p
+                                             for p in hair.planes])
+        return out

@@ -1,0 +1,165 @@
+"""The deferred generator: outputs, coverage against the corpus renderer, locality of the
+texture, kept G-buffers, hair."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from head360cli.geometry.cameras import intrinsics_from_fov, rig72
+from head360cli.mesh.bilinear import BilinearHead, load_bilinear
+from head360cli.model.config import GeneratorConfig
+from head360cli.model.generator import hair_for
+from head360cli.model.train import build_generator
+
+TINY = GeneratorConfig(texture_res=32, render_res=16, image_res=64, hidden=16,
+                       refine_width=8, generator_width=32, hair_texture_res=8)
+
+
+@pytest.fixture(scope="module")
+def parts():
+    model = load_bilinear()
+    head = BilinearHead(model)
+    verts = head.vertices(torch.zeros(2, model.rank), torch.zeros(2, 52))
+    c2w = rig72()[0][[24, 30]]  # front, and turned 90 degrees
+    return model, verts, c2w, intrinsics_from_fov(24.0, 64, 64)
+
+
+def _gen(cfg=TINY, seed=0):
+    torch.manual_seed(seed)
+    return build_generator(cfg).eval()
+
+
+def test_outputs_and_gradients(parts):
+    _, verts, c2w, k = parts
+    gen = _gen()
+    assert gen.kind == "deferred"
+    code = torch.randn(2, TINY.code_dim, requires_grad=True)
+    out = gen(verts, c2w, k, code=code)
+    assert out["rgb"].shape == (2, 3, 64, 64) and out["alpha"].shape == (2, 1, 64, 64)
+    assert out["rgb_low"].shape == (2, 3, 16, 16)
+    assert torch.isfinite(out["rgb"]).all()
+    assert out["alpha"][0, 0, 32, 32] == 1 and out["alpha"][0, 0, 0, 0] == 0
+    # the backdrop is white
+    assert torch.allclose(out["rgb"][:, :, 0, 0], torch.ones(2, 3))
+    out["rgb"].mean().backward()
+    assert code.grad is not None and code.grad.abs().sum() > 0
+    assert all(p.grad is not None and torch.isfinite(p.grad).all()
+               for p in gen.shader.parameters())
+
+
+def test_coverage_is_the_corpus_renderers(parts):
+    """Two samples a pixel at the corpus renderer's offsets: the same antialiased
+    coverage, pixel for pixel, so training never fights the targets' edges."""
+    from head360cli.synth.render import render_mesh
+
+    model, verts, c2w, k = parts
+    gen = _gen()
+    with torch.no_grad():
+        out = gen(verts, c2w, k, texture=torch.zeros(2, 16, 32, 32))
+    tex = torch.full((1, 3, 8, 8), 0.5)
+    ref = render_mesh(verts, torch.as_tensor(model.faces), c2w, k, 64,
+                      uv=torch.as_tensor(model.uv, dtype=torch.float32),
+                      faces_uv=torch.as_tensor(model.faces_uv), texture=tex, samples=2)
+    assert torch.equal(out["alpha"] > 0, ref.alpha > 0)
+    assert (out["alpha"] - ref.alpha).abs().max() < 1e-6
+
+
+def test_a_texel_changes_only_where_its_surface_is_seen(parts):
+    """Locality: a patch of the texture changed, a view that cannot see it does not
+    change at all, and a view that sees it changes only within the image network's
+    reach of the pixels that read it."""
+    _, verts, c2w, k = parts
+    gen = _gen()
+    torch.manual_seed(1)
+    with torch.no_grad():  # a trained image network spreads changes; a new one does not
+        torch.nn.init.normal_(gen.refine.net[-1].weight, std=0.1)
+    tex = torch.rand(1, 16, 32, 32)
+    changed = tex.clone()
+    # the patch: texels of the left ear's island in the UV layout
+    patch = (slice(5, 9), slice(25, 31))
+    changed[:, :, patch[0], patch[1]] += 1.0
+    with torch.no_grad():
+        buf = gen.gbuffer(verts, c2w, k.expand(2, 3, 3))
+        reads = torch.zeros(buf.uv.shape[:3], dtype=torch.bool)
+        px = (buf.uv * 32 - 0.5).floor().long()
+        for dy in (0, 1):
+            for dx in (0, 1):
+                x, y = (px[..., 0] + dx).clamp(0, 31), (px[..., 1] + dy).clamp(0, 31)
+                reads |= buf.mask & (y >= 5) & (y < 9) & (x >= 25) & (x < 31)
+        reads = reads.view(buf.samples, 2, 64, 64).any(0)
+        a = gen(verts, c2w, k, texture=tex.expand(2, -1, -1, -1))["rgb"]
+        b = gen(verts, c2w, k, texture=changed.expand(2, -1, -1, -1))["rgb"]
+    diff = (a - b).abs().amax(1) > 0
+    for view in range(2):
+        near = torch.nn.functional.max_pool2d(
+            reads[view][None, None].float(), 2 * gen.refine.reach + 1, 1,
+            gen.refine.reach)[0, 0] > 0
+        assert not (diff[view] & ~near).any()
+    # the views differ in what they see of the patch: one sees it, and changes
+    assert diff.any()
+    assert int(reads[0].sum()) != int(reads[1].sum())
+
+
+def test_a_kept_gbuffer_renders_the_same_without_rasterizing(parts, monkeypatch):
+    _, verts, c2w, k = parts
+    gen = _gen()
+    tex = torch.rand(2, 16, 32, 32)
+    kept: dict = {}
+    with torch.no_grad():
+        a = gen(verts, c2w, k, texture=tex, view_rays=kept)["rgb"]
+    import head360cli.model.deferred as deferred
+
+    def fail(*args, **kwargs):
+        raise AssertionError("rasterized again")
+
+    monkeypatch.setattr(deferred, "gbuffer", fail)
+    with torch.no_grad():
+        b = gen(verts, c2w, k, texture=tex, view_rays=kept)["rgb"]
+    assert torch.equal(a, b)
+
+
+def test_hair_is_drawn_and_items_sharing_it_render_as_one_by_one(parts):
+    model, verts, c2w, k = parts
+    gen = _gen()
+    neutral = model.vertices(np.zeros(model.rank), np.zeros(52))
+    hair = hair_for(neutral, [3], np.array([[0.3, 0.2, 0.1]]))
+    tex = torch.rand(1, 16, 32, 32)
+    with torch.no_grad():
+        both = gen(verts, c2w, k, texture=tex.expand(2, -1, -1, -1), hair=hair.repeat(2))
+        one = [gen(verts[i:i + 1], c2w[i:i + 1], k, texture=tex, hair=hair)
+               for i in range(2)]
+        bald = gen(verts, c2w, k, texture=tex.expand(2, -1, -1, -1))
+    assert both["hair_alpha"].sum() > 0 and bald["hair_alpha"].sum() == 0
+    assert both["alpha"].sum() > bald["alpha"].sum()
+    for i in range(2):
+        assert torch.allclose(both["rgb"][i], one[i]["rgb"][0], atol=1e-6)
+    assert both["hair_texture"].shape == (2, 16, 8, 8)
+
+
+def test_gbuffer_normals_and_view_directions(parts):
+    """Unit vectors; the view direction points at the camera, and a visible surface
+    faces it."""
+    _, verts, c2w, k = parts
+    gen = _gen()
+    buf = gen.gbuffer(verts, c2w, k.expand(2, 3, 3))
+    m = buf.mask
+    assert torch.allclose(buf.normal[m].norm(dim=-1), torch.ones(int(m.sum())), atol=1e-4)
+    assert torch.allclose(buf.view[m].norm(dim=-1), torch.ones(int(m.sum())), atol=1e-5)
+    assert ((buf.normal[m] * buf.view[m]).sum(-1) > -0.05).float().mean() > 0.99
+    # the front camera looks along -z at the face: its points see +z
+    front = buf.view[:, 32, 32][0]
+    assert front[2] > 0.99
+
+
+def test_pixel_samples_and_sizes_are_scoped(parts):
+    gen = _gen()
+    with gen.pixel_samples(1), gen.image_size(128):
+        assert gen.cfg.pixel_samples == 1 and gen.cfg.image_res == 128
+    assert gen.cfg.pixel_samples == 2 and gen.cfg.image_res == 64
+    with pytest.raises(ValueError, match="1, 2 or 4"):
+        gen.pixel_samples(3)
+    with pytest.raises(ValueError, match="head planes"):
+        gen(parts[1], parts[2], parts[3], texture=torch.zeros(2, 16, 32, 32),
+            head_planes=torch.zeros(1))
