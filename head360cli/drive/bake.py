@@ -32,10 +32,6 @@ BAKE_VIEWS: tuple[tuple[float, float], ...] = (
 VISIBLE_TOLERANCE = 0.004
 """Metres a texel may lie behind the rendered surface and still count as seen."""
 
-DEGENERATE_AREA = 1e-10
-"""Twice the area (m^2) below which a triangle of the mesh counts as having none: its
-texels are filled from their neighbours rather than baked."""
-
 TEXTURED_PART = "head"
 """The exported part that carries the baked texture (an OBJ writes it as
 ``<stem>_head.png``; the hair part has vertex colours)."""
@@ -89,55 +85,33 @@ def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 def _texels(renderer, size: int):
     """Per texel of a ``size`` x ``size`` UV layout: the point on the neutral mesh, its
-    normal, and whether a triangle with an area on the mesh covers it."""
+    normal, and whether a triangle with an area on the mesh covers it (the template's
+    seam triangles of no area took streaks of whatever the views showed there; they are
+    left to the fill from the skin around them)."""
     import torch
 
-    from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
-    from head360cli.io.mesh import vertex_normals
+    from head360cli.geometry.texels import texel_surface
 
     gen = renderer.gen
     faces, uv, faces_uv = gen.faces.cpu(), gen.uv.cpu(), gen.faces_uv.cpu()
     verts = renderer.vertices(np.zeros(52)).cpu()
-    screen = (uv * size)[None]
-    frags = rasterize(screen, torch.ones(1, len(uv)), faces_uv, size, size,
-                      perspective_correct=False, near=float("-inf"))
-    points = interpolate_face_corners(verts[faces], frags)[0]
-    normals = torch.tensor(vertex_normals(verts.numpy(), faces.numpy()), dtype=torch.float32)
-    normals = interpolate_face_corners(normals[faces], frags)[0]
-    normals = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    # The template closes its seams with triangles of no area on the mesh (732 of them,
-    # around the head at mouth height and on the neck, under every expression) but with
-    # room in the UV layout: their texels all lie on a line, whose normal is undefined,
-    # and took streaks of whatever the views showed there, grey and white beside the
-    # mouth. They are left to the fill from the skin around them.
-    tri = verts[faces]
-    area = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).norm(dim=-1)
-    flat = area[frags.face_id[0].clamp_min(0)] <= DEGENERATE_AREA
-    return points, normals, frags.mask[0] & ~flat, verts
+    normals = torch.tensor(_normals(verts.numpy(), faces.numpy()), dtype=torch.float32)
+    surf = texel_surface(verts, faces, uv, faces_uv, size, normals)
+    return surf.points, surf.normals, surf.covered, verts
 
 
 def _gather(points, normals, images, cams, k, depth_maps):
     """Weighted colour sums ``(N, 3)`` and weights ``(N,)`` of points seen in images."""
     import torch
-    import torch.nn.functional as F
 
-    from head360cli.geometry.cameras import project
+    from head360cli.geometry.texels import seen_in_photo
 
     total = torch.zeros(len(points), 3, dtype=torch.float64)
     weight = torch.zeros(len(points), dtype=torch.float64)
-    size = images.shape[-1]
     for img, cam, dmap in zip(images, cams, depth_maps, strict=True):
-        pix, depth = project(points[None], cam[None], k)
-        pix, depth = pix[0], depth[0]
-        grid = (pix / size * 2 - 1)[None, None]
-        colour = F.grid_sample(img[None], grid, align_corners=False)[0, :, 0].T
-        surface = F.grid_sample(dmap[None, None], grid, mode="nearest",
-                                align_corners=False)[0, 0, 0]
-        inside = (pix >= 0).all(1) & (pix < size).all(1) & (depth > 0)
-        visible = inside & (depth <= surface + VISIBLE_TOLERANCE)
-        towards = cam[:3, 3][None] - points
-        towards = towards / towards.norm(dim=1, keepdim=True).clamp_min(1e-9)
-        facing = (normals * towards).sum(1).clamp_min(0)
+        colour, facing, visible = seen_in_photo(points, normals, img, cam, k,
+                                                torch.where(dmap > 0, dmap, 1e9),
+                                                VISIBLE_TOLERANCE)
         w = (facing ** 4) * visible
         total += (colour * w[:, None]).double()
         weight += w.double()

@@ -203,17 +203,23 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
         return LidResult(zero, 0.0, 0.0, int(texels.sum()), time.perf_counter() - t0)
     keep = torch.as_tensor(texels, device=dev)
     gen.requires_grad_(False)
+    deferred = gen.kind == "deferred"
+    rays: dict = {}  # the deferred generator's G-buffer of the closed item, made once
     with torch.no_grad(), gen.image_size(s), gen.samples_per_ray(cfg.samples):
-        # the mesh stays put and only the lid texels change: the planes are made once,
-        # and each step adds the change where they read those texels
-        raster = gen.plane_raster(verts)
-        planes = gen.planes(verts, texture[None].expand(2, -1, -1, -1), raster)
-        before = gen(verts, cams, k, head_planes=planes)["rgb"]
-        # the closed item's raster (its gathered reads, made for both items, dropped)
-        raster = dataclasses.replace(raster, grid=raster.grid[1:], mask=raster.mask[1:],
-                                     surface=raster.surface[1:], reads=None)
-        planes = planes[1:]
-        at = reading_pixels(raster, keep)
+        if deferred:  # each pixel reads its own texels: the change is added to them
+            before = gen(verts, cams, k, texture=texture[None].expand(2, -1, -1, -1))["rgb"]
+        else:
+            # the mesh stays put and only the lid texels change: the planes are made
+            # once, and each step adds the change where they read those texels
+            raster = gen.plane_raster(verts)
+            planes = gen.planes(verts, texture[None].expand(2, -1, -1, -1), raster)
+            before = gen(verts, cams, k, head_planes=planes)["rgb"]
+            # the closed item's raster (its gathered reads, made for both, dropped)
+            raster = dataclasses.replace(raster, grid=raster.grid[1:],
+                                         mask=raster.mask[1:], surface=raster.surface[1:],
+                                         reads=None)
+            planes = planes[1:]
+            at = reading_pixels(raster, keep)
     rgb = before.float().cpu().numpy()
     target = closed_lid_target(rgb[0], rgb[1], lid_pix[0], lid_pix[1], cfg)
     window = grow_mask(lid_pix[0] | lid_pix[1], 8)
@@ -237,8 +243,12 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
             torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
         torch.manual_seed(cfg.seed)
         for _ in range(cfg.steps):
-            out = gen(verts[1:], cams[1:], k, jitter=True,
-                      head_planes=add_texture_change(planes, lid_change(), raster, at))
+            if deferred:
+                out = gen(verts[1:], cams[1:], k, texture=texture[None] + lid_change(),
+                          view_rays=rays)
+            else:
+                out = gen(verts[1:], cams[1:], k, jitter=True,
+                          head_planes=add_texture_change(planes, lid_change(), raster, at))
             loss = ((out["rgb"] - target).abs() * weight).sum() / area
             opt.zero_grad()
             loss.backward()

@@ -169,6 +169,11 @@ class InvertConfig:
     prior (AFLW2000-3D 03614 2.5 dB below its fit without the gain), 24.66 at 0.1;
     fitted in both stages 25.07 without a prior and 25.18 at 0.1 (03614 1.0 dB
     above)."""
+    project: bool = True
+    """With a deferred generator, start the texture steps from the photo projected into
+    the texture (:func:`~head360cli.fitting.project.project_photo`: the photo where it
+    sees the surface, its mirror image where it sees the other side, the code's skin in
+    the photo's tone elsewhere) instead of the code's texture. Colour photos only."""
     window: bool = True
     """Render only the square of the image that holds the loss's pixels (those where
     ``mask`` is not zero, with a border wider than the RefineNet's reach, so they come
@@ -536,8 +541,11 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
     with gen.samples_per_ray(cfg.samples), gen.image_size(problem.side), _deterministic():
         code, cam, log_gain = _fit_code(problem, raster, start_code, c2w, intrinsics,
                                         landmarks, slack, losses, progress, total)
+        start = None
+        if cfg.project and not cfg.grey and gen.kind == "deferred":
+            start = _projected(problem, code, cam, log_gain)
         texture, log_gain = _fit_texture(problem, raster, code, cam, log_gain, keep, losses,
-                                         progress, total)
+                                         progress, total, start)
     return Inversion(texture[0], code.detach()[0], cam[0], losses, len(losses),
                      time.perf_counter() - t0, _light(log_gain) if cfg.gain else None)
 
@@ -565,6 +573,14 @@ def _check_invert_inputs(gen, landmarks, held, keep) -> None:
                              or keep.dtype != torch.bool):
         raise ValueError(f"expected keep as a ({texels}, {texels}) bool tensor over the "
                          f"texels, found {keep.dtype} of shape {tuple(keep.shape)}")
+
+
+def _reach_pixels(gen) -> int:
+    """Output pixels around a change within which the generator's image network (the
+    RefineNet or the deferred ScreenNet) can change its output."""
+    if gen.kind == "deferred":
+        return gen.refine.reach
+    return gen.refine.reach * (gen.cfg.image_res // gen.cfg.render_res)
 
 
 def _light(log: torch.Tensor) -> torch.Tensor:
@@ -611,7 +627,7 @@ class _Problem:
         x0, y0, side = 0, 0, size
         if cfg.window and gen.refine is not None:
             # twice the RefineNet's reach: the square's own edges change nothing inside it
-            x0, y0, side = loss_window(mask[0] != 0, ratio, 2 * gen.refine.reach * ratio)
+            x0, y0, side = loss_window(mask[0] != 0, ratio, 2 * _reach_pixels(gen))
         if side < size:  # the same camera, its image cut to the square
             k = k.clone()
             k[:, 0, 2] -= x0
@@ -718,17 +734,35 @@ def _fit_code(problem: _Problem, raster, start_code: torch.Tensor, c2w: torch.Te
     return code.detach(), cam, log_gain.detach()
 
 
+def _projected(problem: _Problem, code: torch.Tensor, cam: torch.Tensor,
+               log_gain: torch.Tensor) -> torch.Tensor:
+    """``(1, C, R, R)``: the photo projected into the code's texture (see
+    :attr:`InvertConfig.project`)."""
+    from head360cli.fitting.project import project_photo
+    from head360cli.mesh.bilinear import load_bilinear
+
+    gen = problem.gen
+    mirror = torch.as_tensor(load_bilinear().vertex_mirror, device=problem.v.device)
+    with torch.no_grad():
+        start = gen.texture(code)
+    light = _light(log_gain) if problem.cfg.gain else None
+    return project_photo(gen, problem.v[0], mirror, cam[0], problem.k[0], problem.tgt[0],
+                         problem.m[0], start, light).texture
+
+
 def _fit_texture(problem: _Problem, raster, code: torch.Tensor, cam: torch.Tensor,
-                 log_gain: torch.Tensor, keep, losses: list[float], progress, total: int
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The texture steps: the change of the code's texture on a coarse grid plus a smooth
-    fine layer, and the light, with the camera fixed; stops when the loss stalls.
-    Returns ``(the lowest-loss texture (1, C, R, R), light's log (3,))``."""
+                 log_gain: torch.Tensor, keep, losses: list[float], progress, total: int,
+                 start: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The texture steps: the change of the ``start`` texture (default: the code's) on a
+    coarse grid plus a smooth fine layer, and the light, with the camera fixed; stops
+    when the loss stalls. Returns ``(the lowest-loss texture (1, C, R, R), light's log
+    (3,))``."""
     from head360cli.fitting.adam import Adam
 
     gen, cfg = problem.gen, problem.cfg
-    with torch.no_grad():
-        start = gen.texture(code)
+    if start is None:
+        with torch.no_grad():
+            start = gen.texture(code)
     log_gain = log_gain.requires_grad_(cfg.gain)
     side = start.shape[-1]
     delta = torch.zeros(*start.shape[:2], -(-side // cfg.texture_stride),

@@ -49,7 +49,9 @@ __all__ = [
 ]
 
 FORMAT_NAME = "head360"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2 (0.5.0): textures of the deferred generator. 1: of the hex-plane generator, whose
+heads this head360 does not render (:func:`read_head` says to fit the photo again)."""
 META_KEY = "__meta__"
 
 MAX_ARRAY_BYTES = 256 * 2**20
@@ -355,6 +357,11 @@ def read_head(
         )
     _validate_arrays(arrays, where, FileFormatError)
     model_hash = str(meta.get("model_hash", "none"))
+    if expected_model_hash is not None and version < FORMAT_VERSION:
+        raise ModelMismatchError(
+            f"{where} is a format {version} head file, made for the hex-plane generator of "
+            f"head360 0.4 and earlier; fit the photo again (head360 fit PHOTO)"
+        )
     if expected_model_hash is not None and model_hash != expected_model_hash:
         raise ModelMismatchError(
             f"{where} was made with model {model_hash[:12]}, but the loaded model is "

@@ -133,9 +133,10 @@ def test_texels_of_triangles_without_area_are_filled_not_baked(head_file):
     beside the mouth. They are filled from the skin around them, as smooth as the rest."""
     import torch
 
-    from head360cli.drive.bake import DEGENERATE_AREA, _texels, bake_head
+    from head360cli.drive.bake import _texels, bake_head
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.geometry.rasterize import rasterize
+    from head360cli.geometry.texels import DEGENERATE_AREA
 
     r = load_head_renderer(head_file, samples=2, size=64, precision="fp32")
     size = 256
