@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["cache_dir", "dlib_model_files", "installed_generator", "models_dir",
-           "shared_data_dir"]
+           "shared_data_dir", "use_generator"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -26,16 +28,35 @@ def models_dir() -> Path:
     return _PACKAGE / "_models"
 
 
+_GENERATOR: Path | None = None
+"""Weights that stand for the installed generator inside :func:`use_generator`."""
+
+
+@contextlib.contextmanager
+def use_generator(path: str | os.PathLike[str] | None) -> Iterator[None]:
+    """Inside the ``with`` block, ``path`` is the installed generator (``None``: as it
+    was): a bench runs the same pipeline with each weights file it compares."""
+    global _GENERATOR
+    own = _GENERATOR
+    _GENERATOR = own if path is None else Path(path)
+    try:
+        yield
+    finally:
+        _GENERATOR = own
+
+
 def installed_generator(path: str | os.PathLike[str] | None = None) -> Path:
-    """The generator weights at ``path`` (default ``generator.pt`` in :func:`models_dir`),
-    once known to be there.
+    """The generator weights at ``path`` (default ``generator.pt`` in :func:`models_dir`,
+    or the weights of :func:`use_generator`), once known to be there.
 
     Raises:
         ModelNotFoundError: No file there.
     """
     from head360cli.errors import ModelNotFoundError
 
-    path = models_dir() / "generator.pt" if path is None else Path(path)
+    if path is None:
+        path = _GENERATOR or models_dir() / "generator.pt"
+    path = Path(path)
     if not path.is_file():
         raise ModelNotFoundError(f"generator weights not found at {str(path)!r}; train them "
                                  "with 'head360 train'")

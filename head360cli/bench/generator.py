@@ -17,9 +17,12 @@ Rows, per weights file:
 - ``held-out ids, bald`` / ``held-out ids, hair``: heads of the test split; their texture
   code fitted with the generator frozen to bald rig views of the neutral face
   (:func:`fit_code`), then scored like the training identities.
+- ``held-out ids + texture, bald`` / ``hair``: the same, with the neural texture itself
+  then fitted to those views as a fit does (:func:`fit_texture`), for either generator.
 
 The speed sweep (first weights file only) times one frame on this machine and changes the
-samples per ray and the feature-plane resolution of the same weights.
+samples per ray and the feature-plane resolution of hex-plane weights, or the samples per
+pixel of deferred ones.
 """
 
 from __future__ import annotations
@@ -54,10 +57,12 @@ def ssim(pred: torch.Tensor, truth: torch.Tensor) -> float:
 
 def score_views(gen, batch, code: torch.Tensor, hair: bool) -> list[dict[str, float]]:
     """PSNR over the image and inside the head, and SSIM, of one rendered batch against
-    its targets; ``code (code_dim,)``."""
+    its targets; ``code (code_dim,)``, or a neural texture ``(C, R, R)``."""
+    n = len(batch.c2w)
+    given = ({"texture": code[None].expand(n, -1, -1, -1)} if code.ndim == 3 else
+             {"code": code[None].expand(n, -1)})
     with torch.no_grad():
-        out = gen(batch.verts, batch.c2w, batch.intrinsics,
-                  code=code[None].expand(len(batch.c2w), -1),
+        out = gen(batch.verts, batch.c2w, batch.intrinsics, **given,
                   hair=batch.hair if hair else None)
     rows = []
     for i in range(len(batch.c2w)):
@@ -97,6 +102,32 @@ def fit_code(gen, views, index: int, start: torch.Tensor, steps: int = 40,
     return code.detach()
 
 
+def fit_texture(gen, views, index: int, code: torch.Tensor, steps: int = 40,
+                lr: float = 0.02, cameras: int = 8, per_step: int = 2,
+                seed: int = 0) -> torch.Tensor:
+    """A held-out head's neural texture ``(C, R, R)``, started from ``code``'s and fitted
+    with the generator frozen to the same views as :func:`fit_code` (L1)."""
+    from head360cli.geometry.cameras import rig72
+
+    rig, _, _ = rig72()
+    pick = torch.linspace(0, 23, cameras).round().long() + 24
+    batch = views.render(index, np.zeros(52, np.float32), rig[pick])
+    with torch.no_grad():
+        texture = gen.texture(code[None]).clone().requires_grad_(True)
+    opt = torch.optim.Adam([texture], lr=lr)
+    gen.requires_grad_(False)
+    g = torch.Generator().manual_seed(seed)
+    for _ in range(steps):
+        sel = torch.randperm(cameras, generator=g)[:per_step]
+        out = gen(batch.verts[sel], batch.c2w[sel], batch.intrinsics,
+                  texture=texture.expand(len(sel), -1, -1, -1))
+        loss = (out["rgb"] - batch.rgb[sel]).abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return texture.detach()[0]
+
+
 def _mean(rows: list[dict[str, float]]) -> dict[str, float]:
     return {k: round(float(np.mean([r[k] for r in rows])), 3) for k in rows[0]}
 
@@ -120,6 +151,39 @@ def _first(hair):
     from head360cli.model.generator import Hair
 
     return Hair(hair.meshes[:1], hair.style[:1], hair.colour[:1])
+
+
+def _speed_settings(gen) -> list[dict[str, int]]:
+    """The settings the speed sweep renders the same weights with, the shipped one first:
+    samples per ray and plane resolution (hex-plane), samples per pixel (deferred)."""
+    cfg = gen.cfg
+    if gen.kind == "deferred":
+        return [{"pixel_samples": s} for s in dict.fromkeys((cfg.pixel_samples, 1, 2, 4))]
+    pairs = dict.fromkeys(((cfg.samples, cfg.plane_res),
+                           (max(cfg.samples // 2, 1), cfg.plane_res),
+                           (max(cfg.samples // 4, 1), cfg.plane_res),
+                           (2 * cfg.samples, cfg.plane_res),
+                           (cfg.samples, cfg.plane_res // 2),
+                           (cfg.samples, cfg.plane_res * 2)))
+    return [{"samples": s, "plane_res": r} for s, r in pairs]
+
+
+def _variant(gen, change: dict[str, int]):
+    """A generator of ``gen``'s weights with its config changed by ``change``."""
+    from head360cli.model.train import build_generator
+
+    variant = build_generator(dataclasses.replace(gen.cfg, **change))
+    variant.load_state_dict(gen.state_dict())
+    return variant
+
+
+def _setting(cfg) -> str:
+    """The shipped render setting in words."""
+    if cfg.renderer == "deferred":
+        return (f"deferred, {cfg.pixel_samples} samples a pixel, texture "
+                f"{cfg.texture_res}x{cfg.texture_res}")
+    return (f"{cfg.samples} samples per ray, planes {cfg.plane_res}x{cfg.plane_res}, "
+            f"features rendered at {cfg.render_res}x{cfg.render_res}")
 
 
 def _swap_style(index: int, own: int, styles: int) -> int:
@@ -148,7 +212,6 @@ def bench_generator(weights: list[str | None] | None = None, train_ids: int = 6,
 
     from head360cli.bench.report import machine, markdown_table
     from head360cli.model.data import Views, eval_cameras, sample_expression
-    from head360cli.model.generator import Generator
     from head360cli.model.train import load_generator
 
     weights = list(weights or [None])
@@ -193,19 +256,22 @@ def bench_generator(weights: list[str | None] | None = None, train_ids: int = 6,
                 found["hair swap"] += score_views(gen, swapped, code, True)
             say(f"{label}: training identity {i + 1}/{train_ids}")
         if test_ids:
-            found["held-out ids, bald"], found["held-out ids, hair"] = [], []
+            for name in ("held-out ids", "held-out ids + texture"):
+                found[f"{name}, bald"], found[f"{name}, hair"] = [], []
         for i in range(test_ids):
             test_views.head(i)  # build the synthetic head outside the timing
             t0 = time.perf_counter()
             code = fit_code(gen, test_views, i, codes.mean(0), steps=fit_steps, seed=seed)
             fit_seconds.append(time.perf_counter() - t0)
+            texture = fit_texture(gen, test_views, i, code, steps=fit_steps, seed=seed)
             e = exprs[train_ids + i]
-            found["held-out ids, bald"] += score_views(
-                gen, test_views.render(i, e, cams), code, hair=False)
-            if cfg.hair:
-                found["held-out ids, hair"] += score_views(
-                    gen, test_views.render(i, e, cams, with_hair=True), code, True)
-            say(f"{label}: held-out identity {i + 1}/{test_ids} (code fitted)")
+            for name, fitted in (("held-out ids", code), ("held-out ids + texture", texture)):
+                found[f"{name}, bald"] += score_views(
+                    gen, test_views.render(i, e, cams), fitted, hair=False)
+                if cfg.hair:
+                    found[f"{name}, hair"] += score_views(
+                        gen, test_views.render(i, e, cams, with_hair=True), fitted, True)
+            say(f"{label}: held-out identity {i + 1}/{test_ids} (code and texture fitted)")
         for name, got in found.items():
             if got:
                 rows.append({"model": label, "views": name, "n": len(got), **_mean(got)})
@@ -220,7 +286,8 @@ def bench_generator(weights: list[str | None] | None = None, train_ids: int = 6,
           "(psnr_head, where either image covers it); n views.")
     if fit_seconds:
         md += (f" Held-out identities: code fitted in {result['code_fit_seconds']} s each "
-               f"({fit_steps} steps, 2 of 8 bald rig views a step).")
+               f"({fit_steps} steps, 2 of 8 bald rig views a step); with '+ texture', "
+               f"then their texture, as many steps.")
     if speed:
         gen, codes, train_views = first
         cfg = gen.cfg
@@ -231,20 +298,9 @@ def bench_generator(weights: list[str | None] | None = None, train_ids: int = 6,
                                             with_hair=hair)
                    for hair in ((False, True) if cfg.hair else (False,))}
         sweep = []
-        settings = dict.fromkeys(((cfg.samples, cfg.plane_res),
-                                  (max(cfg.samples // 2, 1), cfg.plane_res),
-                                  (max(cfg.samples // 4, 1), cfg.plane_res),
-                                  (2 * cfg.samples, cfg.plane_res),
-                                  (cfg.samples, cfg.plane_res // 2),
-                                  (cfg.samples, cfg.plane_res * 2)))
-        for samples, plane_res in settings:
-            variant = Generator(dataclasses.replace(cfg, samples=samples,
-                                                    plane_res=plane_res),
-                                gen.faces.cpu().numpy(), gen.uv.cpu().numpy(),
-                                gen.faces_uv.cpu().numpy()).to(device)
-            variant.load_state_dict(gen.state_dict())
-            variant.eval()
-            row: dict[str, Any] = {"samples": samples, "plane_res": plane_res}
+        for change in _speed_settings(gen):
+            variant = _variant(gen, change).to(device).eval()
+            row: dict[str, Any] = dict(change)
             for hair, batch in batches.items():
                 got = score_views(variant, batch, codes[who], hair)
                 tag = "hair" if hair else "bald"
@@ -252,16 +308,14 @@ def bench_generator(weights: list[str | None] | None = None, train_ids: int = 6,
                 row[f"ms_{tag}"] = round(1000 * _frame_time(variant, batch, codes[who], hair),
                                          1)
             sweep.append(row)
-            say(f"speed: samples {samples}, plane_res {plane_res}: {row}")
+            say(f"speed: {change}: {row}")
         result["sweep"] = sweep
         result["frame_ms"] = {k[3:]: v for k, v in sweep[0].items() if k.startswith("ms_")}
         where = "GPU" if device.startswith("cuda") else "CPU"
         md += (f"\n\n### Speed against quality ({Path(weights[0] or 'generator').stem}, "
                f"{where}, identity {who}, one frame)\n\n"
                + markdown_table(sweep, list(sweep[0]))
-               + f"\n\nShipped setting: {cfg.samples} samples per ray, planes "
-               f"{cfg.plane_res}x{cfg.plane_res}, features rendered at "
-               f"{cfg.render_res}x{cfg.render_res}; one frame "
+               + f"\n\nShipped setting: {_setting(cfg)}; one frame "
                + ", ".join(f"{v} ms {k}" for k, v in result["frame_ms"].items())
                + f" on this machine's {where} ({machine()['torch_threads']} threads).")
     return result, md

@@ -6,7 +6,7 @@ import platform
 from pathlib import Path
 from typing import Any
 
-__all__ = ["device_fields", "machine", "markdown_table", "save"]
+__all__ = ["device_fields", "machine", "markdown_table", "per_generator", "save"]
 
 
 def machine() -> dict[str, Any]:
@@ -28,6 +28,28 @@ def machine() -> dict[str, Any]:
             "cpu_cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
             "torch": torch.__version__, "platform": platform.platform(),
             "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def per_generator(weights: tuple[str, ...], run) -> tuple[dict[str, Any], str]:
+    """``run(label)`` -> ``(result, markdown)`` once per generator weights file, each
+    standing for the installed one (:func:`~head360cli.paths.use_generator`); the
+    results keyed by file name under ``generators``, the Markdown in sections. No
+    weights: one run of the installed generator, as it returns."""
+    from head360cli.paths import use_generator
+
+    if not weights:
+        return run(None)
+    results: dict[str, Any] = {}
+    parts = []
+    for path in weights:
+        label = Path(path).stem
+        if label in results:
+            label = f"{label} ({path})"
+        with use_generator(path):
+            result, md = run(label)
+        results[label] = result
+        parts.append(f"## Generator {label} ({path})\n\n{md}")
+    return {"generators": results}, "\n\n".join(parts)
 
 
 def device_fields(device: str) -> dict[str, Any]:

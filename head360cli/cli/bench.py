@@ -114,11 +114,14 @@ def bench_fit_shape_cmd(trials: int, out_dir: str) -> None:
 @click.option("--corpus-seed", default=0, show_default=True,
               help="Corpus seed of the held-out synthetic heads (0: the bench's; others "
                    "for development).")
+@click.option("--weights", "weights", multiple=True, type=InputPath(dir_okay=False),
+              help="Generator weights to measure instead of the installed ones; repeat to "
+                   "compare them in one run (labelled by file name).")
 @BENCH_OUT
 @common_options
 def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
                   stability: int, stability_photos: int, synthetic_noise: int,
-                  corpus_seed: int, out_dir: str) -> None:
+                  corpus_seed: int, weights: tuple[str, ...], out_dir: str) -> None:
     """Single-image fitting: hair parsing IoU, hairstyle accuracy, 72-view PSNR/SSIM of
     synthetic fits, face PSNR and dlib descriptor distance on real photos, time, and how
     far a fit moves when the photo moves by one grey level.
@@ -132,8 +135,11 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
                                                means move with one grey level of noise
       head360 bench fit --preset quality --no-sweep --stability 0 --synthetic-noise 3
       head360 bench fit --device cuda          the fits on the GPU (dlib still needed)
+      head360 bench fit --preset fast --no-sweep --stability 0 --weights old.pt \\
+          --weights models/generator.pt      two generators, one run
     """
     from head360cli.bench.fit import bench_fit
+    from head360cli.bench.report import per_generator
     from head360cli.devices import resolve_device
 
     device = str(resolve_device(current_settings().device))
@@ -147,13 +153,17 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
         raise BadInputError(f"expected --synthetic-noise >= 0, found {synthetic_noise}")
     if corpus_seed < 0:
         raise BadInputError(f"expected --corpus-seed >= 0, found {corpus_seed}")
-    result, md = bench_fit(identities=identities, presets=presets or ("fast", "quality"),
-                           sweep=() if no_sweep else (5, 10, 20, 40), stability=stability,
-                           stability_photos=stability_photos,
-                           synthetic_noise=synthetic_noise,
-                           corpus_seed=corpus_seed, device=device,
-                           progress=None if current_settings().quiet else
-                           (lambda t: click.echo(f"bench fit: {t}", err=True)))
+    def run(label: str | None):
+        tag = f" {label}" if label else ""
+        return bench_fit(identities=identities, presets=presets or ("fast", "quality"),
+                         sweep=() if no_sweep else (5, 10, 20, 40), stability=stability,
+                         stability_photos=stability_photos,
+                         synthetic_noise=synthetic_noise,
+                         corpus_seed=corpus_seed, device=device,
+                         progress=None if current_settings().quiet else
+                         (lambda t: click.echo(f"bench fit{tag}: {t}", err=True)))
+
+    result, md = per_generator(weights, run)
     _save_and_emit(result, md, out_dir, "fit")
 
 
@@ -166,10 +176,14 @@ def bench_fit_cmd(identities: int, presets: tuple[str, ...], no_sweep: bool,
               help="Photo series of each person (repeat; default 1).")
 @click.option("--sheet-person", default=2, show_default=True,
               help="Whose renders the contact sheet shows.")
+@click.option("--weights", "weights", multiple=True, type=InputPath(dir_okay=False),
+              help="Generator weights to measure instead of the installed ones; repeat to "
+                   "compare them in one run (labelled by file name).")
 @BENCH_OUT
 @common_options
 def bench_multiview_cmd(presets: tuple[str, ...], people: tuple[int, ...],
-                        series: tuple[int, ...], sheet_person: int, out_dir: str) -> None:
+                        series: tuple[int, ...], sheet_person: int, weights: tuple[str, ...],
+                        out_dir: str) -> None:
     """360 degrees on real photos: fit each person's frontal photo, turn the head to the
     yaws of their other photos (-90 to +90 degrees) and compare: dlib descriptor distance
     render-real, faces found, the real turn's own distance, head silhouette IoU; and a
@@ -180,16 +194,23 @@ def bench_multiview_cmd(presets: tuple[str, ...], people: tuple[int, ...],
       head360 bench multiview
       head360 bench multiview --preset fast --person 1 --person 2
       head360 bench multiview --series 1 --series 2 --out results/
+      head360 bench multiview --preset fast --weights old.pt --weights models/generator.pt
     """
     from head360cli.bench.multiview import bench_multiview
+    from head360cli.bench.report import per_generator
     from head360cli.devices import resolve_device
 
     device = str(resolve_device(current_settings().device))
-    result, md = bench_multiview(presets=presets or ("fast", "quality"),
-                                 people=people or None, series=series or (1,),
-                                 sheet_person=sheet_person, out_dir=out_dir, device=device,
-                                 progress=None if current_settings().quiet else
-                                 (lambda t: click.echo(f"bench multiview: {t}", err=True)))
+    def run(label: str | None):
+        tag = f" {label}" if label else ""
+        return bench_multiview(presets=presets or ("fast", "quality"),
+                               people=people or None, series=series or (1,),
+                               sheet_person=sheet_person, device=device,
+                               out_dir=out_dir if label is None else Path(out_dir) / label,
+                               progress=None if current_settings().quiet else
+                               (lambda t: click.echo(f"bench multiview{tag}: {t}", err=True)))
+
+    result, md = per_generator(weights, run)
     _save_and_emit(result, md, out_dir, "multiview")
 
 

@@ -39,13 +39,16 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["GRAPH_FORMAT", "HAIR_FACES", "HAIR_VERTS", "NO_ALPHA", "OnnxFrameRunner", "export_onnx",
-           "head_inputs", "pad_hair"]
+__all__ = ["GRAPH_FORMAT", "HAIR_FACES", "HAIR_VERTS", "NO_ALPHA", "OnnxFrameRunner",
+           "export_onnx", "head_inputs", "pad_hair", "pad_hair_uv"]
 
-GRAPH_FORMAT = 2
+GRAPH_FORMAT = 3
 """Format version of the graphs :func:`export_onnx` writes, stored in their metadata
 (``format_version``). Format 1 graphs (head360 0.1.0 before 2026-11, no version stored)
-give ``rgb`` alone; format 2 adds the coverage ``alpha``."""
+give ``rgb`` alone; format 2 adds the coverage ``alpha``; format 3 (the deferred
+generator's) adds the hair's texture coordinates ``hair_uv`` as an input and reads its
+texture from ``hair_planes``. A hex-plane generator's graphs are still written as format
+2."""
 
 NO_ALPHA = ("expected an ONNX graph with an alpha output to draw a fitted head's light, "
             "found a graph exported by an older head360 (graph format 1, rgb only): export "
@@ -60,6 +63,15 @@ HAIR_VERTS = 12288
 HAIR_FACES = 16384
 """...and this many triangles (about 12,000), so one graph serves every hairstyle: the
 padding triangles have zero area and are never drawn."""
+
+
+def pad_hair_uv(uv: np.ndarray) -> np.ndarray:
+    """``(1, HAIR_VERTS, 2)`` float32 from a hair mesh's texture coordinates ``(1, H, 2)``
+    (the deferred graphs read the hair texture at them)."""
+    u = np.asarray(uv, np.float32).reshape(-1, 2)
+    out = np.zeros((HAIR_VERTS, 2), np.float32)
+    out[:len(u)] = u[:HAIR_VERTS]
+    return out[None]
 
 
 def pad_hair(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -96,10 +108,12 @@ def _frame_model(gen, hair: bool):
             self.gen = gen
 
         def forward(self, verts, texture, c2w, intrinsics, hair_verts=None, hair_faces=None,
-                    hair_planes=None):
+                    hair_planes=None, hair_uv=None):
             h = None
             if hair:
-                uv = torch.zeros_like(hair_verts[0, :, :2])  # unused: planes are given
+                # the hex-plane generator's planes are made: it reads no coordinates
+                uv = hair_uv[0] if hair_uv is not None else torch.zeros_like(
+                    hair_verts[0, :, :2])
                 h = Hair([(hair_verts[0], hair_faces, uv)],
                          torch.zeros(1, dtype=torch.long), torch.zeros(1, 3),
                          [hair_planes])
@@ -159,10 +173,12 @@ def _example(renderer, hair: bool) -> tuple:
     if hair:
         import torch
 
-        hv, hf, _ = renderer.hair.meshes[0]
+        hv, hf, huv = renderer.hair.meshes[0]
         pv, pf = pad_hair(hv[None].cpu().numpy(), hf.cpu().numpy())
         args += (torch.as_tensor(pv, device=renderer.device),
                  torch.as_tensor(pf, device=renderer.device), renderer.hair.planes[0])
+        if renderer.gen.kind == "deferred":
+            args += (torch.as_tensor(pad_hair_uv(huv.cpu().numpy()), device=renderer.device),)
     return args
 
 
@@ -214,7 +230,10 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
                             "head has no hair mesh to trace with)")
     gen = renderer.gen
     t0 = time.perf_counter()
-    meta = {"format_version": GRAPH_FORMAT, "samples": renderer.samples,
+    meta = {"format_version": GRAPH_FORMAT if gen.kind == "deferred" else 2,
+            "generator": gen.kind,
+            "samples": (gen.cfg.pixel_samples if gen.kind == "deferred"
+                        else renderer.samples),
             "size": renderer.size, "cull": bool(cull),
             "generator_sha256": generator_hash(),
             "texture_channels": gen.cfg.texture_channels,
@@ -261,6 +280,8 @@ def _export_graph(renderer, hair: bool, path: Path, cull: bool, meta: dict[str, 
         names = ["verts", "texture", "c2w", "intrinsics"]
         if hair:
             names += ["hair_verts", "hair_faces", "hair_planes"]
+            if gen.kind == "deferred":
+                names.append("hair_uv")
         with torch.no_grad(), gen.samples_per_ray(renderer.samples), \
                 gen.image_size(renderer.size), static_windows(), _quiet_exporter():
             program = torch.onnx.export(model, args, input_names=names,
@@ -366,7 +387,8 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
     with a lid change ``lids (2, C, R, R)`` (its left and right eye's parts), ``lid_from
     (2,)`` and ``lid_weights (2,)`` (the indices of eyeBlinkLeft / Right; see
     :meth:`~head360cli.model.head_render.HeadRenderer.textures`), and for a head with hair
-    ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes``; for a head with
+    ``hair_verts (1, H, 3)``, ``hair_faces (G, 3)`` and ``hair_planes`` (for the deferred
+    generator its hair texture, with ``hair_uv (1, H, 2)``); for a head with
     a light of its own (a fit's), ``colour_gain (3,)``."""
     out = {"base": renderer.neutral.astype(np.float32),
            "deltas": renderer.deltas.astype(np.float32),
@@ -379,11 +401,13 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
     if renderer.colour_gain is not None:
         out["colour_gain"] = renderer.colour_gain.reshape(3).cpu().numpy().astype(np.float32)
     if renderer.hair is not None:
-        hv, hf, _ = renderer.hair.meshes[0]
+        hv, hf, huv = renderer.hair.meshes[0]
         out.update(hair_verts=hv[None].cpu().numpy().astype(np.float32),
                    hair_faces=hf.cpu().numpy().astype(np.int64),
                    hair_planes=renderer.hair.planes[0].detach().cpu().numpy()
                    .astype(np.float32))
+        if renderer.gen.kind == "deferred":
+            out["hair_uv"] = huv[None].cpu().numpy().astype(np.float32)
     return out
 
 
@@ -447,16 +471,17 @@ class OnnxFrameRunner:
     def __call__(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
                  intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,
                  hair_faces: np.ndarray | None = None,
-                 hair_planes: np.ndarray | None = None) -> np.ndarray:
+                 hair_planes: np.ndarray | None = None,
+                 hair_uv: np.ndarray | None = None) -> np.ndarray:
         """``rgb (1, 3, S, S)`` in [0, 1]; the arguments of the torch ``FrameModel`` as
         float32 (faces int64) arrays; no hair arguments renders the bald head."""
         return self.frame(verts, texture, c2w, intrinsics, hair_verts, hair_faces,
-                          hair_planes)[0]
+                          hair_planes, hair_uv)[0]
 
     def frame(self, verts: np.ndarray, texture: np.ndarray, c2w: np.ndarray,
               intrinsics: np.ndarray, hair_verts: np.ndarray | None = None,
-              hair_faces: np.ndarray | None = None, hair_planes: np.ndarray | None = None
-              ) -> tuple[np.ndarray, np.ndarray | None]:
+              hair_faces: np.ndarray | None = None, hair_planes: np.ndarray | None = None,
+              hair_uv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """As calling the runner, with the coverage: ``(rgb (1, 3, S, S), alpha (1, 1, S,
         S))``, ``alpha`` ``None`` from a graph without it (:attr:`has_alpha`)."""
         hair = hair_verts is not None
@@ -465,6 +490,8 @@ class OnnxFrameRunner:
             hair_verts, hair_faces = pad_hair(hair_verts, hair_faces)
             feeds.update(hair_verts=hair_verts, hair_faces=hair_faces,
                          hair_planes=hair_planes)
+            if hair_uv is not None:
+                feeds["hair_uv"] = pad_hair_uv(hair_uv)
         sess = self.sessions[hair]
         wanted = {i.name for i in sess.get_inputs()}
         feeds = {k: np.ascontiguousarray(v, np.int64 if k == "hair_faces" else np.float32)
@@ -485,7 +512,8 @@ class OnnxFrameRunner:
         verts = inputs["base"] + np.tensordot(weights, inputs["deltas"], 1)
         extra = {}
         if hair and "hair_verts" in inputs:
-            extra = {k: inputs[k] for k in ("hair_verts", "hair_faces", "hair_planes")}
+            extra = {k: inputs[k] for k in ("hair_verts", "hair_faces", "hair_planes",
+                                            "hair_uv") if k in inputs}
         texture = inputs["texture"]
         if "lids" in inputs:
             from head360cli.io.headfile import lid_amounts

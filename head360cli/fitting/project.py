@@ -35,9 +35,12 @@ class ProjectConfig:
     """Cosine from which it gives all of it (smooth in between)."""
     tolerance: float = 0.005
     """Metres a texel may lie behind the surface the photo shows and count as seen."""
-    erode: int = 2
-    """Pixels the loss mask is shrunk by first, so that its edge (hair, collar,
-    backdrop) gives nothing."""
+    sure: float = 0.5
+    """Loss-mask weight from which a pixel counts as showing skin (the fit's mask gives
+    the face 1 and what it only hopes is skin around it a quarter)."""
+    erode: int = 3
+    """Pixels that mask is shrunk by first, so that its edge (hairline, collar, backdrop)
+    gives nothing."""
     blur: float = 1.5
     """Texels: the Gaussian blur of the weights that blends the seams."""
 
@@ -46,13 +49,14 @@ class ProjectConfig:
 class Projection:
     """A projected texture ``(1, C, R, R)`` and where its colours came from: ``photo``
     and ``mirror`` ``(R, R)`` weights in [0, 1] of the direct and the mirrored reads
-    (the rest: the code's skin), and ``tone (3,)`` the gain that brought the code's skin
-    to the photo's."""
+    (the rest of the ``covered (R, R)`` texels: the code's skin), and ``tone (3,)`` the
+    gain that brought the code's skin to the photo's."""
 
     texture: torch.Tensor
     photo: torch.Tensor
     mirror: torch.Tensor
     tone: torch.Tensor
+    covered: torch.Tensor
 
 
 def _smooth(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
@@ -76,10 +80,10 @@ def _albedo(gen, feats: torch.Tensor, colour: torch.Tensor, normal: torch.Tensor
             view: torch.Tensor) -> torch.Tensor:
     """Albedo ``(N, 3)`` whose shading by ``gen``'s pixel shader at ``normal`` and
     ``view`` (with the other channels ``feats (N, C)``) gives ``colour (N, 3)``."""
-    out = gen.shader.net(torch.cat([feats, normal, view, torch.zeros_like(normal[:, :1])],
-                                   -1))
-    gain = (1.0 + out[:, :3]).clamp_min(0.05)
-    return ((colour - out[:, 3:6]) / gain).clamp(0.0, 1.0)
+    hair = torch.zeros_like(normal[:, :1])
+    _, residual = gen.shader(feats, normal, view, hair)
+    light = gen.shader.shading(normal, view, hair).clamp_min(0.05)
+    return ((colour - residual) / light).clamp(0.0, 1.0)
 
 
 @torch.no_grad()
@@ -93,8 +97,8 @@ def project_photo(gen, verts: torch.Tensor, mirror: torch.Tensor, c2w: torch.Ten
         gen: The :class:`~head360cli.model.deferred.DeferredGenerator`.
         verts: ``(V, 3)`` the fitted mesh; ``mirror (V,)`` each vertex's mirror vertex.
         c2w: ``(4, 4)`` the photo's camera, ``intrinsics (3, 3)`` for ``photo``'s size.
-        photo: ``(3, H, W)`` in [0, 1]; ``mask (1, H, W)`` where it shows the head's skin
-            (any weight above 0 counts).
+        photo: ``(3, H, W)`` in [0, 1]; ``mask (1, H, W)`` the fit's loss weights (those
+            from ``cfg.sure`` on count as skin).
         start: ``(1, C, R, R)`` the fitted code's texture.
         light: ``(3,)`` the photo's light (the fit's colour gain), or ``None``.
         cfg: Angles, tolerance, seams.
@@ -114,7 +118,7 @@ def project_photo(gen, verts: torch.Tensor, mirror: torch.Tensor, c2w: torch.Ten
         with gen._override(image_res=size, render_res=size):
             buf = gen.gbuffer(verts[None], c2w[None], intrinsics[None])
     depth = torch.where(buf.mask[0], buf.depth[0], torch.zeros_like(buf.depth[0]))
-    valid = (mask > 0).to(photo.dtype)
+    valid = (mask >= cfg.sure).to(photo.dtype)
     if cfg.erode > 0:
         valid = -F.max_pool2d(-valid[None], 2 * cfg.erode + 1, 1, cfg.erode)[0]
     image = torch.cat([photo if light is None else photo / light.view(3, 1, 1), valid])
@@ -172,4 +176,4 @@ def project_photo(gen, verts: torch.Tensor, mirror: torch.Tensor, c2w: torch.Ten
     albedo = torch.where(surf.covered[..., None], albedo, base)
     texture = start.clone()
     texture[0, :3] = albedo.permute(2, 0, 1)
-    return Projection(texture, w_photo, (1 - w_photo) * w_mirror, tone)
+    return Projection(texture, w_photo, (1 - w_photo) * w_mirror, tone, surf.covered)

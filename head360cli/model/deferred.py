@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.gbuffer import GBuffer, MeshPart, gbuffer
 from head360cli.model.generator import Hair, _hair_groups
@@ -204,9 +205,10 @@ class DeferredGenerator(nn.Module):
         return tuple(o.float() for o in out) if isinstance(out, tuple) else out.float()
 
     def shade(self, buf: GBuffer, texture: torch.Tensor, hair: Hair | None
-              ) -> torch.Tensor:
+              ) -> tuple[torch.Tensor, torch.Tensor]:
         """Shaded sample points of ``buf`` as images ``(B, 3 + extra, H, W)``,
-        premultiplied by coverage and averaged over the samples. Only covered points are
+        premultiplied by coverage and averaged over the samples, and the mean absolute
+        residual of the shader (what its light did not explain). Only covered points are
         read and decoded."""
         b, c, res = texture.shape[0], texture.shape[1], texture.shape[-1]
         r, h, w = buf.mask.shape
@@ -216,7 +218,7 @@ class DeferredGenerator(nn.Module):
         base = view_of * (res * res)
         side = torch.full_like(index, res)
         is_hair = buf.hair.reshape(-1).index_select(0, index)
-        if hair is not None and bool(is_hair.any()):
+        if hair is not None and (exporting() or bool(is_hair.any())):
             start = b * res * res
             first = torch.zeros(b, dtype=torch.long, device=index.device)
             sides = torch.zeros(b, dtype=torch.long, device=index.device)
@@ -234,10 +236,10 @@ class DeferredGenerator(nn.Module):
         feats = read_texels(table, base, side, uv)
         normal = buf.normal.reshape(-1, 3).index_select(0, index)
         view = buf.view.reshape(-1, 3).index_select(0, index)
-        values = self._net(self.shader, feats, normal, view,
-                           is_hair[:, None].to(feats.dtype))
+        values, residual = self._net(self.shader, feats, normal, view,
+                                     is_hair[:, None].to(feats.dtype))
         out = values.new_zeros(r * h * w, values.shape[1]).index_copy(0, index, values)
-        return buf.mean(out.view(r, h, w, -1).permute(0, 3, 1, 2))
+        return buf.mean(out.view(r, h, w, -1).permute(0, 3, 1, 2)), residual.abs().mean()
 
     def forward(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, *,
                 code: torch.Tensor | None = None, texture: torch.Tensor | None = None,
@@ -262,8 +264,8 @@ class DeferredGenerator(nn.Module):
         Returns:
             ``rgb (B, 3, H, W)`` on a white background, ``alpha`` and ``hair_alpha``
             ``(B, 1, H, W)``, their ``*_low`` copies and ``depth_low`` at
-            ``render_res``, the ``texture``, and with hair ``hair_texture (B, C, r,
-            r)`` (zero for bald items).
+            ``render_res``, the ``texture``, the shader's mean absolute ``residual``,
+            and with hair ``hair_texture (B, C, r, r)`` (zero for bald items).
         """
         c = self.cfg
         if head_planes is not None:
@@ -287,7 +289,7 @@ class DeferredGenerator(nn.Module):
                 buf = self.gbuffer(verts, c2w, k, hair)
             if view_rays is not None:
                 view_rays["gbuffer"] = buf
-        image = self.shade(buf, texture, hair)
+        image, residual = self.shade(buf, texture, hair)
         coverage = buf.mean(buf.mask[:, None].to(image.dtype))
         hair_alpha = buf.mean(buf.hair[:, None].to(image.dtype))
         if self.refine is not None:
@@ -299,7 +301,7 @@ class DeferredGenerator(nn.Module):
         depth = F.avg_pool2d(buf.depth[:b, None], ratio)
         out = {"rgb": rgb, "alpha": alpha, "hair_alpha": hair_alpha, "rgb_low": low[0],
                "alpha_low": low[1], "hair_alpha_low": low[2], "depth_low": depth,
-               "texture": texture}
+               "texture": texture, "residual": residual}
         if hair is not None and any(p is not None for p in hair.planes):
             made = next(p for p in hair.planes if p is not None)
             out["hair_texture"] = torch.cat([made * 0 if p is None else p

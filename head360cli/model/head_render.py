@@ -363,9 +363,11 @@ class HeadRenderer:
 
         extra = ()
         if hair and self.hair is not None:
-            hv, hf, _ = self.hair.meshes[0]
+            hv, hf, huv = self.hair.meshes[0]
             extra = (hv[None].cpu().numpy(), hf.cpu().numpy(),
                      self.hair.planes[0].detach().cpu().numpy())
+            if self.gen.kind == "deferred":
+                extra += (huv[None].cpu().numpy(),)
         kk = k.reshape(1, 3, 3).cpu().numpy()
         plain = self.texture.detach().cpu().numpy()  # copied once: most frames use it
         for i in range(len(c2w)):

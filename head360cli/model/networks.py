@@ -286,37 +286,53 @@ a fresh mapping whose page faults cost more than the arithmetic; in blocks of 32
 
 
 class PixelShader(nn.Module):
-    """The deferred renderer's per-point decoder: neural-texture features, surface normal
-    and view direction (head coordinates) and a hair flag -> colour and ``extra`` image
-    features.
+    """The deferred renderer's per-point decoder: ``colour = albedo x light + residual``.
 
-    The texture's first three channels act as albedo: the colour is ``albedo * gain +
-    offset`` with ``gain`` and ``offset`` from the network, so a photo's colours can be
-    written into those channels directly (the fit's projection) and the network adds the
-    studio light it learnt.
+    The albedo is the neural texture's first three channels; the light (positive, per
+    channel) comes from the surface normal and view direction (head coordinates) and the
+    hair flag alone, so it cannot undo the albedo; the residual and ``extra`` image
+    features come from all texture channels as well. Training keeps the residual small,
+    so a photo's colours written into the albedo channels (a fit's projection) show as
+    they are, under the studio light the network learnt.
     """
 
     def __init__(self, channels: int, hidden: int, extra: int) -> None:
         super().__init__()
         self.extra = extra
+        half = max(hidden // 2, 4)
+        self.light = nn.Sequential(nn.Linear(7, half), nn.ReLU(), nn.Linear(half, half),
+                                   nn.ReLU(), nn.Linear(half, 3))
         self.net = nn.Sequential(nn.Linear(channels + 7, hidden), nn.ReLU(),
                                  nn.Linear(hidden, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, 6 + extra))
-        with torch.no_grad():  # start as a plain albedo read: gain 1, offset 0
+                                 nn.Linear(hidden, 3 + extra))
+        with torch.no_grad():  # start as a plain albedo read: light 1, residual 0
+            self.light[-1].weight.mul_(0.1)
+            self.light[-1].bias.fill_(math.log(math.e - 1.0))
             self.net[-1].weight.mul_(0.1)
             self.net[-1].bias.zero_()
 
+    def shading(self, normal: torch.Tensor, view: torch.Tensor, hair: torch.Tensor
+                ) -> torch.Tensor:
+        """``(n, 3)`` the light at points of ``normal``, ``view``, ``hair (n, 1)``."""
+        x = torch.cat([normal, view, hair], -1)
+        return F.softplus(self.light(x))
+
     def forward(self, feats: torch.Tensor, normal: torch.Tensor, view: torch.Tensor,
-                hair: torch.Tensor) -> torch.Tensor:
+                hair: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``feats (n, C)``, ``normal (n, 3)``, ``view (n, 3)``, ``hair (n, 1)`` ->
-        ``(n, 3 + extra)``: RGB, then the extra features."""
+        ``(colour and extra features (n, 3 + extra), residual (n, 3))``."""
         x = torch.cat([feats, normal, view, hair], -1)
         if exporting():
             out = self.net(x)
+            light = self.shading(normal, view, hair)
         else:  # blocks small enough for the allocator to reuse (see SHADER_BLOCK)
             out = torch.cat([self.net(part) for part in x.split(SHADER_BLOCK)])
-        rgb = feats[:, :3] * (1.0 + out[:, :3]) + out[:, 3:6]
-        return torch.cat([rgb, out[:, 6:]], -1)
+            light = torch.cat([self.shading(*parts) for parts in zip(
+                normal.split(SHADER_BLOCK), view.split(SHADER_BLOCK),
+                hair.split(SHADER_BLOCK), strict=True)])
+        residual = out[:, :3]
+        rgb = feats[:, :3] * light + residual
+        return torch.cat([rgb, out[:, 3:]], -1), residual
 
 
 class ScreenNet(nn.Module):

@@ -98,6 +98,9 @@ class TrainConfig:
     soft_hair: bool = False
     """Train on soft hairlines; the generator then records it
     (``GeneratorConfig.soft_hair``) and fits its hair so at run time."""
+    residual_weight: float = 0.1
+    """Deferred generator: weight of the shader's mean absolute residual (the colour its
+    light does not explain), so that the albedo channels carry the colour."""
     albedo_weight: float = 1.0
     """Deferred generator: weight of the L1 loss between the neural texture's first three
     channels and the corpus head's albedo atlas (what makes them albedo, so a fit can
@@ -129,7 +132,7 @@ class TrainConfig:
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise bad(name, "finite and > 0")
         for name in ("minutes", "code_prior", "low_res_weight", "mask_weight",
-                     "hair_weight", "albedo_weight"):
+                     "hair_weight", "albedo_weight", "residual_weight"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad(name, "finite and >= 0")
         for name in ("bald_share", "featured_share", "final_lr"):
@@ -184,6 +187,9 @@ def losses(out: dict[str, torch.Tensor], batch, cfg: TrainConfig) -> dict[str, t
              + (out["alpha_low"] - alpha_low).abs().mean()}
     parts["total"] = (parts["l1"] + cfg.low_res_weight * parts["l1_low"]
                       + cfg.mask_weight * parts["mask"])
+    if "residual" in out and cfg.residual_weight > 0:
+        parts["residual"] = out["residual"]
+        parts["total"] = parts["total"] + cfg.residual_weight * parts["residual"]
     if batch.albedo is not None and cfg.albedo_weight > 0:
         res = batch.albedo.shape[-1]
         tex = out["texture"][:, :3]
