@@ -7,7 +7,8 @@ Where the photo sees the point squarely and shows skin there (the fit's loss mas
 texel takes the photo's colour, turned into albedo by the generator's own shading at that
 point and the photo's light; where only the mirror point is seen, it takes that; the rest
 (ears, neck, back of the head, under the chin) keeps the fitted code's skin, brought to
-the tone of the skin the photo shows. The weights fall off smoothly with the viewing angle
+the tone of the skin the photo shows, with the fine detail (pores, stubble) of a real head
+scan (Lee Perry-Smith's, CC BY 3.0; ``head360 build-skin-detail``). The weights fall off smoothly with the viewing angle
 and are blurred in texture space, so the seams between the three blend.
 """
 
@@ -74,6 +75,14 @@ def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
     g = g / g.sum()
     y = F.conv2d(x[None, None], g.view(1, 1, 1, -1), padding=(0, r))
     return F.conv2d(y, g.view(1, 1, -1, 1), padding=(r, 0))[0, 0]
+
+
+def _skin_detail(res: int, like: torch.Tensor) -> torch.Tensor | None:
+    """``(res, res, 3)`` the shipped scan's fine skin detail, or ``None``."""
+    from head360cli.synth.skin import skin_detail
+
+    fine = skin_detail(res)
+    return None if fine is None else torch.as_tensor(fine).to(like)
 
 
 def _albedo(gen, feats: torch.Tensor, colour: torch.Tensor, normal: torch.Tensor,
@@ -169,7 +178,11 @@ def project_photo(gen, verts: torch.Tensor, mirror: torch.Tensor, c2w: torch.Ten
                 ).clamp(0.25, 4.0)
     else:
         tone = torch.ones(3, dtype=photo.dtype, device=photo.device)
-    fill = torch.where(skin_part[..., None], (base * tone).clamp(0, 1), base)
+    toned = base * tone
+    detail = _skin_detail(res, toned)
+    if detail is not None:  # the scan's pores where the code's painted skin has none
+        toned = toned * detail
+    fill = torch.where(skin_part[..., None], toned.clamp(0, 1), base)
     direct = w_photo[..., None]
     mirrored = ((1 - w_photo) * w_mirror)[..., None]
     albedo = direct * own_t + mirrored * other_t + (1 - direct - mirrored) * fill

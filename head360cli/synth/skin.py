@@ -298,3 +298,39 @@ def _scan_skin(folder: str, size: int) -> tuple[np.ndarray, np.ndarray]:
     atlas = cached_array(f"skin_atlas_{stamp.hexdigest()[:16]}_{side}.npy",
                          lambda: build_skin_atlas(folder, side), (side, side, 3), np.uint8)
     return skin_layers(atlas, size)
+
+
+SKIN_DETAIL_FILE = "skin_detail.npz"
+"""The shipped skin detail (:func:`write_skin_detail`) in the models folder."""
+
+
+def write_skin_detail(folder: str | Path, out: str | Path, size: int = 256) -> dict:
+    """Write the scan's fine skin detail (:func:`skin_layers`' ``fine`` ratios, as
+    ``fine (size, size, 3)`` float16 in the template's UV layout) to ``out`` (``.npz``):
+    the pore-level detail a fit gives the skin the photo does not show."""
+    from head360cli.io.atomic import atomic_path
+
+    fine, _ = scan_skin(folder, size)
+    with atomic_path(Path(out)) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, fine=fine.astype(np.float16),
+                            source=np.array("Infinite, 3D Head Scan by Lee Perry-Smith, CC BY "
+                                            "3.0 (www.triplegangers.com)"))
+    return {"out": str(out), "size": size, "bytes": Path(out).stat().st_size}
+
+
+@functools.lru_cache(maxsize=2)
+def skin_detail(size: int) -> np.ndarray | None:
+    """``(size, size, 3)`` float32 fine skin detail ratios around 1 from the shipped
+    :data:`SKIN_DETAIL_FILE` (resized), or ``None`` where it is not installed."""
+    import cv2
+
+    from head360cli.paths import models_dir
+
+    path = models_dir() / SKIN_DETAIL_FILE
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        fine = data["fine"].astype(np.float32)
+    if fine.shape[0] != size:
+        fine = cv2.resize(fine, (size, size), interpolation=cv2.INTER_AREA)
+    return fine

@@ -74,13 +74,20 @@ def test_the_far_side_takes_its_mirror_and_the_back_the_toned_code(scene):
     assert int(mirrored.sum()) > 100  # the cheek turned away
     err = (got.texture[0, :3] - texture[0, :3]).abs().amax(0)[mirrored]
     assert float(err.mean()) < 0.05
-    # texels neither side sees: the code's grey in the photo's tone
+    # texels neither side sees: the code's grey in the photo's tone, with the scan's
+    # skin detail where it is installed
+    from head360cli.synth.skin import skin_detail
+
     neither = got.covered & ((got.photo + got.mirror) < 1e-3)
     u = (torch.arange(RES) + 0.5) / RES
     skin = neither & (u[None, :] < 0.74)
-    expected = (0.5 * got.tone).clamp(0, 1)
+    detail = skin_detail(RES)
+    expected = (0.5 * got.tone).expand(RES, RES, 3)
+    if detail is not None:
+        expected = expected * torch.as_tensor(detail)
+        assert float(torch.as_tensor(detail)[skin].std()) > 0.01  # detail, not a tint
     # (within what a read's weight under 1e-3 can move it)
-    assert torch.allclose(got.texture[0, :3][:, skin].T, expected.expand(int(skin.sum()), 3),
+    assert torch.allclose(got.texture[0, :3][:, skin].T, expected[skin].clamp(0, 1),
                           atol=2e-3)
     assert int(skin.sum()) > 100
 
