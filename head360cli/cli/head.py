@@ -32,8 +32,9 @@ _HEAD = InputPath(dir_okay=False)
 
 
 ANIMATE_SAMPLES = 8
-"""Default samples per ray for animation: 38.2 dB against a 32-sample render (12 samples:
-43.0 dB) at 1.5x the frame rate (``head360 bench animate`` measures both)."""
+"""Default samples per ray for animation with a hex-plane generator: 38.2 dB against a
+32-sample render (12 samples: 43.0 dB) at 1.5x the frame rate. A deferred generator
+animates with its own samples per pixel."""
 
 
 def _renderer(head: str, samples: int | None, size: int | None, precision: str = "auto",
@@ -59,8 +60,8 @@ def _renderer(head: str, samples: int | None, size: int | None, precision: str =
 
 def _quality_options(f):
     f = click.option("--samples", type=int, default=None,
-                     help="Samples per ray (default: 12 for stills, 8 for animation); "
-                     "fewer is faster.")(f)
+                     help="Samples per pixel, 1, 2 or 4 (default: the generator's, 2); "
+                     "fewer is faster. (Per ray for a hex-plane generator.)")(f)
     f = click.option("--size", type=int, default=None,
                      help="Image width and height in pixels, even (default 256).")(f)
     f = click.option("--precision", type=click.Choice(["auto", "fp32", "bf16"]),
@@ -513,9 +514,9 @@ def _animate_renderer(head: str, backend: str, onnx_path: str, samples: int | No
                       size: int | None, precision: str, exact: bool):
     """The renderer ``animate`` drives: ``--samples`` or animate's default (a graph's own
     with ``--backend onnx``); ``--exact`` turns off the reuse of decoded points."""
-    default = None if backend == "onnx" else ANIMATE_SAMPLES
-    r = _backend_renderer(head, backend, onnx_path, default if samples is None else samples,
-                          size, precision)
+    r = _backend_renderer(head, backend, onnx_path, samples, size, precision)
+    if samples is None and backend != "onnx" and r.gen.kind == "hexplane":
+        r.samples = ANIMATE_SAMPLES
     if exact:
         r.reuse = None
     return r
@@ -714,12 +715,13 @@ def export_mesh(head: str, out: str, texture_size: int, no_hair: bool) -> None:
 @click.option("--head", "head", default=None, type=_HEAD,
               help="Trace with this head and write its per-head inputs "
               "(<head>_inputs.npz) for a torch-free runner (default: the mean head).")
-@click.option("--samples", type=int, default=8, show_default=True,
-              help="Samples per ray, fixed in the graph.")
+@click.option("--samples", type=int, default=None,
+              help="Samples per pixel, 1, 2 or 4 (per ray for a hex-plane generator), "
+                   "fixed in the graph (default: the generator's own).")
 @click.option("--size", type=int, default=256, show_default=True,
               help="Image size, fixed in the graph.")
 @common_options
-def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None:
+def export_onnx_cmd(out: str, head: str | None, samples: int | None, size: int) -> None:
     """Export the per-frame generator (rasterization included) to ONNX for onnxruntime.
 
     Inputs per frame: the mesh vertices, the neural texture, the camera and, for the hair
@@ -730,12 +732,12 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
     \b
     Examples:
       head360 export-onnx -o generator.onnx
-      head360 export-onnx --head me.h360 --samples 12 -o me.onnx
+      head360 export-onnx --head me.h360 --samples 1 -o me.onnx
     """
     from head360cli.export.onnx import export_onnx, head_inputs
     from head360cli.io.sources import input_stem
 
-    if not 1 <= samples <= 64 or not 32 <= size <= 2048:
+    if (samples is not None and not 1 <= samples <= 64) or not 32 <= size <= 2048:
         raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
                             f"{samples} and {size}")
     # the graph is the same for any device, and torch's exporter failed to trace a CUDA
@@ -752,11 +754,17 @@ def export_onnx_cmd(out: str, head: str | None, samples: int, size: int) -> None
             r.gen.image_size(size)  # raises now for a size the generator cannot make
         except ValueError as exc:
             raise BadInputError(str(exc)) from None
-        r.samples, r.size = samples, size
+        if samples is not None:
+            if r.gen.kind == "deferred" and samples not in (1, 2, 4):
+                raise BadInputError(f"expected --samples 1, 2 or 4 (samples a pixel), "
+                                    f"found {samples}")
+            r.samples = samples
+        r.size = size
         r = r.with_hair(11, r.hair_colour)
     inputs = None  # the head's arrays for a torch-free runner, one set with the graphs
     if head is not None:
         inputs = (Path(out).with_name(f"{input_stem(head)}_inputs.npz"), head_inputs(own))
     res = export_onnx(r, out, progress=progress_printer(), inputs=inputs)
-    emit(res, f"exported in {res['seconds']:.0f} s ({samples} samples per ray, "
+    per = "pixel" if res.get("generator") == "deferred" else "ray"
+    emit(res, f"exported in {res['seconds']:.0f} s ({res['samples']} samples per {per}, "
           f"{size}x{size}): " + ", ".join(res["files"]))

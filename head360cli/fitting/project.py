@@ -8,8 +8,9 @@ texel takes the photo's colour, turned into albedo by the generator's own shadin
 point and the photo's light; where only the mirror point is seen, it takes that; the rest
 (ears, neck, back of the head, under the chin) keeps the fitted code's skin, brought to
 the tone of the skin the photo shows, with the fine detail (pores, stubble) of a real head
-scan (Lee Perry-Smith's, CC BY 3.0; ``head360 build-skin-detail``). The weights fall off smoothly with the viewing angle
-and are blurred in texture space, so the seams between the three blend.
+scan (Lee Perry-Smith's, CC BY 3.0; ``head360 build-skin-detail``). The weights fall off
+smoothly with the viewing angle and are blurred in texture space, so the seams between
+the three blend.
 """
 
 from __future__ import annotations

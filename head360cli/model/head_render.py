@@ -74,7 +74,8 @@ class HeadRenderer:
         expression: ``(52,)`` the head's own ARKit weights (a fit's, the photo's): used
             as they are when a render call gives none; weights a call gives drive the
             head from its own eyes (:meth:`drive`).
-        samples: Samples per ray (default: the generator's own).
+        samples: Samples per pixel (1, 2 or 4) of a deferred generator, per ray of a
+            hex-plane one (default: the generator's own).
         size: Output image size (default: the generator's own, 256).
         precision: ``"fp32"``, ``"bf16"`` (decoders and RefineNet in bfloat16), or
             ``"auto"``: bf16 where the hardware has it (:func:`~head360cli.devices.
@@ -112,9 +113,13 @@ class HeadRenderer:
         if precision not in ("auto", "fp32", "bf16"):
             raise ValueError(f"expected precision auto, fp32 or bf16, found {precision!r}")
         self.gen = gen
+        deferred = gen.kind == "deferred"
+        if deferred and samples is not None and samples not in (1, 2, 4):
+            raise ValueError(f"expected 1, 2 or 4 samples a pixel or None, found {samples!r}")
         if samples is not None and not (isinstance(samples, int | np.integer) and samples >= 1):
             raise ValueError(f"expected samples per ray >= 1 or None, found {samples!r}")
-        self.samples = gen.cfg.samples if samples is None else int(samples)
+        own = gen.cfg.pixel_samples if deferred else gen.cfg.samples
+        self.samples = own if samples is None else int(samples)
         self.size = gen.cfg.image_res if size is None else size
         gen.image_size(self.size)  # raises ValueError now for a size it cannot make
         self.device = next(gen.parameters()).device
@@ -351,7 +356,9 @@ class HeadRenderer:
             weights = self.drive(weights)
         own_dtype = self.gen.network_dtype
         self.gen.network_dtype = torch.bfloat16 if self.precision == "bf16" else None
-        with self.gen.samples_per_ray(self.samples), self.gen.image_size(
+        samples = (self.gen.pixel_samples if self.gen.kind == "deferred"
+                   else self.gen.samples_per_ray)
+        with samples(self.samples), self.gen.image_size(
                 None if self.size == self.gen.cfg.image_res else self.size):
             try:
                 yield from self._frames(c2w, weights, k, hair, batch, uint8, alpha)
