@@ -1,12 +1,13 @@
 """Bake a head's rendered appearance onto its mesh, for export to other tools.
 
-The head's colour lives in a neural field, not in a texture; to hand the head to Blender or
-a game engine it is baked: the bald head is rendered from :data:`BAKE_VIEWS`, every texel
-of the UV layout is located on the mesh (by rasterizing the mesh in UV space), and takes
-the colour of the views that see it, weighted towards views that face it. Texels no view
-sees, and the gutter between UV islands, are filled from their nearest neighbours.
-The hair is exported as its style mesh with per-vertex colours baked the same way from
-renders with hair.
+With the deferred generator each texel of the UV layout is located on the mesh (by
+rasterizing the mesh in UV space) and shaded as a view that faces it would shade it,
+straight from the neural texture; the hair's vertices likewise from the hair texture.
+With a hex-plane generator, whose colour lives in a neural field, the bald head is
+rendered from :data:`BAKE_VIEWS` and every texel takes the colour of the views that see
+it, weighted towards views that face it; the hair's vertices the same way from renders
+with hair. Texels no view sees, and the gutter between UV islands, are filled from their
+nearest neighbours.
 """
 
 from __future__ import annotations
@@ -140,6 +141,8 @@ def bake_head(renderer, size: int = 512, views=BAKE_VIEWS, progress: Any = None
         raise BadInputError(f"expected a texture size of at least 16, found {size}")
     if not len(views):
         raise ValueError("expected at least one (yaw, pitch) view to bake from, found none")
+    if renderer.gen.kind == "deferred":
+        return _bake_deferred(renderer, size, progress)
     points, normals, covered, verts = _texels(renderer, size)
     cams = view_cameras([v[0] for v in views], [v[1] for v in views])
     k = view_intrinsics(renderer.size)
@@ -169,6 +172,63 @@ def bake_head(renderer, size: int = 512, views=BAKE_VIEWS, progress: Any = None
         mean = (total[seen].sum(0) / weight[seen].sum().clamp_min(1e-12)
                 if bool(seen.any()) else torch.full((3,), 0.5, dtype=torch.float64))
         c = torch.where(seen[:, None], total / weight.clamp_min(1e-12)[:, None], mean)
+        hair_colours = np.clip(c.numpy() * 255 + 0.5, 0, 255).astype(np.uint8)
+    if progress:
+        progress("bake", 2, 2)
+    return texture, hair_colours
+
+
+def _shaded(renderer, texture, uv, normals, hair: bool):
+    """Colours ``(N, 3)`` in [0, 1] of points at ``uv (N, 2)`` on ``texture (1, C, R,
+    R)`` with ``normals (N, 3)``, seen squarely, as the deferred generator's shader (and
+    the head's light) colours them."""
+    import torch
+
+    from head360cli.model.deferred import read_texels
+
+    gen = renderer.gen
+    c, res = texture.shape[1], texture.shape[-1]
+    table = texture[0].permute(1, 2, 0).reshape(-1, c)
+    n = len(uv)
+    zeros = torch.zeros(n, dtype=torch.long, device=table.device)
+    feats = read_texels(table, zeros, torch.full_like(zeros, res), uv.to(table))
+    normals = normals.to(table)
+    flag = torch.full((n, 1), float(hair), dtype=table.dtype, device=table.device)
+    with torch.no_grad():
+        rgb = gen.shader(feats, normals, normals, flag)[0][:, :3]
+        if renderer.colour_gain is not None:
+            rgb = rgb * renderer.colour_gain.reshape(1, 3).to(rgb)
+    return rgb.clamp(0, 1).double().cpu()
+
+
+def _bake_deferred(renderer, size: int, progress: Any):
+    """:func:`bake_head` of a deferred generator: each texel's colour is its own texels
+    shaded as a view that faces it would shade them, read straight from the neural
+    texture (no renders); the hair's vertices likewise from the hair texture."""
+    import torch
+
+    from head360cli.geometry.texels import texel_surface
+
+    gen = renderer.gen
+    verts = renderer.vertices(np.zeros(52)).cpu()
+    faces = gen.faces.cpu()
+    normals = torch.tensor(_normals(verts.numpy(), faces.numpy()), dtype=torch.float32)
+    surf = texel_surface(verts, faces, gen.uv.cpu(), gen.faces_uv.cpu(), size, normals)
+    u = (torch.arange(size, dtype=torch.float32) + 0.5) / size
+    uv = torch.stack(torch.meshgrid(u, u, indexing="xy"), -1)
+    m = surf.covered
+    colour = np.zeros((size, size, 3))
+    colour[m.numpy()] = _shaded(renderer, renderer.texture, uv[m], surf.normals[m],
+                                False).numpy()
+    texture = np.clip(grow_fill(colour, m.numpy().astype(np.float64)) * 255 + 0.5, 0,
+                      255).astype(np.uint8)
+    if progress:
+        progress("bake", 1, 2)
+    hair_colours = None
+    if renderer.hair is not None:
+        hv, hf, huv = (t.cpu() for t in renderer.hair.meshes[0])
+        hn = torch.tensor(_normals(hv.numpy(), hf.numpy()), dtype=torch.float32)
+        c = _shaded(renderer, renderer.hair.planes[0].detach().cpu(), huv, hn, True)
         hair_colours = np.clip(c.numpy() * 255 + 0.5, 0, 255).astype(np.uint8)
     if progress:
         progress("bake", 2, 2)

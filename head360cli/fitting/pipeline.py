@@ -551,7 +551,9 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
     say("preview", 0, 1)
     t0 = time.perf_counter()
     head = HeadRenderer(gen, shape.fit.shape, inv.texture, hair.style, hair.colour,
-                        shape.fit.expression, samples=invert_cfg.preview_samples,
+                        shape.fit.expression,
+                        samples=(invert_cfg.preview_samples if gen.kind == "hexplane"
+                                 else None),
                         precision="fp32", hair_offset=placement.offset,
                         lid_change=None if lids is None else lids.change,
                         colour_gain=inv.gain)

@@ -291,9 +291,9 @@ class PixelShader(nn.Module):
     The albedo is the neural texture's first three channels; the light (positive, per
     channel) comes from the surface normal and view direction (head coordinates) and the
     hair flag alone, so it cannot undo the albedo; the residual and ``extra`` image
-    features come from all texture channels as well. Training keeps the residual small,
-    so a photo's colours written into the albedo channels (a fit's projection) show as
-    they are, under the studio light the network learnt.
+    features come from the other texture channels, never the albedo. So a photo's colours
+    written into the albedo channels (a fit's projection) show as they are, under the
+    studio light the network learnt, and training keeps the residual small.
     """
 
     def __init__(self, channels: int, hidden: int, extra: int) -> None:
@@ -302,7 +302,7 @@ class PixelShader(nn.Module):
         half = max(hidden // 2, 4)
         self.light = nn.Sequential(nn.Linear(7, half), nn.ReLU(), nn.Linear(half, half),
                                    nn.ReLU(), nn.Linear(half, 3))
-        self.net = nn.Sequential(nn.Linear(channels + 7, hidden), nn.ReLU(),
+        self.net = nn.Sequential(nn.Linear(channels - 3 + 7, hidden), nn.ReLU(),
                                  nn.Linear(hidden, hidden), nn.ReLU(),
                                  nn.Linear(hidden, 3 + extra))
         with torch.no_grad():  # start as a plain albedo read: light 1, residual 0
@@ -321,7 +321,7 @@ class PixelShader(nn.Module):
                 hair: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``feats (n, C)``, ``normal (n, 3)``, ``view (n, 3)``, ``hair (n, 1)`` ->
         ``(colour and extra features (n, 3 + extra), residual (n, 3))``."""
-        x = torch.cat([feats, normal, view, hair], -1)
+        x = torch.cat([feats[:, 3:], normal, view, hair], -1)
         if exporting():
             out = self.net(x)
             light = self.shading(normal, view, hair)

@@ -107,3 +107,28 @@ def test_nothing_outside_the_mask_reaches_the_texture(scene):
     g = got.texture[0, :3]
     greenish = (g[1] > 0.9) & (g[0] < 0.1) & (g[2] < 0.1)
     assert not greenish.any()
+
+
+def test_a_projected_photo_renders_as_the_photo_at_its_view(scene):
+    """Whatever the shader learnt (here: random light and residual), the albedo written
+    from a photo gives the photo back at the photo's view, wherever the photo sees the
+    surface squarely: the residual never reads the albedo channels."""
+    gen, verts, mirror, texture = scene
+    torch.manual_seed(3)
+    with torch.no_grad():
+        for layer in (gen.shader.light[-1], gen.shader.net[-1]):
+            torch.nn.init.normal_(layer.weight, std=0.3)
+    try:
+        start = torch.rand_like(texture) * 0.5
+        c2w, k, photo, mask = _photo(gen, verts, texture, 20.0)
+        got = project_photo(gen, verts, mirror, c2w, k, photo, mask, start,
+                            cfg=ProjectConfig(blur=0.0))
+        with torch.no_grad():
+            back = gen(verts[None], c2w[None], k, texture=got.texture)["rgb"][0]
+        inner = -torch.nn.functional.max_pool2d(-mask[None], 9, 1, 4)[0, 0] > 0
+        err = (back - photo).abs().amax(0)[inner]
+        assert float(err.mean()) < 0.02, float(err.mean())
+    finally:
+        with torch.no_grad():
+            gen.shader.light[-1].weight.zero_()
+            gen.shader.net[-1].weight.zero_()
