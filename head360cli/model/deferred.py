@@ -182,9 +182,10 @@ class DeferredGenerator(nn.Module):
         return dataclasses.replace(hair, planes=textures)
 
     def gbuffer(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
-                hair: Hair | None = None) -> GBuffer:
+                hair: Hair | None = None, cache: dict | None = None) -> GBuffer:
         """The G-buffer of posed heads ``verts (B, V, 3)`` (and their hair) from cameras
-        ``c2w (B, 4, 4)`` with ``intrinsics (B, 3, 3)`` at the current image size."""
+        ``c2w (B, 4, 4)`` with ``intrinsics (B, 3, 3)`` at the current image size;
+        ``cache``: see :meth:`forward`'s ``reuse``."""
         head = MeshPart(verts, self.faces, self.uv, self.faces_uv, self.normal_groups)
         parts = []
         if hair is not None:
@@ -193,8 +194,9 @@ class DeferredGenerator(nn.Module):
                 hv, hf, huv = hair.meshes[g[0]]
                 parts.append((MeshPart(hv[None], hf, huv, hf),
                               torch.tensor(g, device=verts.device)))
+        still = None if cache is None else cache.get("still_faces")
         return gbuffer(head, c2w, intrinsics, self.cfg.image_res, self.cfg.pixel_samples,
-                       parts)
+                       parts, still, cache)
 
     def _net(self, net: nn.Module, *args: torch.Tensor):
         """``net(*args)``, in :attr:`network_dtype` when one is set; float32 outputs."""
@@ -255,7 +257,12 @@ class DeferredGenerator(nn.Module):
             code: ``(B, code_dim)`` texture codes, or
             texture: ``(B, C, R, R)`` neural textures (inversion optimises these).
             hair: The items' hair; ``None`` renders bald heads.
-            jitter, reuse, plane_raster: Hex-plane options; nothing here.
+            jitter, plane_raster: Hex-plane options; nothing here.
+            reuse: A dict kept between the frames of an animation seen by one still
+                camera (one-item batches, the same hair and size), holding
+                ``still_faces (F,)``, the triangles no expression moves: what depends on
+                the camera alone is made once there (the same images); anything else
+                (a hex-plane ``DecodeReuse``) is ignored.
             head_planes: Not for this generator (change the texture instead).
             view_rays: A dict the caller keeps between renders of the same ``verts``,
                 cameras and hair that change only the texture: the first render keeps
@@ -282,11 +289,15 @@ class DeferredGenerator(nn.Module):
         k = intrinsics.expand(b, 3, 3)
         if hair is not None and hair.planes is None:
             hair = self.prepare_hair(hair)
+        cache = reuse if isinstance(reuse, dict) else None
+        if cache is not None and b != 1:
+            raise ValueError(f"expected one item to reuse a still camera's G-buffer, found "
+                             f"{b}")
         if view_rays is not None and "gbuffer" in view_rays:
             buf = view_rays["gbuffer"]
         else:
             with torch.no_grad():
-                buf = self.gbuffer(verts, c2w, k, hair)
+                buf = self.gbuffer(verts, c2w, k, hair, cache)
             if view_rays is not None:
                 view_rays["gbuffer"] = buf
         image, residual = self.shade(buf, texture, hair)

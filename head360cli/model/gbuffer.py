@@ -92,20 +92,46 @@ def _sample_cameras(c2w: torch.Tensor, intrinsics: torch.Tensor, samples: int
     return c2w.repeat(samples, 1, 1), k
 
 
-def _surface(part: MeshPart, cams: torch.Tensor, k: torch.Tensor, size: int):
+def _surface(part: MeshPart, cams: torch.Tensor, k: torch.Tensor, size: int,
+             still: torch.Tensor | None = None, cache: dict | None = None):
     """``(fragments, uv (R, H, W, 2), normal (R, H, W, 3))`` of one mesh seen by
-    ``R`` cameras (its ``verts`` given for ``R / S`` views, repeated over the samples)."""
+    ``R`` cameras (its ``verts`` given for ``R / S`` views, repeated over the samples).
+    With ``still (F,)`` (the triangles that never move) and a ``cache`` kept between
+    frames seen by the same cameras, the still triangles are drawn once and each frame
+    draws the others over them (the same fragments)."""
     verts = part.verts.repeat(cams.shape[0] // part.verts.shape[0], 1, 1)
     pix, depth = project(verts, cams, k)
-    frags = rasterize(pix, depth, part.faces, size, size, cull_backfaces=True)
+    if still is None or cache is None:
+        frags = rasterize(pix, depth, part.faces, size, size, cull_backfaces=True)
+    else:
+        under = cache.get("still")
+        if under is None:
+            under = cache["still"] = rasterize(pix, depth, part.faces, size, size,
+                                               cull_backfaces=True, draw=still).zbuffer
+        frags = rasterize(pix, depth, part.faces, size, size, cull_backfaces=True,
+                          draw=~still, under=under)
     uv = interpolate_face_corners(part.uv[part.faces_uv], frags)
     normals = vertex_normals(verts, part.faces, part.normal_groups)
     normal = interpolate_face_corners(normals[:, part.faces], frags)
     return frags, uv, normal
 
 
+def _view_directions(cams: torch.Tensor, k: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """``(R, H, W, 3)`` unit directions from each sample point towards its camera, in
+    head axes (minus the ray through the point)."""
+    ys = torch.arange(h, dtype=cams.dtype, device=cams.device) + 0.5
+    xs = torch.arange(w, dtype=cams.dtype, device=cams.device) + 0.5
+    x = (xs[None, None, :] - k[:, 0, 2, None, None]) / k[:, 0, 0, None, None]
+    y = (ys[None, :, None] - k[:, 1, 2, None, None]) / k[:, 1, 1, None, None]
+    x, y = torch.broadcast_tensors(x, y)
+    ray = torch.stack([x, y, torch.ones_like(x)], -1)
+    ray = (ray[..., None, :] * cams[:, None, None, :3, :3]).sum(-1)
+    return -torch.nn.functional.normalize(ray, dim=-1)
+
+
 def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: int,
-            samples: int = 1, hairs: list[tuple[MeshPart, torch.Tensor]] = ()) -> GBuffer:
+            samples: int = 1, hairs: list[tuple[MeshPart, torch.Tensor]] = (),
+            still: torch.Tensor | None = None, cache: dict | None = None) -> GBuffer:
     """Rasterize heads (and hair) into a G-buffer.
 
     Args:
@@ -116,13 +142,18 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
         samples: Subpixel samples per pixel (1, 2 or 4: :data:`OFFSETS`).
         hairs: Hair meshes, each ``(mesh with verts (1, H, 3), views (B_h,))`` drawn
             with the heads of those views; the nearer surface wins each sample point.
+        still: ``(F,)`` bool, the head's triangles that no expression moves, and
+        cache: a dict kept between calls for the same cameras, hair and size (frames of
+            an animation seen by a still camera): what depends on them alone (the still
+            triangles' depth test, the hair's fragments, the view directions) is made
+            once. The G-buffer is the same.
 
     Returns:
         The :class:`GBuffer` of the ``B`` views.
     """
     b = c2w.shape[0]
     cams, k = _sample_cameras(c2w, intrinsics, samples)
-    frags, uv, normal = _surface(head, cams, k, size)
+    frags, uv, normal = _surface(head, cams, k, size, still, cache)
     mask = frags.face_id >= 0
     depth = frags.depth
     hair_mask = torch.zeros_like(mask)
@@ -130,8 +161,14 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
         rows = (items[None] + b * torch.arange(samples, device=c2w.device)[:, None]
                 ).reshape(-1)
         hverts = hair.verts.expand(len(items), -1, -1)
-        hfrags, huv, hnormal = _surface(dataclasses.replace(hair, verts=hverts),
-                                        cams[rows], k[rows], size)
+        hkey = ("hair", hair.verts.data_ptr(), tuple(hair.verts.shape), tuple(items.tolist()))
+        if cache is not None and hkey in cache:
+            hfrags, huv, hnormal = cache[hkey]
+        else:
+            hfrags, huv, hnormal = _surface(dataclasses.replace(hair, verts=hverts),
+                                            cams[rows], k[rows], size)
+            if cache is not None:
+                cache[hkey] = hfrags, huv, hnormal
         nearer = (hfrags.face_id >= 0) & (~mask[rows] | (hfrags.depth < depth[rows]))
         hair_mask = hair_mask.index_copy(0, rows, nearer)
         sel = nearer[..., None]
@@ -140,14 +177,11 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
         depth = depth.index_copy(0, rows, torch.where(nearer, hfrags.depth, depth[rows]))
         mask = mask.index_copy(0, rows, mask[rows] | nearer)
     normal = torch.nn.functional.normalize(normal, dim=-1)
-    # direction to the camera: minus the ray through each sample point, in head axes
     h, w = mask.shape[1:]
-    ys = torch.arange(h, dtype=c2w.dtype, device=c2w.device) + 0.5
-    xs = torch.arange(w, dtype=c2w.dtype, device=c2w.device) + 0.5
-    x = (xs[None, None, :] - k[:, 0, 2, None, None]) / k[:, 0, 0, None, None]
-    y = (ys[None, :, None] - k[:, 1, 2, None, None]) / k[:, 1, 1, None, None]
-    x, y = torch.broadcast_tensors(x, y)
-    ray = torch.stack([x, y, torch.ones_like(x)], -1)
-    ray = (ray[..., None, :] * cams[:, None, None, :3, :3]).sum(-1)
-    view = -torch.nn.functional.normalize(ray, dim=-1)
+    if cache is None:
+        view = _view_directions(cams, k, h, w)
+    else:
+        view = cache.get("view")
+        if view is None:
+            view = cache["view"] = _view_directions(cams, k, h, w)
     return GBuffer(samples, uv, normal, view, mask, hair_mask, depth)

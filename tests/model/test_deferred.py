@@ -163,3 +163,32 @@ def test_pixel_samples_and_sizes_are_scoped(parts):
     with pytest.raises(ValueError, match="head planes"):
         gen(parts[1], parts[2], parts[3], texture=torch.zeros(2, 16, 32, 32),
             head_planes=torch.zeros(1))
+
+
+def test_frames_of_a_still_camera_draw_what_no_frame_moves_once(parts, monkeypatch):
+    """An animation seen by one still camera: the still triangles' depth test, the hair's
+    fragments and the view directions are made for the first frame and reused; the
+    frames are those rendered without reuse."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+    from head360cli.model.head_render import HeadRenderer
+
+    gen = _gen()
+    with torch.no_grad():
+        torch.nn.init.normal_(gen.refine.net[-1].weight, std=0.1)
+    r = HeadRenderer(gen, np.zeros(load_bilinear().rank), torch.rand(16, 32, 32), 11,
+                     np.array([0.3, 0.2, 0.1]), precision="fp32", size=64)
+    rng = np.random.default_rng(0)
+    w = (rng.uniform(0, 1, (4, 52)) * (rng.uniform(0, 1, (4, 52)) < 0.3)).astype(np.float32)
+    cams, k = view_cameras(30.0, 0.0).expand(4, 4, 4), view_intrinsics(64)
+    import head360cli.model.gbuffer as gb
+
+    drawn = []
+    real = gb.rasterize
+    monkeypatch.setattr(gb, "rasterize", lambda *a, **kw: drawn.append(kw.get("draw"))
+                        or real(*a, **kw))
+    reused = torch.cat([f for f in r.frames(cams, w, k, uint8=False)])
+    calls = len(drawn)
+    fresh = torch.cat([f for f in r.frames(cams, w, k, uint8=False, batch=4)])
+    assert (reused - fresh).abs().max() < 1e-5
+    # one still pass, one hair pass, then the moving triangles once a frame
+    assert calls == 2 + 4 and sum(d is not None for d in drawn[:calls]) == 5
