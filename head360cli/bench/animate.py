@@ -137,21 +137,34 @@ def _precisions(device: str) -> tuple[str, ...]:
     return ("fp32", "bf16") if fast_bfloat16(device) else ("fp32",)
 
 
-def _speed(head: Path, weights: np.ndarray, device: str = "cpu") -> list[dict[str, Any]]:
-    """Throughput and error by samples per ray, in each of :func:`_precisions`."""
+def _sampling(head: Path, device: str) -> tuple[int, tuple[int, ...], int | None]:
+    """``(reference samples, samples swept, animation default)`` of the installed
+    generator: samples a pixel 4, (1, 2, 4) and its own for a deferred one; samples a ray
+    32, (6, 8, 12) and 8 for a hex-plane one."""
     from head360cli.fitting.pipeline import load_head_renderer
 
+    if load_head_renderer(head, device=device).gen.kind == "deferred":
+        return 4, (1, 2, 4), None
+    return 32, (6, 8, 12), 8
+
+
+def _speed(head: Path, weights: np.ndarray, device: str = "cpu") -> list[dict[str, Any]]:
+    """Throughput and error by samples (a pixel, or a ray), in each of
+    :func:`_precisions`, against the most samples' float32 frames."""
+    from head360cli.fitting.pipeline import load_head_renderer
+
+    most, sweep, _ = _sampling(head, device)
     pick = weights[np.linspace(0, len(weights) - 1, 8).astype(int)]
-    ref = _render(load_head_renderer(head, device=device, samples=32, precision="fp32",
+    ref = _render(load_head_renderer(head, device=device, samples=most, precision="fp32",
                                      reuse=None), pick, 256)
     rows = []
-    for samples in (6, 8, 12):
+    for samples in sweep:
         for precision in _precisions(device):
             r = load_head_renderer(head, device=device, samples=samples,
                                    precision=precision)
             rows.append({"samples": samples, "precision": precision,
-                         **_timed(r, weights, 256),
-                         "psnr_vs_32_samples": round(_psnr(_render(r, pick, 256), ref), 2)})
+                         **_timed(r, weights, 256), "reference_samples": most,
+                         "psnr_vs_reference": round(_psnr(_render(r, pick, 256), ref), 2)})
     return rows
 
 
@@ -160,13 +173,15 @@ GPU_BATCHES = (8, 32, 64)
 
 
 def _batches(head: Path, weights: np.ndarray, device: str,
-             batches: tuple[int, ...] = GPU_BATCHES, samples: int = 8,
+             batches: tuple[int, ...] = GPU_BATCHES, samples: int | None = None,
              size: int = 256) -> list[dict[str, Any]]:
     """Frames per second against frames per generator call (``animate --batch``), with
     and without hair, in each of :func:`_precisions`; each precision's frames scored
     against float32's (uint8 frames, as written)."""
     from head360cli.fitting.pipeline import load_head_renderer
 
+    if samples is None:
+        samples = _sampling(head, device)[2]
     pick = weights[np.linspace(0, len(weights) - 1, 8).astype(int)]
     rows, refs = [], {}
     for precision in _precisions(device):
@@ -188,19 +203,21 @@ RESOLUTION_SIZES = (128, 256, 384, 512)
 
 
 def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
-                samples: int = 8, device: str = "cpu") -> list[dict[str, Any]]:
+                samples: int | None = None, device: str = "cpu") -> list[dict[str, Any]]:
     """Frames per second and error against image size at the animation defaults.
 
-    Each size is scored twice against 32-sample float32 renders of the same frames: at its
-    own size (the sampling error) and, bilinearly upsampled, against the largest size
-    (what rendering fewer pixels loses)."""
+    Each size is scored twice against float32 renders of the same frames with the most
+    samples (:func:`_sampling`): at its own size (the sampling error) and, bilinearly
+    upsampled, against the largest size (what rendering fewer pixels loses)."""
     import torch.nn.functional as F
 
     from head360cli.fitting.pipeline import load_head_renderer
 
+    most, _, default = _sampling(head, device)
+    samples = default if samples is None else samples
     pick = weights[np.linspace(0, len(weights) - 1, 4).astype(int)]
     top = max(sizes)
-    refs = {size: _render(load_head_renderer(head, device=device, samples=32, size=size,
+    refs = {size: _render(load_head_renderer(head, device=device, samples=most, size=size,
                                              precision="fp32", reuse=None), pick, size)
             for size in sizes}
     rows = []
@@ -208,10 +225,10 @@ def _resolution(head: Path, weights: np.ndarray, sizes=RESOLUTION_SIZES,
         r = load_head_renderer(head, device=device, samples=samples, size=size)
         got = _render(r, pick, size)
         up = F.interpolate(got, size=(top, top), mode="bilinear", align_corners=False)
-        rows.append({"size": size, "samples": samples, "precision": r.precision,
-                     **_timed(r, weights, size),
-                     "psnr_vs_32_samples_same_size": round(_psnr(got, refs[size]), 2),
-                     f"psnr_vs_32_samples_{top}px": round(_psnr(up, refs[top]), 2)})
+        rows.append({"size": size, "samples": r.samples, "precision": r.precision,
+                     **_timed(r, weights, size), "reference_samples": most,
+                     "psnr_vs_reference_same_size": round(_psnr(got, refs[size]), 2),
+                     f"psnr_vs_reference_{top}px": round(_psnr(up, refs[top]), 2)})
     return rows
 
 
@@ -439,7 +456,7 @@ def bench_animate(frames: int = 120, stride: int = 3, memory: bool = True,
         weights = stream.weights[:frames]
         say("throughput against samples and precision")
         result["speed"] = _speed(head, weights, device)
-        if on_cpu:
+        if on_cpu and _sampling(head, device)[2] is not None:  # a hex-plane generator
             say("reuse of decoded points between frames")
             result["reuse"] = _reuse(head, weights)
         else:
@@ -559,10 +576,11 @@ def _markdown(r: dict[str, Any]) -> str:
     lines = ["# head360 bench animate", "",
              f"{head}Stream: {r['stream']} ({r['stream_frames']} frames); on {where}.",
              "", "## Throughput, 256 x 256 (render only)", "",
-             "| samples | networks | frames/s | ms/frame | PSNR vs 32 samples |",
+             f"| samples | networks | frames/s | ms/frame | PSNR vs "
+             f"{r['speed'][0]['reference_samples']} samples |",
              "|---|---|---|---|---|"]
     lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
-              f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples']:.2f} |"
+              f"{s['ms_per_frame']:.0f} | {s['psnr_vs_reference']:.2f} |"
               for s in r["speed"]]
     if "reuse" in r:
         u = r["reuse"]
@@ -587,12 +605,14 @@ def _markdown(r: dict[str, Any]) -> str:
                   for b in r["batch"]]
     if "resolution" in r:
         top = max(s["size"] for s in r["resolution"])
+        most = r["resolution"][0]["reference_samples"]
         lines += ["", "## Throughput and error against image size (render only)", "",
-                  f"| size | samples | networks | frames/s | ms/frame | PSNR vs 32 samples, "
-                  f"same size | PSNR vs 32 samples at {top} px |", "|---|---|---|---|---|---|---|"]
+                  f"| size | samples | networks | frames/s | ms/frame | PSNR vs {most} "
+                  f"samples, same size | PSNR vs {most} samples at {top} px |",
+                  "|---|---|---|---|---|---|---|"]
         lines += [f"| {s['size']} | {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
-                  f"{s['ms_per_frame']:.0f} | {s['psnr_vs_32_samples_same_size']:.2f} | "
-                  f"{s[f'psnr_vs_32_samples_{top}px']:.2f} |" for s in r["resolution"]]
+                  f"{s['ms_per_frame']:.0f} | {s['psnr_vs_reference_same_size']:.2f} | "
+                  f"{s[f'psnr_vs_reference_{top}px']:.2f} |" for s in r["resolution"]]
     if "fidelity" in r:
         lines += _fidelity_markdown(r)
     s = r["swap"]

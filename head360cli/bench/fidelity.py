@@ -165,7 +165,9 @@ def head_fidelity(head: str | Path, stream, stride: int = 3, size: int | None = 
     from head360cli.drive.views import head_framing, view_cameras, view_intrinsics
     from head360cli.fitting.pipeline import load_head_renderer
 
-    r = load_head_renderer(head, device=device, samples=8, size=size)
+    r = load_head_renderer(head, device=device, size=size)
+    if r.gen.kind == "hexplane":
+        r.samples = 8  # animate's default for a hex-plane generator
     w = stream.weights[::stride]
     cams = view_cameras(0.0, 0.0, head_framing(r, True))[0][None].expand(len(w), 4, 4)
     found, tracked = track_frames_weights(

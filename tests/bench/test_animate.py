@@ -10,7 +10,6 @@ import pytest
 from head360cli.bench.animate import (
     _markdown,
     _resolution,
-    _reuse,
     _turning_capture,
     correlation,
 )
@@ -24,28 +23,29 @@ def test_resolution_sweep_scores_each_size_twice(head_file):
     assert [r["size"] for r in rows] == [32, 64]
     for r in rows:
         assert r["fps"] > 0 and r["ms_per_frame"] > 0 and r["samples"] == 4
-        assert 15.0 < r["psnr_vs_32_samples_same_size"] < 120.0
-        assert 10.0 < r["psnr_vs_32_samples_64px"] < 120.0
+        assert 15.0 < r["psnr_vs_reference_same_size"] <= 120.0
+        assert 10.0 < r["psnr_vs_reference_64px"] <= 120.0
     # at the largest size the two scores are the same comparison (upsampling is identity)
-    assert rows[1]["psnr_vs_32_samples_64px"] == rows[1]["psnr_vs_32_samples_same_size"]
+    assert rows[1]["psnr_vs_reference_64px"] == rows[1]["psnr_vs_reference_same_size"]
     # 32 pixels upsampled lose detail the 64-pixel render keeps
-    assert rows[0]["psnr_vs_32_samples_64px"] < rows[1]["psnr_vs_32_samples_64px"]
+    assert rows[0]["psnr_vs_reference_64px"] < rows[1]["psnr_vs_reference_64px"]
 
 
-def test_reuse_row_compares_with_decoding_every_point(head_file):
-    weights = np.zeros((5, 52), np.float32)
-    weights[:, 24] = np.linspace(0.0, 0.8, 5)  # jawOpen
-    # float32: bfloat16 networks (the default where the CPU has them) round outputs to
-    # about 4e-3 of their size, reuse or not, which would hide what reuse changes
-    u = _reuse(head_file, weights, samples=4, size=64, precision="fp32")
-    assert u["precision"] == "fp32" and u["frames"] == 5 and u["fps"] > 0 and u["fps_exact"] > 0
-    assert 0.0 < u["decoded_share"] < 1.0
-    assert u["max_abs_vs_exact"] < 2e-3 and u["psnr_vs_exact_min"] > 50.0
-    md = _markdown({"stream": "s", "stream_frames": 5, "threads": 2, "speed": [],
-                    "reuse": u, "fidelity": [],
+def test_a_deferred_head_is_swept_by_samples_a_pixel_without_a_reuse_part(head_file):
+    """The shipped generator is deferred: the throughput sweep is over samples a pixel
+    against 4, and there are no decoded points to reuse (a still camera's G-buffer is
+    reused instead, exactly: tests/model/test_deferred.py)."""
+    from head360cli.bench.animate import _sampling
+
+    assert _sampling(head_file, "cpu") == (4, (1, 2, 4), None)
+    md = _markdown({"stream": "s", "stream_frames": 5, "threads": 2,
+                    "speed": [{"samples": 1, "precision": "fp32", "fps": 50.0,
+                               "ms_per_frame": 20.0, "reference_samples": 4,
+                               "psnr_vs_reference": 31.5}], "fidelity": [],
                     "swap": {"own_style": "bob", "views_yaw": [0], "styles": [],
                              "mean_psnr_face": 0.0, "mean_psnr_hull": 0.0}})
-    assert "| every point decoded (--exact) |" in md
+    assert "| samples | networks | frames/s | ms/frame | PSNR vs 4 samples |" in md
+    assert "| 1 | fp32 | 50.0 | 20 | 31.50 |" in md and "Reuse" not in md
 
 
 @pytest.mark.slow

@@ -127,3 +127,20 @@ def test_bench_all_hands_the_device_to_every_stage(run_cli, tmp_path, monkeypatc
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     r = run_cli("bench", "all", "--device", "cuda", "--out", tmp_path)
     assert r.code == 3 and "no CUDA device is available" in r.err and calls == []
+
+
+def test_collect_reads_a_deferred_generators_rows():
+    """Samples a pixel against a 4-sample reference, and the generator sweep by samples
+    a pixel (0.5.0's keys), beside the older 32-sample ones above."""
+    rows = collect({
+        "animate": {"speed": [{"samples": 1, "precision": "fp32", "ms_per_frame": 12.0,
+                               "reference_samples": 4, "psnr_vs_reference": 33.1}],
+                    "resolution": [{"size": 256, "samples": 2, "precision": "fp32",
+                                    "ms_per_frame": 20.0, "reference_samples": 4,
+                                    "psnr_vs_reference_same_size": 40.0,
+                                    "psnr_vs_reference_256px": 40.0}]},
+        "generator": {"sweep": [{"pixel_samples": 2, "ms_hair": 30.0, "psnr_hair": 31.0}]}})
+    assert [(r["setting"], r["metric"], r["value"]) for r in rows] == [
+        ("2 samples a pixel", "PSNR dB vs ground truth, with hair", 31.0),
+        ("1 samples, fp32", "PSNR dB vs 4 samples", 33.1),
+        ("256 px, 2 samples, fp32", "PSNR dB vs 4 samples at 256 px", 40.0)]
