@@ -55,7 +55,7 @@ def main(parts: tuple[str, ...] = PARTS) -> None:
         photo = Path(tmp) / "astronaut.png"
         Image.fromarray(data.astronaut()).save(photo)
         fit_photo(photo, Path(tmp) / "astronaut.h360")
-        r = load_head_renderer(Path(tmp) / "astronaut.h360", samples=8)
+        r = load_head_renderer(Path(tmp) / "astronaut.h360", samples=None)
         k = view_intrinsics(r.size)
         if "animate" in parts:
             stream = prepare_stream(read_arkit_csv(STREAM),

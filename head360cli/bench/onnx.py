@@ -48,7 +48,8 @@ def _frame_seconds(fn, repeats: int) -> list[float]:
     return times
 
 
-def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int = 10,
+def bench_onnx(heads: int = 100, size: int = 256, samples: int | None = None,
+               repeats: int = 10,
                seed: int = 0, graph: str | Path | None = None,
                progress: Any = None, rounds: int = 3, device: str = "cpu"
                ) -> tuple[dict[str, Any], str]:
@@ -57,7 +58,8 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
     Args:
         heads: Random heads (and as many expressions and cameras) for parity.
         size: Image size of the exported graph.
-        samples: Samples per ray of the exported graph.
+        samples: Samples a pixel (per ray for hex-plane weights) of the exported graph
+            (default: the generator's own).
         repeats: Timed frames per block.
         rounds: Blocks per backend and hair setting, taking turns.
         seed: Seed of heads, expressions and cameras.
@@ -85,7 +87,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
         mean = sample_heads(1, scale=0.0, lids=False)[0].arrays
         r = HeadRenderer(gen, mean["shape"], torch.as_tensor(mean["texture"]), 11,
                          mean["hair_color"], samples=samples, size=size, precision="fp32")
-        say(f"exporting the generator ({size} px, {samples} samples per ray)")
+        say(f"exporting the generator ({size} px, {r.samples} samples)")
         graph = Path(tmp.name) / "generator.onnx"
         export_s = round(export_onnx(r, graph)["seconds"], 1)
     runner = OnnxFrameRunner(graph)  # parity: the CPU's, against torch on the CPU
@@ -172,7 +174,7 @@ def bench_onnx(heads: int = 100, size: int = 256, samples: int = 8, repeats: int
                 "torch's half precision row is bfloat16, where the device runs it fast",
     }
     md = (f"ONNX parity over {heads} random heads, expressions and cameras ({size} px, "
-          f"{samples} samples per ray): largest absolute difference {worst:.2e} "
+          f"{samples} samples): largest absolute difference {worst:.2e} "
           f"(median per image {np.median(diffs):.2e}; {result['parity']['images_over_1e-3']}"
           f" images over 1e-3)\n\n"
           + markdown_table([{**s, "10th-90th_ms": "{} - {}".format(*s["spread_ms"])}

@@ -341,7 +341,9 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
 @click.option("--heads", default=100, show_default=True,
               help="Random heads, expressions and cameras for parity.")
 @click.option("--size", default=256, show_default=True, help="Image size of the graph.")
-@click.option("--samples", default=8, show_default=True, help="Samples per ray.")
+@click.option("--samples", type=int, default=None,
+              help="Samples a pixel, 1, 2 or 4 (per ray for hex-plane weights; default: "
+                   "the generator's own).")
 @click.option("--repeats", default=10, show_default=True,
               help="Timed frames per block.")
 @click.option("--rounds", default=3, show_default=True,
@@ -351,14 +353,14 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
                    "2 CPU cores).")
 @BENCH_OUT
 @common_options
-def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: int,
+def bench_onnx_cmd(heads: int, size: int, samples: int | None, repeats: int, rounds: int,
                    graph: str | None, out_dir: str) -> None:
     """onnxruntime against torch: largest difference over random heads, and speed.
 
     \b
     Examples:
       head360 bench onnx
-      head360 bench onnx --heads 10 --size 128 --samples 4
+      head360 bench onnx --heads 10 --size 128 --samples 1
       head360 bench onnx --device cuda --onnx generator.onnx   torch timed on the GPU
     """
     from head360cli.bench.onnx import bench_onnx
@@ -367,7 +369,7 @@ def bench_onnx_cmd(heads: int, size: int, samples: int, repeats: int, rounds: in
     if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000 or not 1 <= rounds <= 100:
         raise BadInputError(f"expected --heads in 1..10000, --repeats in 1..1000 and "
                             f"--rounds in 1..100, found {heads}, {repeats} and {rounds}")
-    if not 1 <= samples <= 64 or not 32 <= size <= 2048:
+    if (samples is not None and not 1 <= samples <= 64) or not 32 <= size <= 2048:
         raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
                             f"{samples} and {size}")
     if graph is not None and not Path(graph).is_file():

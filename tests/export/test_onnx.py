@@ -20,11 +20,11 @@ def exported(head_file, tmp_path_factory):
     from head360cli.cli import main
     from head360cli.fitting.pipeline import load_head_renderer
 
-    r = load_head_renderer(head_file, samples=3, size=48, precision="fp32")
+    r = load_head_renderer(head_file, samples=1, size=48, precision="fp32")
     out = tmp_path_factory.mktemp("onnx") / "gen.onnx"
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
-        code = main(["export-onnx", "--head", str(head_file), "--samples", "3", "--size",
+        code = main(["export-onnx", "--head", str(head_file), "--samples", "1", "--size",
                      "48", "-o", str(out), "--json"])
     return r, out, code, json.loads(stdout.getvalue()) if code == 0 else None
 
@@ -55,7 +55,7 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     if "CUDAExecutionProvider" not in ort.get_available_providers():  # asked, not there
         assert OnnxFrameRunner(out, providers=["CUDAExecutionProvider"]).provider == \
             "CPUExecutionProvider"
-    assert runner.size == 48 and runner.meta["samples"] == 3
+    assert runner.size == 48 and runner.meta["samples"] == 1
     from head360cli.export.onnx import GRAPH_FORMAT
 
     assert runner.format_version == runner.meta["format_version"] == GRAPH_FORMAT
@@ -92,7 +92,7 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     own = np.zeros(52)
     own[[INDEX["eyeBlinkLeft"], INDEX["eyeWideRight"]]] = 0.7, 0.6
     fitted = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour, own,
-                          samples=3, size=48, precision="fp32")
+                          samples=1, size=48, precision="fp32")
     w = np.zeros(52)
     w[INDEX["eyeBlinkRight"]] = 0.5
     ref = fitted.render(cam, k, w).numpy()
@@ -102,7 +102,7 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     # a head with a light of its own (a fit's colour_gain): drawn from the graph's alpha,
     # by the torch-free runner and through HeadRenderer.use_runner alike
     lit = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour,
-                       samples=3, size=48, precision="fp32", colour_gain=[0.7, 1.0, 1.3])
+                       samples=1, size=48, precision="fp32", colour_gain=[0.7, 1.0, 1.3])
     assert runner.has_alpha
     ref = lit.render(cam, k, w).numpy()
     assert np.abs(ref - r.render(cam, k, w).numpy()).max() > 5e-2  # the light shows
@@ -125,9 +125,9 @@ def test_a_graph_without_alpha_cannot_draw_a_heads_light(head_file):
         def __call__(self, *args):
             return np.ones((1, 3, 48, 48), np.float32)
 
-    r = load_head_renderer(head_file, samples=3, size=48, precision="fp32")
+    r = load_head_renderer(head_file, samples=1, size=48, precision="fp32")
     lit = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour,
-                       samples=3, size=48, precision="fp32", colour_gain=[0.7, 1.0, 1.3])
+                       samples=1, size=48, precision="fp32", colour_gain=[0.7, 1.0, 1.3])
     with pytest.raises(FileFormatError, match="export it again with head360 export-onnx"):
         lit.use_runner(OldRunner())
     r.use_runner(OldRunner())
@@ -210,7 +210,7 @@ def test_cli_export_onnx_writes_both_graphs_and_the_head_inputs(run_cli, exporte
     assert Path(files[-1]).name == f"{head_file.stem}_inputs.npz"
     inputs = np.load(files[-1])
     assert inputs["deltas"].shape[0] == 52 and inputs["texture"].ndim == 4
-    assert res["samples"] == 3 and res["size"] == 48
+    assert res["samples"] == 1 and res["size"] == 48
     assert run_cli("export-onnx", "--size", "33", "-o", tmp_path / "x.onnx").code == 3
     assert not (tmp_path / "x.onnx").exists()
 
@@ -255,7 +255,7 @@ def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_fil
     a, b = tmp_path / "onnx.png", tmp_path / "torch.png"
     r = run_cli("render", head_file, *view, "--backend", "onnx", "--onnx", out, "-o", a)
     assert r.code == 0, r.err
-    assert run_cli("render", head_file, *view, "--samples", "3", "--size", "48",
+    assert run_cli("render", head_file, *view, "--samples", "1", "--size", "48",
                    "--precision", "fp32", "-o", b).code == 0
     ia, ib = iio.imread(a).astype(int), iio.imread(b).astype(int)
     assert ia.shape == (48, 48, 3) and np.abs(ia - ib).max() <= 1
@@ -266,7 +266,7 @@ def test_cli_backend_onnx_renders_what_torch_renders(run_cli, exported, head_fil
     frames = {}
     for backend in ("onnx", "torch"):
         d = tmp_path / backend
-        args = ["--samples", "3", "--size", "48", "--precision", "fp32"]
+        args = ["--samples", "1", "--size", "48", "--precision", "fp32"]
         r = run_cli("animate", head_file, "--arkit", csv, "-o", d, "--backend", backend,
                     "--onnx", out, *(args if backend == "torch" else []))
         assert r.code == 0, r.err
@@ -308,7 +308,7 @@ def test_bench_onnx_on_the_exported_graph(exported):
 
     _, out, _, _ = exported
     result, md = bench_onnx(heads=2, repeats=1, graph=out, rounds=2)
-    assert result["size"] == 48 and result["samples"] == 3
+    assert result["size"] == 48 and result["samples"] == 1
     assert result["parity"]["all_finite"] and len(result["parity"]["rows"]) == 2
     assert 0 <= result["parity"]["max_abs_diff"] <= 1e-3
     backends = {(s["backend"], s["hair"]) for s in result["speed"]}

@@ -201,11 +201,12 @@ def test_zero_size_or_samples_is_refused_not_taken_for_the_default(head_file):
 
     with pytest.raises(ValueError, match="multiple of 2 and at least 16, found 0"):
         load_head_renderer(head_file, size=0)
-    for samples in (0, -2, 2.5):
-        with pytest.raises(ValueError, match=f"samples per ray >= 1 or None, found {samples}"):
+    for samples in (0, -2, 2.5, 3):  # a deferred generator: 1, 2 or 4 a pixel
+        with pytest.raises(ValueError, match=f"1, 2 or 4 samples a pixel or None, found "
+                                             f"{samples}"):
             load_head_renderer(head_file, samples=samples)
-    r = load_head_renderer(head_file, samples=np.int64(3), size=None)
-    assert (r.samples, r.size) == (3, r.gen.cfg.image_res)
+    r = load_head_renderer(head_file, samples=np.int64(4), size=None)
+    assert (r.samples, r.size) == (4, r.gen.cfg.image_res)
 
 
 def _lit_copy(r, gain):
