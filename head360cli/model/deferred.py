@@ -214,31 +214,28 @@ class DeferredGenerator(nn.Module):
         read and decoded."""
         b, c, res = texture.shape[0], texture.shape[1], texture.shape[-1]
         r, h, w = buf.mask.shape
-        index = buf.index()
+        index, uv, is_hair = buf.index, buf.uv, buf.hair
         view_of = (index // (h * w)) % b
-        tables = [texture.permute(0, 2, 3, 1).reshape(-1, c)]
-        base = view_of * (res * res)
-        side = torch.full_like(index, res)
-        is_hair = buf.hair.reshape(-1).index_select(0, index)
-        if hair is not None and (exporting() or bool(is_hair.any())):
-            start = b * res * res
-            first = torch.zeros(b, dtype=torch.long, device=index.device)
-            sides = torch.zeros(b, dtype=torch.long, device=index.device)
+        # texels row by row (a view, no copy, of a channels-last texture)
+        table = texture.permute(0, 2, 3, 1).reshape(-1, c)
+        if hair is None or not (exporting() or bool(is_hair.any())):
+            feats = read_texels(table, view_of * (res * res), torch.full_like(index, res), uv)
+        else:
+            own = torch.nonzero(~is_hair).squeeze(1)
+            feats = uv.new_zeros(len(index), c).index_copy(0, own, read_texels(
+                table, view_of.index_select(0, own) * (res * res),
+                torch.full_like(own, res), uv.index_select(0, own)))
             items = [i for i, m in enumerate(hair.meshes) if m is not None]
             for g in _hair_groups(hair, items):
                 tex = hair.planes[g[0]][0]
-                tables.append(tex.permute(1, 2, 0).reshape(-1, c))
-                first[g] = start
-                sides[g] = tex.shape[-1]
-                start += tex.shape[-1] ** 2
-            base = torch.where(is_hair, first[view_of], base)
-            side = torch.where(is_hair, sides[view_of], side)
-        table = torch.cat(tables) if len(tables) > 1 else tables[0]
-        uv = buf.uv.reshape(-1, 2).index_select(0, index)
-        feats = read_texels(table, base, side, uv)
-        normal = buf.normal.reshape(-1, 3).index_select(0, index)
-        view = buf.view.reshape(-1, 3).index_select(0, index)
-        values, residual = self._net(self.shader, feats, normal, view,
+                wearer = torch.zeros(b, dtype=torch.bool, device=index.device)
+                wearer[g] = True
+                sel = torch.nonzero(is_hair & wearer[view_of]).squeeze(1)
+                side = tex.shape[-1]
+                feats = feats.index_copy(0, sel, read_texels(
+                    tex.permute(1, 2, 0).reshape(-1, c), torch.zeros_like(sel),
+                    torch.full_like(sel, side), uv.index_select(0, sel)))
+        values, residual = self._net(self.shader, feats, buf.normal, buf.view,
                                      is_hair[:, None].to(feats.dtype))
         out = values.new_zeros(r * h * w, values.shape[1]).index_copy(0, index, values)
         return buf.mean(out.view(r, h, w, -1).permute(0, 3, 1, 2)), residual.abs().mean()
@@ -302,7 +299,7 @@ class DeferredGenerator(nn.Module):
                 view_rays["gbuffer"] = buf
         image, residual = self.shade(buf, texture, hair)
         coverage = buf.mean(buf.mask[:, None].to(image.dtype))
-        hair_alpha = buf.mean(buf.hair[:, None].to(image.dtype))
+        hair_alpha = buf.mean(buf.hair_mask[:, None].to(image.dtype))
         if self.refine is not None:
             rgb, alpha = self._net(self.refine, image, coverage)
         else:

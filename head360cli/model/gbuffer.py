@@ -15,7 +15,7 @@ import torch
 
 from head360cli.geometry.cameras import project
 from head360cli.geometry.mesh_ops import vertex_normals
-from head360cli.geometry.rasterize import interpolate_face_corners, rasterize
+from head360cli.geometry.rasterize import rasterize
 
 __all__ = ["OFFSETS", "GBuffer", "MeshPart", "gbuffer"]
 
@@ -43,35 +43,36 @@ class MeshPart:
 @dataclasses.dataclass
 class GBuffer:
     """Surface attributes of ``S`` samples of ``B`` views, sample-major: ``R = S * B``
-    rows, sample ``s`` of view ``b`` at row ``s * B + b``.
+    rows, sample ``s`` of view ``b`` at row ``s * B + b``; the attributes are kept at the
+    ``n`` covered sample points only.
 
     Attributes:
         samples: ``S``.
-        uv: ``(R, H, W, 2)`` texture coordinates in [0, 1] (of the head's texture, or the
-            hair's where ``hair`` is set); 0 where nothing is.
-        normal: ``(R, H, W, 3)`` unit surface normals in head coordinates.
-        view: ``(R, H, W, 3)`` unit directions from the surface to the camera.
+        index: ``(n,)`` flat indices (into ``R * H * W``) of the covered sample points.
+        uv: ``(n, 2)`` their texture coordinates in [0, 1] (of the head's texture, or the
+            hair's where ``hair`` is set).
+        normal: ``(n, 3)`` unit surface normals in head coordinates.
+        view: ``(n, 3)`` unit directions from the surface to the camera.
+        hair: ``(n,)`` bool: the surface is the hair mesh.
         mask: ``(R, H, W)`` bool: a surface covers the sample point.
-        hair: ``(R, H, W)`` bool: that surface is the hair mesh.
+        hair_mask: ``(R, H, W)`` bool: that surface is the hair mesh.
         depth: ``(R, H, W)`` camera depth of the visible surface (0 where none).
     """
 
     samples: int
+    index: torch.Tensor
     uv: torch.Tensor
     normal: torch.Tensor
     view: torch.Tensor
-    mask: torch.Tensor
     hair: torch.Tensor
+    mask: torch.Tensor
+    hair_mask: torch.Tensor
     depth: torch.Tensor
 
     @property
     def views(self) -> int:
         """``B``."""
         return self.depth.shape[0] // self.samples
-
-    def index(self) -> torch.Tensor:
-        """``(n,)`` flat indices of the covered sample points (into ``R * H * W``)."""
-        return torch.nonzero(self.mask.reshape(-1)).squeeze(1)
 
     def mean(self, images: torch.Tensor) -> torch.Tensor:
         """Per-sample images ``(R, C, H, W)`` -> ``(B, C, H, W)``, averaged over the
@@ -92,28 +93,38 @@ def _sample_cameras(c2w: torch.Tensor, intrinsics: torch.Tensor, samples: int
     return c2w.repeat(samples, 1, 1), k
 
 
-def _surface(part: MeshPart, cams: torch.Tensor, k: torch.Tensor, size: int,
-             still: torch.Tensor | None = None, cache: dict | None = None):
-    """``(fragments, uv (R, H, W, 2), normal (R, H, W, 3))`` of one mesh seen by
-    ``R`` cameras (its ``verts`` given for ``R / S`` views, repeated over the samples).
-    With ``still (F,)`` (the triangles that never move) and a ``cache`` kept between
-    frames seen by the same cameras, the still triangles are drawn once and each frame
-    draws the others over them (the same fragments)."""
+def _fragments(part: MeshPart, cams: torch.Tensor, k: torch.Tensor, size: int,
+               still: torch.Tensor | None = None, cache: dict | None = None):
+    """The fragments of one mesh seen by ``R`` cameras (its ``verts`` given for
+    ``R / S`` views, repeated over the samples). With ``still (F,)`` (the triangles that
+    never move) and a ``cache`` kept between frames seen by the same cameras, the still
+    triangles are drawn once and each frame draws the others over them (the same
+    fragments)."""
     verts = part.verts.repeat(cams.shape[0] // part.verts.shape[0], 1, 1)
     pix, depth = project(verts, cams, k)
     if still is None or cache is None:
-        frags = rasterize(pix, depth, part.faces, size, size, cull_backfaces=True)
-    else:
-        under = cache.get("still")
-        if under is None:
-            under = cache["still"] = rasterize(pix, depth, part.faces, size, size,
-                                               cull_backfaces=True, draw=still).zbuffer
-        frags = rasterize(pix, depth, part.faces, size, size, cull_backfaces=True,
-                          draw=~still, under=under)
-    uv = interpolate_face_corners(part.uv[part.faces_uv], frags)
-    normals = vertex_normals(verts, part.faces, part.normal_groups)
-    normal = interpolate_face_corners(normals[:, part.faces], frags)
-    return frags, uv, normal
+        return rasterize(pix, depth, part.faces, size, size, cull_backfaces=True)
+    under = cache.get("still")
+    if under is None:
+        under = cache["still"] = rasterize(pix, depth, part.faces, size, size,
+                                           cull_backfaces=True, draw=still).zbuffer
+    return rasterize(pix, depth, part.faces, size, size, cull_backfaces=True,
+                     draw=~still, under=under)
+
+
+def _attributes(part: MeshPart, frags, at: torch.Tensor, rows: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Texture coordinates ``(m, 2)`` and normals ``(m, 3)`` (not yet of unit length) of
+    one mesh's fragments at flat sample points ``at (m,)``, whose view of ``part.verts``
+    is ``rows (m,)``."""
+    fid = frags.face_id.reshape(-1).index_select(0, at)
+    bary = frags.bary.reshape(-1, 3).index_select(0, at)[..., None]
+    uv = (part.uv[part.faces_uv.index_select(0, fid)] * bary).sum(1)
+    normals = vertex_normals(part.verts, part.faces, part.normal_groups)
+    corners = part.faces.index_select(0, fid)  # (m, 3)
+    flat = rows[:, None] * normals.shape[1] + corners
+    normal = (normals.reshape(-1, 3)[flat.reshape(-1)].view(-1, 3, 3) * bary).sum(1)
+    return uv, normal
 
 
 def _view_directions(cams: torch.Tensor, k: torch.Tensor, h: int, w: int) -> torch.Tensor:
@@ -153,35 +164,54 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
     """
     b = c2w.shape[0]
     cams, k = _sample_cameras(c2w, intrinsics, samples)
-    frags, uv, normal = _surface(head, cams, k, size, still, cache)
+    frags = _fragments(head, cams, k, size, still, cache)
     mask = frags.face_id >= 0
     depth = frags.depth
     hair_mask = torch.zeros_like(mask)
+    drawn = []  # per hair mesh: (mesh, its rows, its fragments)
     for hair, items in hairs:
         rows = (items[None] + b * torch.arange(samples, device=c2w.device)[:, None]
                 ).reshape(-1)
-        hverts = hair.verts.expand(len(items), -1, -1)
-        hkey = ("hair", hair.verts.data_ptr(), tuple(hair.verts.shape), tuple(items.tolist()))
-        if cache is not None and hkey in cache:
-            hfrags, huv, hnormal = cache[hkey]
+        hkey = None if cache is None else (
+            "hair", hair.verts.data_ptr(), tuple(hair.verts.shape), tuple(items.tolist()))
+        if hkey is not None and hkey in cache:
+            hfrags = cache[hkey]
         else:
-            hfrags, huv, hnormal = _surface(dataclasses.replace(hair, verts=hverts),
-                                            cams[rows], k[rows], size)
+            hverts = hair.verts.expand(len(items), -1, -1)
+            hfrags = _fragments(dataclasses.replace(hair, verts=hverts), cams[rows], k[rows],
+                                size)
             if cache is not None:
-                cache[hkey] = hfrags, huv, hnormal
+                cache[hkey] = hfrags
         nearer = (hfrags.face_id >= 0) & (~mask[rows] | (hfrags.depth < depth[rows]))
         hair_mask = hair_mask.index_copy(0, rows, nearer)
-        sel = nearer[..., None]
-        uv = uv.index_copy(0, rows, torch.where(sel, huv, uv[rows]))
-        normal = normal.index_copy(0, rows, torch.where(sel, hnormal, normal[rows]))
         depth = depth.index_copy(0, rows, torch.where(nearer, hfrags.depth, depth[rows]))
         mask = mask.index_copy(0, rows, mask[rows] | nearer)
-    normal = torch.nn.functional.normalize(normal, dim=-1)
+        drawn.append((hair, rows, hfrags))
     h, w = mask.shape[1:]
+    index = torch.nonzero(mask.reshape(-1)).squeeze(1)
+    is_hair = hair_mask.reshape(-1).index_select(0, index)
+    row = index // (h * w)
+    uv = torch.zeros(len(index), 2, dtype=c2w.dtype, device=c2w.device)
+    normal = torch.zeros(len(index), 3, dtype=c2w.dtype, device=c2w.device)
+    own = torch.nonzero(~is_hair).squeeze(1)
+    at = index.index_select(0, own)
+    got = _attributes(head, frags, at, row.index_select(0, own) % b)
+    uv, normal = uv.index_copy(0, own, got[0]), normal.index_copy(0, own, got[1])
+    for hair, rows, hfrags in drawn:
+        # the hair's fragments are stored for its own rows: map each point's row there
+        slot = torch.full((cams.shape[0],), -1, dtype=torch.long, device=c2w.device)
+        slot[rows] = torch.arange(len(rows), device=c2w.device)
+        mine = torch.nonzero(is_hair & (slot[row] >= 0)).squeeze(1)
+        local = slot[row.index_select(0, mine)] * (h * w) + index.index_select(0, mine) % (
+            h * w)
+        got = _attributes(hair, hfrags, local, torch.zeros_like(mine))
+        uv, normal = uv.index_copy(0, mine, got[0]), normal.index_copy(0, mine, got[1])
+    normal = torch.nn.functional.normalize(normal, dim=-1)
     if cache is None:
         view = _view_directions(cams, k, h, w)
     else:
         view = cache.get("view")
         if view is None:
             view = cache["view"] = _view_directions(cams, k, h, w)
-    return GBuffer(samples, uv, normal, view, mask, hair_mask, depth)
+    view = view.reshape(-1, 3).index_select(0, index)
+    return GBuffer(samples, index, uv, normal, view, is_hair, mask, hair_mask, depth)

@@ -141,7 +141,9 @@ class HeadRenderer:
                                     device=self.device)
         self._still_vertices = torch.as_tensor(~np.any(deltas != 0, axis=(0, 2)),
                                                device=self.device)
-        self.texture = texture.to(self.device)[None]
+        # channels last: the deferred generator reads its texels row by row (a view)
+        self.texture = texture.to(self.device)[None].contiguous(
+            memory_format=torch.channels_last)
         self.last_reuse = None
         """The :class:`~head360cli.model.reuse.DecodeReuse` of the latest :meth:`frames`
         (its counts of points decoded and asked for), ``None`` if it reused nothing."""

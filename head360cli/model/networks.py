@@ -285,6 +285,18 @@ a fresh mapping whose page faults cost more than the arithmetic; in blocks of 32
 (8 MB) the heap reuses them."""
 
 
+def _mlp(net: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
+    """``net(x)`` for a stack of linear layers and ReLUs; in a render on a CPU (no
+    gradients, see :func:`onednn_decodes`) through oneDNN's linear op, the ReLUs in
+    place."""
+    if not onednn_decodes(x):
+        return net(x)
+    for layer in net:
+        x = (_cpu_linear(x, layer.weight, layer.bias) if isinstance(layer, nn.Linear)
+             else x.relu_())
+    return x
+
+
 class PixelShader(nn.Module):
     """The deferred renderer's per-point decoder: ``colour = albedo x light + residual``.
 
@@ -315,7 +327,7 @@ class PixelShader(nn.Module):
                 ) -> torch.Tensor:
         """``(n, 3)`` the light at points of ``normal``, ``view``, ``hair (n, 1)``."""
         x = torch.cat([normal, view, hair], -1)
-        return F.softplus(self.light(x))
+        return F.softplus(_mlp(self.light, x))
 
     def forward(self, feats: torch.Tensor, normal: torch.Tensor, view: torch.Tensor,
                 hair: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -326,7 +338,7 @@ class PixelShader(nn.Module):
             out = self.net(x)
             light = self.shading(normal, view, hair)
         else:  # blocks small enough for the allocator to reuse (see SHADER_BLOCK)
-            out = torch.cat([self.net(part) for part in x.split(SHADER_BLOCK)])
+            out = torch.cat([_mlp(self.net, part) for part in x.split(SHADER_BLOCK)])
             light = torch.cat([self.shading(*parts) for parts in zip(
                 normal.split(SHADER_BLOCK), view.split(SHADER_BLOCK),
                 hair.split(SHADER_BLOCK), strict=True)])
