@@ -36,6 +36,8 @@ class Settings:
     """Print one machine-readable JSON object on stdout instead of text."""
     debug: bool = False
     """Show full tracebacks for errors."""
+    overwrite: bool = False
+    """Let an output replace one of the command's own input files."""
 
 
 def current_settings() -> Settings:
@@ -153,9 +155,32 @@ def _set_threads(ctx: click.Context, param: click.Parameter, value: int | None) 
         configure_threads(value)
 
 
+def _guard_inputs(f: Callable[..., Any]) -> Callable[..., Any]:
+    """``f`` run with its command's input files protected: an output that is one of them
+    (by path, link or inode) is refused unless ``--overwrite``
+    (:func:`~head360cli.io.atomic.protect_inputs`)."""
+    import functools
+
+    @functools.wraps(f)
+    def guarded(*args: Any, **kwargs: Any) -> Any:
+        from head360cli.io.atomic import protect_inputs
+
+        ctx = click.get_current_context()
+        inputs = []
+        for param in ctx.command.params:
+            if isinstance(param.type, InputPath) and ctx.params.get(param.name) is not None:
+                value = ctx.params[param.name]
+                inputs += list(value) if isinstance(value, tuple | list) else [value]
+        with protect_inputs(inputs, current_settings().overwrite):
+            return f(*args, **kwargs)
+
+    return guarded
+
+
 def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
-    """Add --device/--quiet/--json/--debug/--threads to a command (they also work on the
-    group)."""
+    """Add --device/--quiet/--json/--debug/--threads/--overwrite to a command (they also
+    work on the group), and protect its input files from its outputs."""
+    f = _guard_inputs(f)
     options = [
         click.option("--device", default=None, expose_value=False, callback=_set("device"),
                      help="Torch device: cpu (default), cuda, cuda:N or auto."),
@@ -169,6 +194,9 @@ def common_options(f: Callable[..., Any]) -> Callable[..., Any]:
                      expose_value=False, callback=_set_threads,
                      help="Most threads to run (default: the CPUs this process may use; "
                      "also $HEAD360_THREADS). 1 for each of several jobs side by side."),
+        click.option("--overwrite", is_flag=True, default=False, expose_value=False,
+                     callback=_set("overwrite"),
+                     help="Let an output replace one of the command's input files."),
     ]
     for option in reversed(options):
         f = option(f)

@@ -38,6 +38,55 @@ __all__ = [
 ]
 
 
+_INPUTS: list[tuple[str, os.stat_result]] = []
+"""The files the running command reads (:func:`protect_inputs`), which no output may
+replace."""
+
+
+@contextlib.contextmanager
+def protect_inputs(paths, allow: bool = False) -> Iterator[None]:
+    """Inside the ``with`` block, refuse to write over any of the existing regular files
+    ``paths`` (the same file by path, link or hard link: device and inode), unless
+    ``allow`` (``--overwrite``). A command whose output names one of its inputs (``-o
+    clip.mp4`` for ``--video clip.mp4``) would otherwise replace it."""
+    own = list(_INPUTS)
+    if not allow:
+        for p in paths:
+            try:
+                st = os.stat(p)
+            except (OSError, ValueError, TypeError):
+                continue
+            if stat.S_ISREG(st.st_mode):
+                _INPUTS.append((os.fspath(p), st))
+    try:
+        yield
+    finally:
+        _INPUTS[:] = own
+
+
+def check_not_an_input(target: str | os.PathLike[str]) -> None:
+    """Refuse ``target`` when it is one of the files the command reads
+    (:func:`protect_inputs`).
+
+    Raises:
+        BadInputError: Naming the input and the option that allows it.
+    """
+    if not _INPUTS:
+        return
+    try:
+        st = os.stat(target)
+    except (OSError, ValueError):
+        return
+    for name, seen in _INPUTS:
+        if (st.st_dev, st.st_ino) == (seen.st_dev, seen.st_ino):
+            from head360cli.errors import BadInputError
+
+            same = "" if os.fspath(target) == name else f" ({name})"
+            raise BadInputError(f"expected an output other than the inputs, found "
+                                f"{os.fspath(target)!r}, an input{same}; give --overwrite "
+                                f"to replace it")
+
+
 def write_target(target: str | os.PathLike[str]) -> Path:
     """Where a write to ``target`` goes: where a symbolic link at ``target`` leads
     (followed to the end, as a shell's ``>`` follows it; it need not exist yet), else
@@ -181,6 +230,7 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     """
     target = write_target(target)
     _check_file_name(target)  # no test file: making the temporary name below is the test
+    check_not_an_input(target)
     try:
         tmp = temp_name_beside(target)
     except OSError as exc:
@@ -323,6 +373,7 @@ def check_file_target(target: str | os.PathLike[str]) -> None:
     work before the write check first). A symbolic link is checked where it leads."""
     target = write_target(target)
     _check_file_name(target)
+    check_not_an_input(target)
     check_writable(target.parent)
 
 
