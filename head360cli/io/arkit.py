@@ -40,7 +40,14 @@ from typing import IO, TYPE_CHECKING, Literal
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError
-from head360cli.mesh.arkit52 import ARKIT52, INDEX, NUM_BLENDSHAPES, canonical_name, split_part
+from head360cli.mesh.arkit52 import (
+    ARKIT52,
+    INDEX,
+    MEDIAPIPE_BLENDSHAPES,
+    NUM_BLENDSHAPES,
+    canonical_name,
+    split_part,
+)
 
 if TYPE_CHECKING:
     from head360cli.io.sources import NamedBytes
@@ -85,6 +92,12 @@ _SECONDS_COLUMNS = {"time", "timestamp", "seconds", "t", "time_s", "timestamp_s"
 _MS_COLUMNS = {"time_ms", "timestamp_ms", "ms"}
 _FRAME_COLUMNS = {"frame", "frame_index", "frameindex", "frame_number", "index"}
 _IGNORED_KNOWN = {"blendshapecount", "_neutral", "neutral"}
+
+
+_MEDIAPIPE_SHAPES = frozenset(MEDIAPIPE_BLENDSHAPES[1:])
+"""The 51 ARKit names MediaPipe's face model scores (all but tongueOut): a file with
+exactly these is MediaPipe's layout, written by head360's ``--format mediapipe`` or by
+MediaPipe itself."""
 
 
 @dataclasses.dataclass
@@ -427,11 +440,14 @@ def read_arkit_csv(
             f"{weights.min():.4g} to {weights.max():.4g})"
         )
         np.clip(weights, 0.0, 1.0, out=weights)
-    if layout.missing:
+    missing = list(layout.missing)
+    if layout.source_format == "mediapipe" and "tongueOut" in missing:
+        missing.remove("tongueOut")  # MediaPipe's face model has none: nothing lost
+    if missing:
         warnings.append(
-            f"{len(layout.missing)} of 52 blendshapes missing, set to zero: "
-            + ", ".join(layout.missing[:6])
-            + (" ..." if len(layout.missing) > 6 else "")
+            f"{len(missing)} of 52 blendshapes missing, set to zero: "
+            + ", ".join(missing[:6])
+            + (" ..." if len(missing) > 6 else "")
         )
 
     if times is None:
@@ -603,8 +619,8 @@ class _Layout:
         lowered = {h.casefold() for h in header}
         if time_kind == "timecode" and lowered & {"blendshapecount"}:
             source_format = "livelinkface"
-        elif "_neutral" in lowered:
-            source_format = "mediapipe"
+        elif "_neutral" in lowered or (set(whole) == _MEDIAPIPE_SHAPES and not halves):
+            source_format = "mediapipe"  # its model has no tongueOut
         elif all(header[i] == name for name, i in whole.items()) and not halves:
             source_format = "arkit"
         else:
@@ -882,8 +898,6 @@ def write_arkit_csv(
         if flavor == "arkit":
             names, scale, time_name = list(ARKIT52), 1.0, "time"
         else:
-            from head360cli.mesh.arkit52 import MEDIAPIPE_BLENDSHAPES
-
             names, scale, time_name = list(MEDIAPIPE_BLENDSHAPES[1:]), 1000.0, "timestamp_ms"
         cols = [INDEX[name] for name in names]
         header = [time_name, *names, *rot_names]

@@ -520,3 +520,29 @@ def test_inspect_and_animate_take_the_stream_s_rate(run_cli, tmp_path):
     import json
 
     assert json.loads(r.out)["fps"] == 60.0
+
+
+def test_a_mediapipe_file_head360_writes_reads_back_without_warnings(tmp_path):
+    """MediaPipe's face model scores 51 of the 52 shapes (no tongueOut): its layout, as
+    head360 writes it, reads back as MediaPipe's, with nothing said about tongueOut; a
+    file that lacks another shape still says so."""
+    import numpy as np
+
+    from head360cli.io.arkit import ArkitStream, read_arkit_csv, write_arkit_csv
+
+    rng = np.random.default_rng(0)
+    stream = ArkitStream(rng.uniform(0, 1, (12, 52)).astype(np.float32),
+                         np.arange(12) / 30.0, 30.0)
+    path = tmp_path / "mp.csv"
+    write_arkit_csv(stream, path, flavor="mediapipe")
+    back = read_arkit_csv(path)
+    assert back.warnings == [] and back.source_format == "mediapipe"
+    assert back.columns_missing == ["tongueOut"]
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    drop = header.index("jawOpen")
+    cut = tmp_path / "cut.csv"
+    cut.write_text("\n".join(",".join(c for i, c in enumerate(line.split(",")) if i != drop)
+                             for line in lines) + "\n")
+    warned = read_arkit_csv(cut).warnings
+    assert any("blendshapes missing, set to zero: jawOpen" in w for w in warned)
