@@ -23,7 +23,7 @@ def face_frames(tmp_path_factory):
 
 
 @pytest.mark.parametrize(("fmt", "kind"), [("livelinkface", "livelinkface"),
-                                           ("mediapipe", "arkit"), ("generic", "arkit")])
+                                           ("mediapipe", "mediapipe"), ("generic", "arkit")])
 def test_track_writes_a_stream_inspect_reads(run_cli, face_frames, tmp_path, fmt, kind):
     out = tmp_path / "take.csv"
     r = run_cli("--json", "track", face_frames, "-o", out, "--format", fmt, "--fps", "25")
@@ -42,6 +42,24 @@ def test_track_writes_a_stream_inspect_reads(run_cli, face_frames, tmp_path, fmt
     stream = read_arkit_csv(out)
     assert stream.weights[:, INDEX["mouthSmileLeft"]].min() > 0.3  # the astronaut smiles
     assert stream.head_rotation is not None and np.abs(stream.head_rotation).max() < 0.5
+
+
+def test_track_writes_a_stream_to_standard_output(run_cli, face_frames):
+    """``-o -``: the CSV on standard output (to pipe into ``animate --arkit -``), the
+    summary on standard error, JSON there too under --json."""
+    import io
+
+    from head360cli.io.arkit import read_arkit_csv
+
+    r = run_cli("track", face_frames, "-o", "-", "--fps", "25")
+    assert r.code == 0, r.err
+    stream = read_arkit_csv(io.StringIO(r.out))
+    assert stream.num_frames == 8 and stream.warnings == []
+    assert "tracked 8 of 8 frames" in r.err and "standard output" in r.err
+    r = run_cli("--json", "track", face_frames, "-o", "-", "--fps", "25", "--format",
+                "generic")
+    assert r.code == 0 and r.out.startswith("time,")
+    assert json.loads(r.err.strip().splitlines()[-1])["out"] == "-"
 
 
 def test_track_refuses_inputs_that_hold_no_face_or_no_video(run_cli, tmp_path):

@@ -224,6 +224,18 @@ def emit(result: dict[str, Any], text: str) -> None:
                             f"{exc.strerror or exc}") from None
 
 
+def emit_to_stderr(result: dict[str, Any], text: str) -> None:
+    """:func:`emit` on standard error, for a command whose standard output carries its
+    data (``track -o -``); nothing under ``--quiet`` unless ``--json``."""
+    settings = current_settings()
+    if settings.json:
+        from head360cli.io.jsontext import dumps
+
+        click.echo(dumps(result), err=True)
+    elif not settings.quiet:
+        click.echo(text.rstrip("\n"), err=True)
+
+
 def drop_stdout() -> None:
     """Send what is left for standard output nowhere, once writing it failed: the text
     still buffered would fail again when Python flushes it at exit, printed as an

@@ -20,6 +20,7 @@ from head360cli.cli.base import (
     cpu_only_warning,
     current_settings,
     emit,
+    emit_to_stderr,
     progress_printer,
     warn,
     warn_unused,
@@ -266,8 +267,9 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
 
 @cli.command()
 @click.argument("source", metavar="INPUT", type=InputPath(exists=True, allow_dash=True))
-@click.option("-o", "--out", required=True, type=OutputPath(dir_okay=False),
-              help="The CSV stream to write (written whole at the end, never half).")
+@click.option("-o", "--out", required=True, type=OutputPath(dir_okay=False, allow_dash=True),
+              help="The CSV stream to write (written whole at the end, never half); - for "
+                   "standard output (the summary then goes to standard error).")
 @click.option("--format", "fmt", type=click.Choice(["livelinkface", "mediapipe", "generic"]),
               default="livelinkface", show_default=True,
               help="livelinkface: Timecode, BlendshapeCount, the app's 52 columns and 9 "
@@ -300,24 +302,40 @@ def track(source: str, out: str, fmt: str, smooth: float, face: int, start: floa
       head360 track frames/ --fps 25 --format generic -o take.csv
       cat clip.webm | head360 track - -o take.csv --smooth 0 --json
       head360 track clip.mp4 -o take.csv && head360 animate me.h360 --arkit take.csv -o me.mp4
+      head360 track clip.mp4 -o - | head360 animate me.h360 --arkit - -o me.mp4
     """
     from head360cli.io.arkit import write_arkit_csv
     from head360cli.io.atomic import check_file_target
     from head360cli.perception.track import TrackConfig, track_video
 
-    if Path(out).suffix.lower() not in (".csv", ".txt"):
-        raise BadInputError(f"expected an output ending in .csv, found {out!r}")
+    to_stdout = out == "-"
+    if not to_stdout and Path(out).suffix.lower() not in (".csv", ".txt"):
+        raise BadInputError(f"expected an output ending in .csv (or - for standard output), "
+                            f"found {out!r}")
     cfg = TrackConfig(face=face, start=start, end=end, smooth=smooth, on_bad=on_bad, fps=fps)
-    check_file_target(out)  # before the video is read
+    if not to_stdout:
+        check_file_target(out)  # before the video is read
     cpu_only_warning("track", "tracks")
     show = progress_printer()
     bar = None if show is None else (lambda done, total: show("track", done, total))
     stream, summary = track_video(source, cfg, progress=bar)
     flavor = {"livelinkface": "livelinkface", "mediapipe": "mediapipe", "generic": "arkit"}[fmt]
-    write_arkit_csv(stream, out, flavor=flavor)
+    if to_stdout:  # the whole text at once, as a file is written whole
+        import io
+
+        text = io.StringIO()
+        write_arkit_csv(stream, text, flavor=flavor)
+        click.echo(text.getvalue(), nl=False)
+    else:
+        write_arkit_csv(stream, out, flavor=flavor)
     for message in summary["warnings"]:
         warn(message)
     summary["out"], summary["format"] = out, fmt
-    emit(summary, f"tracked {summary['frames_with_face']} of {summary['frames']} frames "
-                  f"({summary['tracking_fps']:g} frames/s tracking, "
-                  f"{summary['fps_all_in']:g} with decoding) -> {out}")
+    line = (f"tracked {summary['frames_with_face']} of {summary['frames']} frames "
+            f"({summary['tracking_fps']:g} frames/s tracking, "
+            f"{summary['fps_all_in']:g} with decoding) -> "
+            f"{'standard output' if to_stdout else out}")
+    if to_stdout:  # standard output carries the stream: the summary goes beside it
+        emit_to_stderr(summary, line)
+    else:
+        emit(summary, line)
