@@ -262,6 +262,23 @@ def warn_unused(names: tuple[str, ...], why: str) -> None:
         warn(f"{' and '.join(flags)} {'is' if len(flags) == 1 else 'are'} not used {why}")
 
 
+def refuse_given(names: tuple[str, ...], why: str) -> None:
+    """Refuse the options among ``names`` (parameter names) that were given on the
+    command line though they conflict ``why`` (for example "with --views"), in one line.
+
+    Raises:
+        BadInputError: Naming each such option.
+    """
+    from click.core import ParameterSource
+
+    ctx = click.get_current_context()
+    flags = [p.opts[0] for p in ctx.command.params if p.name in names
+             and ctx.get_parameter_source(p.name) is not ParameterSource.DEFAULT]
+    if flags:
+        raise BadInputError(f"expected no {' or '.join(flags)} {why}, found "
+                            f"{' and '.join(flags)}")
+
+
 def cpu_only_warning(command: str, does: str = "measures") -> None:
     """Warn that ``command`` ``does`` (measures, renders, ...) on the CPU when --device
     names another device (every command takes --device; these would otherwise ignore it

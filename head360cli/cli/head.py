@@ -22,6 +22,7 @@ from head360cli.cli.base import (
     drop_stdout,
     emit,
     progress_printer,
+    refuse_given,
     stdin_path,
     warn,
     warn_unused,
@@ -211,6 +212,8 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
     check_angles(yaw, pitch)
     if turntable and views is not None:
         raise BadInputError("expected --turntable or --views, found both")
+    if views is not None:
+        refuse_given(("yaw", "pitch"), "with --views (it gives every view's angles)")
     if turntable and not 1 <= frames <= 3600:
         raise BadInputError(f"expected --frames between 1 and 3600, found {frames}")
     if not turntable:
@@ -388,8 +391,8 @@ def animate(head: str | None, arkit: str | None, video: str | None, side_by_side
             warn(f"--workers {workers} is not used with {why}: this process renders "
                   "every frame")
     if video is not None:
-        warn_unused(("smooth", "stream_fps", "workers", "batch"),
-                    "with --video (the tracker filters; this process renders)")
+        refuse_given(("smooth", "stream_fps", "workers", "batch"),
+                     "with --video (the tracker filters its readings; this process renders)")
         _animate_video(head, video, out, side_by_side, head_pose, fps, start, end, yaw,
                        pitch, on_bad, no_hair, backend, onnx_path, samples, size, exact,
                        precision)

@@ -369,3 +369,17 @@ def test_a_fitted_head_is_neutral_by_default_and_smiles_with_expr_photo(
     run_cli("render", fitted_astronaut.head, *args, "--expr", named, "-o", tmp_path / "b.png")
     by_name = np.asarray(Image.open(tmp_path / "b.png")).astype(int)
     assert np.abs(by_name - photo).max() <= 2
+
+
+def test_options_that_conflict_are_refused_in_one_line(run_cli, head_file, tmp_path):
+    """--views gives every view's angles, so a --yaw beside it would be dropped; --video
+    tracks and filters its own readings, so --stream-fps or --smooth would do nothing.
+    Each is refused before anything is loaded, and nothing is written."""
+    out = tmp_path / "v.png"
+    r = run_cli("render", head_file, "--views", "0,90", "--yaw", "45", "-o", out)
+    assert r.code == 3 and "expected no --yaw with --views" in r.err
+    assert len(r.err.strip().splitlines()) == 1 and not out.exists()
+    r = run_cli("animate", head_file, "--video", tmp_path / "none.mp4", "--stream-fps",
+                "30", "-o", tmp_path / "a.mp4")
+    assert r.code == 3 and "expected no --stream-fps with --video" in r.err
+    assert len(r.err.strip().splitlines()) == 1 and not (tmp_path / "a.mp4").exists()
