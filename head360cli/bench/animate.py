@@ -577,7 +577,7 @@ def _markdown(r: dict[str, Any]) -> str:
              f"{head}Stream: {r['stream']} ({r['stream_frames']} frames); on {where}.",
              "", "## Throughput, 256 x 256 (render only)", "",
              f"| samples | networks | frames/s | ms/frame | PSNR vs "
-             f"{r['speed'][0]['reference_samples']} samples |",
+             f"{r['speed'][0]['reference_samples'] if r['speed'] else '-'} samples |",
              "|---|---|---|---|---|"]
     lines += [f"| {s['samples']} | {s['precision']} | {s['fps']:.1f} | "
               f"{s['ms_per_frame']:.0f} | {s['psnr_vs_reference']:.2f} |"

@@ -178,6 +178,20 @@ def bake_head(renderer, size: int = 512, views=BAKE_VIEWS, progress: Any = None
     return texture, hair_colours
 
 
+def _smoothed(colour: np.ndarray, known: np.ndarray, rounds: int = 24) -> np.ndarray:
+    """``colour (H, W, C)`` with its unknown texels (``~known``) relaxed towards the mean
+    of their neighbours ``rounds`` times, the known ones held: where two fronts of
+    :func:`grow_fill` meet (the template's seam band, between sharply textured islands)
+    no step is left."""
+    import cv2
+
+    out = colour.astype(np.float32)
+    free = ~known
+    for _ in range(rounds):
+        out[free] = cv2.blur(out, (3, 3))[free]
+    return out.astype(np.float64)
+
+
 def _shaded(renderer, texture, uv, normals, hair: bool):
     """Colours ``(N, 3)`` in [0, 1] of points at ``uv (N, 2)`` on ``texture (1, C, R,
     R)`` with ``normals (N, 3)``, seen squarely, as the deferred generator's shader (and
@@ -220,8 +234,8 @@ def _bake_deferred(renderer, size: int, progress: Any):
     colour = np.zeros((size, size, 3))
     colour[m.numpy()] = _shaded(renderer, renderer.texture, uv[m], surf.normals[m],
                                 False).numpy()
-    texture = np.clip(grow_fill(colour, m.numpy().astype(np.float64)) * 255 + 0.5, 0,
-                      255).astype(np.uint8)
+    filled = _smoothed(grow_fill(colour, m.numpy().astype(np.float64)), m.numpy())
+    texture = np.clip(filled * 255 + 0.5, 0, 255).astype(np.uint8)
     if progress:
         progress("bake", 1, 2)
     hair_colours = None

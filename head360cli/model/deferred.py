@@ -146,18 +146,18 @@ class DeferredGenerator(nn.Module):
 
     def image_size(self, size: int | None) -> contextlib.AbstractContextManager:
         """Render ``size`` x ``size`` images inside the ``with`` block (``None``: the
-        trained size); the low-resolution copies keep their ratio.
+        trained size); the low-resolution copies keep about their ratio.
 
         Raises:
-            ValueError: ``size`` is not a multiple of ``image_res / render_res``.
+            ValueError: ``size`` is odd or under 16.
         """
         if size is None:
             return self._override()
+        if size < 16 or size % 2:
+            raise ValueError(f"expected an image size that is a multiple of 2 and at least "
+                             f"16, found {size}")
         ratio = self.cfg.image_res // self.cfg.render_res
-        if size < ratio * 8 or size % ratio:
-            raise ValueError(f"expected an image size that is a multiple of {ratio} and at "
-                             f"least {ratio * 8}, found {size}")
-        return self._override(image_res=int(size), render_res=int(size) // ratio)
+        return self._override(image_res=int(size), render_res=max(int(size) // ratio, 1))
 
     def texture(self, code: torch.Tensor) -> torch.Tensor:
         """``(B, code_dim)`` -> neural texture ``(B, C, R, R)``."""
@@ -304,9 +304,8 @@ class DeferredGenerator(nn.Module):
             rgb, alpha = self._net(self.refine, image, coverage)
         else:
             rgb, alpha = image[:, :3] + (1.0 - coverage), coverage
-        ratio = c.image_res // c.render_res
-        low = [F.avg_pool2d(x, ratio) for x in (rgb, alpha, hair_alpha)]
-        depth = F.avg_pool2d(buf.depth[:b, None], ratio)
+        low = [F.adaptive_avg_pool2d(x, c.render_res) for x in (rgb, alpha, hair_alpha)]
+        depth = F.adaptive_avg_pool2d(buf.depth[:b, None], c.render_res)
         out = {"rgb": rgb, "alpha": alpha, "hair_alpha": hair_alpha, "rgb_low": low[0],
                "alpha_low": low[1], "hair_alpha_low": low[2], "depth_low": depth,
                "texture": texture, "residual": residual}

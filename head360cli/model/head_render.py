@@ -412,10 +412,10 @@ class HeadRenderer:
         reuse = (DecodeReuse(self.reuse, self._still_vertices, camera_moves=moves)
                  if self.reuse is not None and batch == 1 and len(c2w) > 1
                  and self.gen.kind == "hexplane" else None)
+        self.last_reuse = reuse
         if self.gen.kind == "deferred" and batch == 1 and len(c2w) > 1 and not moves:
             # a still camera: the deferred generator draws what no frame moves once
             reuse = {"still_faces": self._still_vertices[self.gen.faces].all(1)}
-        self.last_reuse = reuse
         for i in range(0, len(c2w), batch):
             cams = c2w[i:i + batch].to(self.device)
             n = len(cams)

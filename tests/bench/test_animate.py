@@ -163,8 +163,8 @@ def test_bench_on_a_given_head_without_fidelity_needs_no_dlib(head_file, monkeyp
             return value
         return part
 
-    speed = [{"samples": 8, "precision": "fp32", "fps": 1.0, "ms_per_frame": 1.0,
-              "psnr_vs_32_samples": 40.0}]
+    speed = [{"samples": 2, "precision": "fp32", "fps": 1.0, "ms_per_frame": 1.0,
+              "reference_samples": 4, "psnr_vs_reference": 40.0}]
     swap = {"own_style": "bob", "views_yaw": [0], "styles": [], "mean_psnr_face": 0.0,
             "mean_psnr_hull": 0.0}
     monkeypatch.setattr(bench, "_speed", record("speed", speed))
@@ -172,18 +172,19 @@ def test_bench_on_a_given_head_without_fidelity_needs_no_dlib(head_file, monkeyp
              "fps": 2.0, "ms_per_frame": 500.0, "fps_exact": 1.0, "ms_per_frame_exact": 1e3,
              "decoded_share": 0.2, "psnr_vs_exact_min": 70.0, "max_abs_vs_exact": 1e-4}
     monkeypatch.setattr(bench, "_reuse", record("reuse", reuse))
-    resolution = [{"size": 256, "samples": 8, "precision": "fp32", "fps": 1.0,
-                   "ms_per_frame": 1.0, "psnr_vs_32_samples_same_size": 40.0,
-                   "psnr_vs_32_samples_256px": 40.0}]
+    resolution = [{"size": 256, "samples": 2, "precision": "fp32", "fps": 1.0,
+                   "ms_per_frame": 1.0, "reference_samples": 4,
+                   "psnr_vs_reference_same_size": 40.0, "psnr_vs_reference_256px": 40.0}]
     monkeypatch.setattr(bench, "_resolution", record("resolution", resolution))
     monkeypatch.setattr(bench, "_swap", record("swap", swap))
     monkeypatch.setattr(bench, "_stream", lambda data: (
         ArkitStream(np.zeros((10, 52), np.float32), np.arange(10) / 30.0, 30.0), None))
     result, md = bench.bench_animate(frames=8, memory=False, head_path=head_file,
                                      fidelity=False, device="cpu")
-    assert [name for name, _, _ in seen] == ["speed", "reuse", "resolution", "swap"]
+    # a deferred head: no decoded points to reuse
+    assert [name for name, _, _ in seen] == ["speed", "resolution", "swap"]
     assert all(head == head_file for _, head, _ in seen)
-    assert [device for name, _, device in seen if name != "reuse"] == ["cpu"] * 3
+    assert [device for name, _, device in seen] == ["cpu"] * 3
     assert result["device"] == "cpu" and result["head"] == head_file.name
     assert "fidelity" not in result and "memory" not in result
     assert "Expression fidelity" not in md and "on cpu, " in md

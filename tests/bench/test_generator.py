@@ -15,13 +15,26 @@ from head360cli.model.train import CHECKPOINT, TrainConfig, load_generator, save
 from tests.model.test_generator import TINY
 
 
+def _tiny(folder, cfg, name):
+    train(folder / name, TrainConfig(identities=2, steps=4, batch=2, log_every=2), cfg,
+          progress=False)
+    save_generator(folder / name / CHECKPOINT, folder / f"{name}.pt")
+    return folder / f"{name}.pt"
+
+
 @pytest.fixture(scope="module")
 def tiny_weights(tmp_path_factory):
-    run = tmp_path_factory.mktemp("bench")
-    train(run / "run", TrainConfig(identities=2, steps=4, batch=2, log_every=2),
-          TINY, progress=False)
-    save_generator(run / "run" / CHECKPOINT, run / "tiny.pt")
-    return run / "tiny.pt"
+    """A tiny deferred generator (the default kind), trained for 4 steps."""
+    return _tiny(tmp_path_factory.mktemp("bench"), TINY, "tiny")
+
+
+@pytest.fixture(scope="module")
+def tiny_hexplane_weights(tmp_path_factory):
+    """A tiny hex-plane generator, trained for 4 steps."""
+    import dataclasses
+
+    return _tiny(tmp_path_factory.mktemp("bench"), dataclasses.replace(
+        TINY, renderer="hexplane"), "hex")
 
 
 def test_psnr_and_ssim_golden_values():
@@ -56,24 +69,29 @@ def test_fit_code_lowers_the_image_error(tiny_weights):
 
 
 @pytest.mark.slow
-def test_bench_rows_for_two_weights_and_the_sweep(tiny_weights, tmp_path):
+def test_bench_rows_for_several_weights_and_the_sweep(tiny_weights, tiny_hexplane_weights,
+                                                     tmp_path):
+    """A deferred and a hex-plane generator compared in one run (and a copy of the
+    first, which scores the same); the speed sweep is the first's: samples a pixel."""
     other = tmp_path / "other.pt"
     other.write_bytes(tiny_weights.read_bytes())
-    result, md = bench_generator([str(tiny_weights), str(other)], train_ids=1, test_ids=1,
-                                 fit_steps=2, cameras=2)
+    result, md = bench_generator([str(tiny_weights), str(other), str(tiny_hexplane_weights)],
+                                 train_ids=1, test_ids=1, fit_steps=2, cameras=2)
     views = [(r["model"], r["views"]) for r in result["quality"]]
     names = ["bald, held-out views", "hair, held-out views", "hair swap",
-             "held-out ids, bald", "held-out ids, hair"]
-    assert views == [("tiny", v) for v in names] + [("other", v) for v in names]
+             "held-out ids, bald", "held-out ids, hair", "held-out ids + texture, bald",
+             "held-out ids + texture, hair"]
+    assert views == [(m, v) for m in ("tiny", "other", "hex") for v in names]
     for row in result["quality"]:
         assert row["n"] == 2 and 3 < row["psnr"] < 60 and -1 <= row["ssim"] <= 1
     # The same weights score the same on the same views.
-    assert result["quality"][0] == {**result["quality"][5], "model": "tiny"}
+    n = len(names)
+    assert result["quality"][:n] == [{**r, "model": "tiny"} for r in result["quality"][n:2 * n]]
     sweep = result["sweep"]
-    assert sweep[0]["samples"] == TINY.samples and sweep[0]["plane_res"] == TINY.plane_res
-    assert len(sweep) == len({(r["samples"], r["plane_res"]) for r in sweep}) >= 4
+    assert sweep[0]["pixel_samples"] == TINY.pixel_samples
+    assert sorted(r["pixel_samples"] for r in sweep) == [1, 2, 4]
     assert all(r["ms_bald"] > 0 and r["ms_hair"] > 0 for r in sweep)
-    assert "hair swap" in md and "Speed against quality" in md
+    assert "hair swap" in md and "Speed against quality" in md and "deferred" in md
     json.dumps(result)
 
 

@@ -206,8 +206,9 @@ def test_cli_animate_and_render_read_pipes(run_cli, head_file, tmp_path, pipe):
 
 
 def test_cli_animate_exact_decodes_every_point_and_agrees(run_cli, head_file, tmp_path):
-    """With a still camera frames reuse the points whose inputs barely moved; --exact
-    decodes every point. The two give the same frames to within a level or two."""
+    """With a still camera the deferred generator draws what no frame moves once, which
+    changes nothing; --exact (which turns off a hex-plane generator's reuse of decoded
+    points) gives the same frames, and neither reports a share of decoded points."""
     import imageio.v3 as iio
 
     from head360cli.io.arkit import write_arkit_csv
@@ -218,11 +219,10 @@ def test_cli_animate_exact_decodes_every_point_and_agrees(run_cli, head_file, tm
         r = run_cli("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
                     tmp_path / name, "--size", "64", "--samples", "4", "--json", *extra)
         assert r.code == 0, r.err
-        share = json.loads(r.out).get("decoded_share")
-        assert (share is None) if name == "exact" else (0 < share < 1)
+        assert json.loads(r.out).get("decoded_share") is None
         got[name] = np.stack([iio.imread(p) for p in sorted((tmp_path / name).iterdir())])
     assert got["reuse"].shape == got["exact"].shape == (6, 64, 64, 3)
-    assert np.abs(got["reuse"].astype(int) - got["exact"]).max() <= 2
+    assert np.abs(got["reuse"].astype(int) - got["exact"]).max() <= 1
 
 
 def test_cli_animate_batch_renders_the_same_frames(run_cli, head_file, tmp_path):
