@@ -232,8 +232,7 @@ def export_onnx(renderer, out: str | Path, progress: Any = None, cull: bool = Tr
     t0 = time.perf_counter()
     meta = {"format_version": GRAPH_FORMAT if gen.kind == "deferred" else 2,
             "generator": gen.kind,
-            "samples": (gen.cfg.pixel_samples if gen.kind == "deferred"
-                        else renderer.samples),
+            "samples": renderer.samples,
             "size": renderer.size, "cull": bool(cull),
             "generator_sha256": generator_hash(),
             "texture_channels": gen.cfg.texture_channels,
@@ -282,7 +281,8 @@ def _export_graph(renderer, hair: bool, path: Path, cull: bool, meta: dict[str, 
             names += ["hair_verts", "hair_faces", "hair_planes"]
             if gen.kind == "deferred":
                 names.append("hair_uv")
-        with torch.no_grad(), gen.samples_per_ray(renderer.samples), \
+        samples = gen.pixel_samples if gen.kind == "deferred" else gen.samples_per_ray
+        with torch.no_grad(), samples(renderer.samples), \
                 gen.image_size(renderer.size), static_windows(), _quiet_exporter():
             program = torch.onnx.export(model, args, input_names=names,
                                         output_names=["rgb", "alpha"], dynamo=True,

@@ -327,7 +327,7 @@ class PixelShader(nn.Module):
                 ) -> torch.Tensor:
         """``(n, 3)`` the light at points of ``normal``, ``view``, ``hair (n, 1)``."""
         x = torch.cat([normal, view, hair], -1)
-        return F.softplus(_mlp(self.light, x))
+        return softplus(_mlp(self.light, x))
 
     def forward(self, feats: torch.Tensor, normal: torch.Tensor, view: torch.Tensor,
                 hair: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
