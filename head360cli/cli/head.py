@@ -768,6 +768,6 @@ def export_onnx_cmd(out: str, head: str | None, samples: int | None, size: int) 
     if head is not None:
         inputs = (Path(out).with_name(f"{input_stem(head)}_inputs.npz"), head_inputs(own))
     res = export_onnx(r, out, progress=progress_printer(), inputs=inputs)
-    per = "pixel" if res.get("generator") == "deferred" else "ray"
-    emit(res, f"exported in {res['seconds']:.0f} s ({res['samples']} samples per {per}, "
+    per = "pixel" if r.gen.kind == "deferred" else "ray"
+    emit(res, f"exported in {res['seconds']:.0f} s ({r.samples} samples per {per}, "
           f"{size}x{size}): " + ", ".join(res["files"]))
