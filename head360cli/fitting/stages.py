@@ -42,17 +42,14 @@ SMALL_FACE_PX = 60
 crop shows a face about 90 pixels wide, so such a face is upsampled 1.5 times or more."""
 
 CONFIDENT_FACE = 0.5
-"""HOG detector score from which a face counts for the several-faces warning (the
-astronaut's mission patch scores 0.12; the faces of dlib's example photos 0.4 to 3)."""
+"""Detector score from which a found face counts towards the several-faces warning.
+YuNet and BlazeFace score from 0 to 1; dlib's detectors, when chosen, on their own
+scales."""
 
 PROFILE_YAW = 40.0
 """Beyond this fitted yaw (degrees) a warning says the head is turned: the far side comes
-from the model, and the pose and hairstyle may be off. It is the fit's yaw, which dlib's
-landmarks hold to about two thirds of the true one on turned heads (AFLW2000-3D's
-annotated 65.6 and -35.7 degrees fit as 42.9 and -24.3), so 40 stands for about 60 in
-truth. At 60 the profile image00475 got no warning; at 40, of the other 31 real photos
-with a face found in ../shared/data, one warns, a group photo whose largest face is
-turned (fitted 48 degrees); the rest fit at 38 degrees or less."""
+from the model, and the pose and hairstyle may be off (how it was chosen: docs/
+decisions.md)."""
 
 
 

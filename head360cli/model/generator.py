@@ -52,13 +52,9 @@ __all__ = ["HAIR_MARGIN", "HEAD_CLOSED", "Generator", "Hair", "hair_for", "near_
 DECODE_BLOCK = 2048
 """Where the decoders run through oneDNN on a CPU (bfloat16 networks, and every render
 without gradients: :func:`~head360cli.model.networks.onednn_decodes`), their inputs are
-padded to a multiple of this many points: oneDNN keeps a matrix-product primitive per
-input shape, and an animation's point count changes every frame (reuse decodes only what
-moved), so a bfloat16 animation grew from 0.5 to 1.9 GB over 600 frames, and a float32
-one from 0.5 to 1.3 GB over 400; padded (to 4096 then), they stayed flat (0.50 and 0.52
-GB). 4096 -> 2048 cut the padding a turning-head frame decodes (the fitted astronaut:
-36.8k head and 20.6k hair points, padded to 41.0k + 24.6k, now 38.9k + 22.5k): its two
-decodes on one core 94.9 -> 88.7 ms (1024 and 512: 88.4, 88.2)."""
+padded to a multiple of this many points: oneDNN keeps a primitive per input shape, and
+an animation's point count changes every frame, so without padding its memory grew with
+the frames (measurements: docs/decisions.md)."""
 
 HEAD_CLOSED = True
 """The head template is a closed mesh with outward-facing triangles (a test checks it),
