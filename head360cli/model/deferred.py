@@ -23,19 +23,18 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.gbuffer import GBuffer, MeshPart, gbuffer
 from head360cli.model.generator import Hair, _hair_groups
 from head360cli.model.networks import (
+    GeneratorBase,
     HairTextureGenerator,
     PixelShader,
     ScreenNet,
@@ -77,7 +76,7 @@ def read_texels(table: torch.Tensor, base: torch.Tensor, res: torch.Tensor,
             + (at(y1, x0) * (1 - wx) + at(y1, x1) * wx) * wy)
 
 
-class DeferredGenerator(nn.Module):
+class DeferredGenerator(GeneratorBase):
     """The deferred head generator: texture generators, pixel shader, image network.
 
     Args:
@@ -94,19 +93,15 @@ class DeferredGenerator(nn.Module):
 
     def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
                  faces_uv: np.ndarray, normal_groups: np.ndarray | None = None) -> None:
-        super().__init__()
         if cfg.pixel_samples not in (1, 2, 4):
             raise ValueError(f"expected pixel_samples 1, 2 or 4, found {cfg.pixel_samples}")
-        self.cfg = cfg
+        super().__init__(cfg)
         self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
         self.register_buffer("uv", torch.as_tensor(np.asarray(uv), dtype=torch.float32))
         self.register_buffer("faces_uv",
                              torch.as_tensor(np.asarray(faces_uv), dtype=torch.long))
         self.normal_groups = (None if normal_groups is None else
                               torch.as_tensor(np.asarray(normal_groups), dtype=torch.long))
-        self.network_dtype: torch.dtype | None = None
-        """Run the shader and the image network in this dtype under autocast (``None``:
-        float32); renders only."""
         self.cull_rays = self.hair_rays_only = True  # hex-plane settings; nothing here
         self.texture_generator = TextureGenerator.from_config(cfg)
         self.shader = PixelShader(cfg.texture_channels, cfg.hidden, cfg.shader_extra)
@@ -121,14 +116,6 @@ class DeferredGenerator(nn.Module):
             self.normal_groups = fn(self.normal_groups)
         return out
 
-    @contextlib.contextmanager
-    def _override(self, **changes: Any) -> Iterator[None]:
-        own = self.cfg
-        self.cfg = dataclasses.replace(own, **changes)
-        try:
-            yield
-        finally:
-            self.cfg = own
 
     def samples_per_ray(self, samples: int | None) -> contextlib.AbstractContextManager:
         """Nothing to change: a deferred render has no rays (kept so that callers drive
@@ -198,13 +185,6 @@ class DeferredGenerator(nn.Module):
         return gbuffer(head, c2w, intrinsics, self.cfg.image_res, self.cfg.pixel_samples,
                        parts, still, cache)
 
-    def _net(self, net: nn.Module, *args: torch.Tensor):
-        """``net(*args)``, in :attr:`network_dtype` when one is set; float32 outputs."""
-        if self.network_dtype is None:
-            return net(*args)
-        with torch.autocast(args[0].device.type, dtype=self.network_dtype):
-            out = net(*args)
-        return tuple(o.float() for o in out) if isinstance(out, tuple) else out.float()
 
     def shade(self, buf: GBuffer, texture: torch.Tensor, hair: Hair | None
               ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -29,6 +28,7 @@ from torch import nn
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.networks import (
     Decoder,
+    GeneratorBase,
     HairTextureGenerator,
     RefineNet,
     TextureGenerator,
@@ -154,7 +154,7 @@ def near_rays(near: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return order, torch.gather(keep, 1, order)
 
 
-class Generator(nn.Module):
+class Generator(GeneratorBase):
     """The paper's hex-plane head generator: head branch, hair branch, volume renderer and
     RefineNet.
 
@@ -170,10 +170,9 @@ class Generator(nn.Module):
 
     def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
                  faces_uv: np.ndarray) -> None:
-        super().__init__()
         if cfg.planes not in PLANE_SETS:
             raise ValueError(f"expected planes hex or tri, found {cfg.planes!r}")
-        self.cfg = cfg
+        super().__init__(cfg)
         self.plane_names = PLANE_SETS[cfg.planes]
         self.register_buffer("faces", torch.as_tensor(np.asarray(faces), dtype=torch.long))
         self.register_buffer("uv", torch.as_tensor(np.asarray(uv), dtype=torch.float32))
@@ -182,10 +181,6 @@ class Generator(nn.Module):
         self.cull_rays = True
         """Decode only rays near a surface (same image, less work); export turns it off
         for static shapes."""
-        self.network_dtype: torch.dtype | None = None
-        """Run the decoders and the RefineNet in this dtype under autocast (``None``:
-        float32). bfloat16 on hardware that has it renders ~1.6x faster on CPU with
-        images within 1/100 of float32's (tested); rendering only, not training."""
         self.hair_rays_only = True
         """Decode the hair branch only on rays within :data:`HAIR_MARGIN` pixels of the
         hair mesh (elsewhere its density is taken as zero: a close approximation, measured
@@ -197,14 +192,6 @@ class Generator(nn.Module):
             self.hair_texture_generator = HairTextureGenerator(cfg)
             self.hair_decoder = Decoder(cfg, len(self.plane_names))
 
-    @contextlib.contextmanager
-    def _override(self, **changes: Any) -> Iterator[None]:
-        own = self.cfg
-        self.cfg = dataclasses.replace(own, **changes)
-        try:
-            yield
-        finally:
-            self.cfg = own
 
     def samples_per_ray(self, samples: int | None) -> contextlib.AbstractContextManager:
         """Render with ``samples`` per ray inside the ``with`` block (``None``: keep the
@@ -228,13 +215,6 @@ class Generator(nn.Module):
                              f"least {ratio * 8}, found {size}")
         return self._override(image_res=int(size), render_res=int(size) // ratio)
 
-    def _net(self, net: nn.Module, *args: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """``net(*args)``, in :attr:`network_dtype` when one is set; float32 outputs."""
-        if self.network_dtype is None:
-            return net(*args)
-        with torch.autocast(args[0].device.type, dtype=self.network_dtype):
-            out = net(*args)
-        return tuple(o.float() for o in out)
 
     def _decode(self, net: nn.Module, feats: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """``net(feats)`` for a decoder, ``feats (B, N, D)`` -> ``(B, N)`` and

@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
+from collections.abc import Iterator
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -12,9 +16,41 @@ from torch import nn
 from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
 
-__all__ = ["Decoder", "HairTextureGenerator", "PixelShader", "RefineNet", "ScreenNet",
-           "TextureGenerator",
-           "onednn_decodes"]
+__all__ = ["Decoder", "GeneratorBase", "HairTextureGenerator", "PixelShader", "RefineNet",
+           "ScreenNet", "TextureGenerator", "onednn_decodes"]
+
+
+class GeneratorBase(nn.Module):
+    """What both generators do alike: settings changed inside a ``with`` block
+    (:meth:`_override`), and networks run in :attr:`network_dtype` (:meth:`_net`)."""
+
+    def __init__(self, cfg: GeneratorConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.network_dtype: torch.dtype | None = None
+        """Run the networks of a render in this dtype under autocast (``None``:
+        float32); bfloat16 on hardware that has it renders faster on a CPU. Rendering
+        only, not training."""
+
+    @contextlib.contextmanager
+    def _override(self, **changes: Any) -> Iterator[None]:
+        """The config changed by ``changes`` inside the block, restored after (errors
+        included)."""
+        own = self.cfg
+        self.cfg = dataclasses.replace(own, **changes)
+        try:
+            yield
+        finally:
+            self.cfg = own
+
+    def _net(self, net: nn.Module, *args: torch.Tensor):
+        """``net(*args)``, in :attr:`network_dtype` when one is set; float32 outputs
+        (a tensor or a tuple of them, as ``net`` gives)."""
+        if self.network_dtype is None:
+            return net(*args)
+        with torch.autocast(args[0].device.type, dtype=self.network_dtype):
+            out = net(*args)
+        return tuple(o.float() for o in out) if isinstance(out, tuple) else out.float()
 
 
 class TextureGenerator(nn.Module):
