@@ -73,33 +73,50 @@ def score_views(gen, batch, code: torch.Tensor, hair: bool) -> list[dict[str, fl
     return rows
 
 
+def _fit_views(views, index: int, cameras: int):
+    """``cameras`` bald rig views (pitch 0, around the head) of held-out head ``index``'s
+    neutral face: what :func:`fit_code` and :func:`fit_texture` fit to."""
+    from head360cli.geometry.cameras import rig72
+
+    rig, _, _ = rig72()
+    pick = torch.linspace(0, 23, cameras).round().long() + 24
+    return views.render(index, np.zeros(52, np.float32), rig[pick])
+
+
+def _fit(gen, batch, param: torch.Tensor, given, steps: int, lr: float, per_step: int,
+         seed: int, low_weight: float) -> torch.Tensor:
+    """Adam on ``param`` with the generator frozen: ``given(param, n)`` is the generator's
+    code or texture keyword for ``n`` views; L1 on the image (and, weighted by
+    ``low_weight``, on the low-resolution colour), ``per_step`` of the views a step."""
+    param = param.clone().requires_grad_(True)
+    opt = torch.optim.Adam([param], lr=lr)
+    gen.requires_grad_(False)
+    g = torch.Generator().manual_seed(seed)
+    for _ in range(steps):
+        sel = torch.randperm(len(batch.c2w), generator=g)[:per_step]
+        out = gen(batch.verts[sel], batch.c2w[sel], batch.intrinsics,
+                  **given(param, len(sel)))
+        loss = (out["rgb"] - batch.rgb[sel]).abs().mean()
+        if low_weight:
+            res = out["rgb_low"].shape[-1]
+            low = torch.nn.functional.interpolate(batch.rgb[sel], size=(res, res),
+                                                  mode="area")
+            loss = loss + low_weight * (out["rgb_low"] - low).abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return param.detach()
+
+
 def fit_code(gen, views, index: int, start: torch.Tensor, steps: int = 40,
              lr: float = 0.03, cameras: int = 8, per_step: int = 2,
              seed: int = 0) -> torch.Tensor:
     """A held-out head's texture code, fitted with the generator frozen to ``cameras``
     bald rig views of its neutral face (L1 on the image and on the low-resolution colour,
     ``per_step`` views a step)."""
-    from head360cli.geometry.cameras import rig72
-
-    rig, _, _ = rig72()
-    pick = torch.linspace(0, 23, cameras).round().long() + 24  # pitch 0, around the head
-    batch = views.render(index, np.zeros(52, np.float32), rig[pick])
-    code = start.clone().requires_grad_(True)
-    opt = torch.optim.Adam([code], lr=lr)
-    gen.requires_grad_(False)
-    g = torch.Generator().manual_seed(seed)
-    for _ in range(steps):
-        sel = torch.randperm(cameras, generator=g)[:per_step]
-        out = gen(batch.verts[sel], batch.c2w[sel], batch.intrinsics,
-                  code=code[None].expand(len(sel), -1))
-        res = out["rgb_low"].shape[-1]
-        low = torch.nn.functional.interpolate(batch.rgb[sel], size=(res, res), mode="area")
-        loss = (out["rgb"] - batch.rgb[sel]).abs().mean() + 0.5 * (
-            out["rgb_low"] - low).abs().mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return code.detach()
+    return _fit(gen, _fit_views(views, index, cameras), start,
+                lambda c, n: {"code": c[None].expand(n, -1)}, steps, lr, per_step, seed,
+                0.5)
 
 
 def fit_texture(gen, views, index: int, code: torch.Tensor, steps: int = 40,
@@ -107,25 +124,11 @@ def fit_texture(gen, views, index: int, code: torch.Tensor, steps: int = 40,
                 seed: int = 0) -> torch.Tensor:
     """A held-out head's neural texture ``(C, R, R)``, started from ``code``'s and fitted
     with the generator frozen to the same views as :func:`fit_code` (L1)."""
-    from head360cli.geometry.cameras import rig72
-
-    rig, _, _ = rig72()
-    pick = torch.linspace(0, 23, cameras).round().long() + 24
-    batch = views.render(index, np.zeros(52, np.float32), rig[pick])
     with torch.no_grad():
-        texture = gen.texture(code[None]).clone().requires_grad_(True)
-    opt = torch.optim.Adam([texture], lr=lr)
-    gen.requires_grad_(False)
-    g = torch.Generator().manual_seed(seed)
-    for _ in range(steps):
-        sel = torch.randperm(cameras, generator=g)[:per_step]
-        out = gen(batch.verts[sel], batch.c2w[sel], batch.intrinsics,
-                  texture=texture.expand(len(sel), -1, -1, -1))
-        loss = (out["rgb"] - batch.rgb[sel]).abs().mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return texture.detach()[0]
+        start = gen.texture(code[None])[0]
+    return _fit(gen, _fit_views(views, index, cameras), start,
+                lambda t, n: {"texture": t[None].expand(n, -1, -1, -1)}, steps, lr,
+                per_step, seed, 0.0)
 
 
 def _mean(rows: list[dict[str, float]]) -> dict[str, float]:
