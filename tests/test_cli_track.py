@@ -182,3 +182,16 @@ def test_track_reads_a_video_on_standard_input(face_frames, tmp_path):
     assert summary["input"] == "standard input" and summary["frames_with_face"] == 8
     assert summary["fps"] == pytest.approx(25.0)
     assert not list(spool.iterdir())  # no temporary copy left behind
+
+
+def test_a_face_number_beyond_the_faces_found_says_how_many_there_were(run_cli, face_frames,
+                                                                       tmp_path, head_file):
+    """--face 3 on a one-face clip: not "found none" but how many faces there were, in
+    track and in animate --video (which takes --face too)."""
+    r = run_cli("track", face_frames, "-o", tmp_path / "t.csv", "--face", "3")
+    assert r.code == 4 and "found at most 1 face in a frame" in r.err, r.err
+    assert "--face counts from 0" in r.err and len(r.err.strip().splitlines()) == 1
+    r = run_cli("animate", head_file, "--video", face_frames, "--face", "3", "--fps", "10",
+                "-o", tmp_path / "a.mp4")
+    assert r.code == 4 and "found at most 1 face in a frame" in r.err, r.err
+    assert not (tmp_path / "a.mp4").exists()

@@ -297,10 +297,12 @@ def render(head: str, out: str, turntable: bool, frames: int, fps: float, yaw: f
               "hold the last good value.")
 @STREAM_FPS
 @click.option("--exact", is_flag=True,
-              help="Decode every point of every frame. By default, with a still camera "
-              "(no --head-pose), points whose inputs moved by at most 1e-3 since the "
-              "last frame keep their colour: on a real capture, frames within 5e-4 of "
-              "exact and about 1.7x faster on CPU.")
+              help="Hex-plane generators: decode every point of every frame (by default, "
+              "with a still camera, points whose inputs moved by at most 1e-3 keep their "
+              "colour). The deferred generator's frames are exact either way.")
+@click.option("--face", type=click.IntRange(min=0), default=0, show_default=True,
+              help="With --video: which face to follow when several show (0 = the "
+                   "largest, 1 = the next...).")
 @click.option("--workers", type=int, default=None,
               help="Processes that render frames on a CPU (default: one per core, at "
               "most 4, for takes of 64 frames or more; 1: this process alone). On 2 "
@@ -316,7 +318,7 @@ def animate(head: str | None, arkit: str | None, video: str | None, side_by_side
             out: str | None, mesh_dir: str | None, head_pose: bool,
             fps: float | None, start: float | None, end: float | None, smooth: float,
             yaw: float, pitch: float, on_bad: str, stream_fps: float | None,
-            workers: int | None, batch: int | None,
+            face: int, workers: int | None, batch: int | None,
             samples: int | None, size: int | None, exact: bool, precision: str,
             no_hair: bool, backend: str, onnx_path: str) -> None:
     """Drive a head with an ARKit-52 blendshape stream, or with a face tracked in a video.
@@ -395,9 +397,10 @@ def animate(head: str | None, arkit: str | None, video: str | None, side_by_side
                      "with --video (the tracker filters its readings; this process renders)")
         _animate_video(head, video, out, side_by_side, head_pose, fps, start, end, yaw,
                        pitch, on_bad, no_hair, backend, onnx_path, samples, size, exact,
-                       precision)
+                       precision, face)
         return
     assert arkit is not None
+    refuse_given(("face",), "with --arkit (a stream holds one face's weights)")
     if arkit != "-" and not Path(arkit).exists():  # a pipe (<(...)) is read like a file
         from head360cli.io.sources import missing
 
@@ -529,13 +532,13 @@ def _animate_video(head: str | None, video: str, out: str, side_by_side: bool,
                    head_pose: bool, fps: float | None, start: float | None,
                    end: float | None, yaw: float, pitch: float, on_bad: str, no_hair: bool,
                    backend: str, onnx_path: str, samples: int | None, size: int | None,
-                   exact: bool, precision: str) -> None:
+                   exact: bool, precision: str, face: int = 0) -> None:
     """``animate --video``: track and render in one pass (see
     :func:`head360cli.drive.animate.animate_video`)."""
     from head360cli.drive.animate import AnimateConfig, animate_video
     from head360cli.perception.track import TrackConfig
 
-    track = TrackConfig(start=start, end=end, on_bad=on_bad, fps=fps)
+    track = TrackConfig(face=face, start=start, end=end, on_bad=on_bad, fps=fps)
     cfg = AnimateConfig(head_pose=head_pose, yaw=yaw, pitch=pitch, hair=not no_hair)
     with _head_or_mean(head) as path:
         renderer = _animate_renderer(path, backend, onnx_path, samples, size, precision,

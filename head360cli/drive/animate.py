@@ -370,9 +370,10 @@ def animate_video(renderer, video, out: str | Path, cfg: AnimateConfig | None = 
             flush()
             if counts["with_face"] == 0:  # a clip of the head at rest: not written
                 from head360cli.errors import NoFaceError
+                from head360cli.perception.track import no_face_message
 
-                raise NoFaceError(f"expected a face in some frame, found none in the "
-                                  f"{counts.get('decoded', 0)} frames of {frames.name}")
+                raise NoFaceError(no_face_message(track.face, {"decoded": 0, **counts},
+                                                  frames.name))
         fps = frames.fps
     seconds = time.perf_counter() - t0
     result = {"frames": written, "fps": float(fps), "duration_s": written / float(fps),

@@ -106,6 +106,9 @@ class FaceTracker:
     def __init__(self, face: int = 0, threads: int | None = None) -> None:
         self.face, self.threads = face, threads
         self._mesh = None
+        self.most_faces = 0
+        """The most faces a detector found in one frame so far (for the message when
+        ``face`` asks for more)."""
 
     def reset(self) -> None:
         """Forget the face (the next frame is searched whole)."""
@@ -135,6 +138,7 @@ class FaceTracker:
 
         for detect in (detect_blazeface, detect_yunet):
             boxes = sorted(detect(rgb), key=lambda b: -b.area)
+            self.most_faces = max(self.most_faces, len(boxes))
             if len(boxes) > self.face:
                 b = boxes[self.face]
                 mesh = face_mesh(rgb, b.box, b.keypoints[:2], 2, self.threads)
@@ -251,6 +255,7 @@ def track_frames(source, cfg: TrackConfig, progress=None, frames=None):
         reading = tracker(rgb)
         counts["seconds"] += time.perf_counter() - t0
         counts["decoded"] += 1
+        counts["most_faces"] = tracker.most_faces
         if reading is not None:
             counts["with_face"] += 1
             counts["detections"] += int(reading.detected)
@@ -274,6 +279,18 @@ def track_frames(source, cfg: TrackConfig, progress=None, frames=None):
         yield index, t, rgb, last
         if progress:
             progress(counts["decoded"], total)
+
+
+def no_face_message(face: int, counts: dict, name: str) -> str:
+    """What to say when no frame of ``name`` gave face number ``face`` (``counts`` of
+    :func:`track_frames`): that none was found, or, for ``--face N``, how many were."""
+    most = counts.get("most_faces", 0)
+    if face > 0 and most:
+        return (f"expected face {face} (--face counts from 0, the largest), found at most "
+                f"{most} face{'s' if most > 1 else ''} in a frame of the "
+                f"{counts['decoded']} frames of {name}")
+    return f"expected a face in some frame, found none in the {counts['decoded']} frames " \
+           f"of {name}"
 
 
 def track_video(source, cfg: TrackConfig | None = None, progress=None):
@@ -317,8 +334,7 @@ def track_video(source, cfg: TrackConfig | None = None, progress=None):
                             f"{name} ({count or 'an unknown number of'} frames at {fps:g} fps)")
     first = next((r for r in rows if r is not None), None)
     if first is None:
-        raise NoFaceError(f"expected a face in some frame, found none in the "
-                          f"{counts['decoded']} frames of {name}")
+        raise NoFaceError(no_face_message(cfg.face, counts, name))
     warnings = []
     if counts["held"] or counts["skipped"]:
         verb = "held the last reading" if cfg.on_bad == "hold" else "skipped"
