@@ -195,3 +195,39 @@ def test_a_face_number_beyond_the_faces_found_says_how_many_there_were(run_cli, 
                 "-o", tmp_path / "a.mp4")
     assert r.code == 4 and "found at most 1 face in a frame" in r.err, r.err
     assert not (tmp_path / "a.mp4").exists()
+
+
+def test_a_broken_or_empty_video_is_one_line_without_ffmpegs_log(run_cli, tmp_path):
+    """A video cut short (no 'moov atom') gives head360's line alone, not FFmpeg's log
+    before it; an empty file says it is empty. --debug lets FFmpeg's lines through."""
+    import subprocess
+    import sys
+
+    import imageio.v3 as iio
+
+    whole = tmp_path / "whole.mp4"
+    iio.imwrite(whole, np.random.default_rng(0).integers(0, 255, (10, 64, 64, 3), np.uint8),
+                fps=10)
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(whole.read_bytes()[:whole.stat().st_size // 2])
+    (tmp_path / "empty.mp4").write_bytes(b"")
+    # a child process: FFmpeg writes to the process's own stderr, past pytest's capture
+    import os
+
+    from head360cli.io.frames import FFMPEG_LOG
+
+    env = {k: v for k, v in os.environ.items() if k != FFMPEG_LOG}
+    run = [sys.executable, "-m", "head360cli", "track"]
+    got = subprocess.run([*run, str(cut), "-o", str(tmp_path / "t.csv")],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert got.returncode == 5 and got.stderr.count("\n") == 1, got.stderr
+    assert "moov" not in got.stderr and got.stderr.startswith("head360: error:")
+    got = subprocess.run([*run, str(tmp_path / "empty.mp4"), "-o", str(tmp_path / "t.csv")],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert got.returncode == 5 and "an empty file" in got.stderr, got.stderr
+    assert got.stderr.count("\n") == 1
+    got = subprocess.run([*run, str(cut), "-o", str(tmp_path / "t.csv"), "--debug"],
+                         capture_output=True, text=True, timeout=120, env=env)
+    # (OpenCV's logger, which carries FFmpeg's lines once their level is set, writes
+    # them to standard output)
+    assert "moov atom not found" in got.stdout + got.stderr

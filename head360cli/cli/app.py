@@ -148,6 +148,12 @@ def main(argv: list[str] | None = None) -> int:
 
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
+    if debug:  # FFmpeg's own log lines too (head360 keeps them quiet otherwise)
+        import os
+
+        from head360cli.io.frames import FFMPEG_LOG
+
+        os.environ.setdefault(FFMPEG_LOG, "24")  # FFmpeg's warnings and errors
     as_json = "--json" in args
     _open_closed_outputs()
     for stream in (sys.stdout, sys.stderr):  # a name the terminal's encoding lacks

@@ -76,6 +76,7 @@ class FrameSource:
                 self.decoded += 1
                 yield i, t, np.ascontiguousarray(img[:, :, ::-1])
             return
+        quiet_ffmpeg()
         cap = cv2.VideoCapture(str(self._path))
         try:
             i = 0
@@ -160,9 +161,23 @@ def _open_folder(path: Path, fps: float | None) -> FrameSource:
                        len(files), "folder", path, files)
 
 
+FFMPEG_LOG = "OPENCV_FFMPEG_LOGLEVEL"
+"""The variable by which OpenCV sets FFmpeg's log level: head360 sets it to quiet (-8)
+where the user has not, so that a broken video gives head360's one line and not
+FFmpeg's ("moov atom not found", [h264] lines); ``--debug`` lets FFmpeg speak."""
+
+
+def quiet_ffmpeg() -> None:
+    """Keep FFmpeg's log quiet (see :data:`FFMPEG_LOG`), before OpenCV opens a video."""
+    os.environ.setdefault(FFMPEG_LOG, "-8")
+
+
 def _open_video(path: Path, name: str, fps: float | None) -> FrameSource:
     import cv2
 
+    if path.is_file() and path.stat().st_size == 0:
+        raise FileFormatError(f"expected a video, found {name!r}, an empty file")
+    quiet_ffmpeg()
     cap = cv2.VideoCapture(str(path))
     try:
         if not cap.isOpened():
