@@ -24,10 +24,10 @@ _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".pbm", ".pnm", ".ti
                    ".webp", ".bmp", ".heic", ".heif")  # fmt: skip
 _STREAM_SUFFIXES = (".csv", ".tsv", ".txt")
 _HEAD_SUFFIXES = (".h360", ".npz")
-_OTHER_SUFFIXES = (".json", ".jsonl", ".mtl", ".md", ".mp4", ".mov", ".m4v", ".npy",
-                   ".pkl", ".pickle")  # fmt: skip
-_KINDS = ("an ARKit stream (.csv), an image or a head file (.h360), or a model file (.pt, "
-          ".npz, .onnx) or mesh (.glb, .obj) head360 wrote")
+_OTHER_SUFFIXES = (".json", ".jsonl", ".mtl", ".md", ".npy", ".pkl", ".pickle")  # fmt: skip
+_VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".webm", ".mkv", ".avi", ".gif")
+_KINDS = ("an ARKit stream (.csv), an image, a video or a head file (.h360), or a model "
+          "file (.pt, .npz, .onnx) or mesh (.glb, .obj) head360 wrote")
 
 
 def _perception_role(filename: str) -> str | None:
@@ -185,6 +185,8 @@ def file_kind(path: str | NamedBytes) -> str:
         return "mesh"
     if suffix in _OTHER_SUFFIXES:
         raise BadInputError(f"expected {_KINDS}, found {p.name!r}")
+    if suffix in _VIDEO_SUFFIXES:
+        return "video"
     if suffix == ".onnx":
         return "model"
     if suffix in _HEAD_SUFFIXES or magic.startswith(b"PK\x03\x04"):
@@ -442,6 +444,38 @@ def _describe_obj(data: bytes, shown: str) -> dict[str, Any]:
             "objects": counts["o"] + counts["g"], "material_libraries": libraries}
 
 
+def describe_video(path: str) -> dict[str, Any]:
+    """What a video holds: frames, rate, size, duration, the rotation its metadata asks
+    for, and the faces the detectors find in its first frame.
+
+    Raises:
+        FileFormatError: The file is empty or no frame of it decodes.
+    """
+    import cv2
+
+    from head360cli.io.frames import open_frames
+
+    with open_frames(path, None) as frames:  # its checks: empty, unreadable, no frame
+        first = next(iter(frames.frames(None, None)))[2]
+        fps, count, size = frames.fps, frames.count, frames.size
+    from head360cli.io.frames import quiet_ffmpeg
+
+    quiet_ffmpeg()
+    cap = cv2.VideoCapture(path)
+    try:
+        rotation = int(cap.get(cv2.CAP_PROP_ORIENTATION_META) or 0)
+    finally:
+        cap.release()
+    from head360cli.perception.faces import detect_blazeface, detect_yunet
+
+    faces = max(len(detect_yunet(first)), len(detect_blazeface(first)))
+    return {"kind": "video", "path": path, "frames": count, "fps": round(float(fps), 4),
+            "width": int(size[0]), "height": int(size[1]),
+            "duration_s": None if not count else round(count / float(fps), 4),
+            "rotation_deg": rotation, "faces_in_frame_0": faces,
+            "bytes": Path(path).stat().st_size}
+
+
 def inspect_file(path: str, on_bad: str = "error", plot: str | None = None,
                  fps: float | None = None) -> dict[str, Any]:
     """Describe a file: ARKit stream, image or head file.
@@ -473,8 +507,12 @@ def inspect_file(path: str, on_bad: str = "error", plot: str | None = None,
     kind = file_kind(path)
     if plot is not None and kind != "stream":
         what = {"image": "an image", "head": "a head file", "model": "a model file",
-                "mesh": "a mesh"}[kind]
+                "mesh": "a mesh", "video": "a video"}[kind]
         raise BadInputError(f"--plot draws ARKit streams; expected a .csv, found {what}: {shown!r}")
+    if kind == "video":
+        if not isinstance(path, str):
+            raise BadInputError(f"expected a video in a file, found one on a pipe: {shown!r}")
+        return describe_video(path)
     if kind == "model":
         return describe_model(path, shown)
     if kind == "mesh":

@@ -231,3 +231,21 @@ def test_a_broken_or_empty_video_is_one_line_without_ffmpegs_log(run_cli, tmp_pa
     # (OpenCV's logger, which carries FFmpeg's lines once their level is set, writes
     # them to standard output)
     assert "moov atom not found" in got.stdout + got.stderr
+
+
+def test_inspect_tells_what_a_video_holds(run_cli, face_frames, tmp_path):
+    """Frames, rate, size, duration, the rotation its metadata asks for, and the faces in
+    its first frame (the README says inspect tells what any input holds)."""
+    import imageio.v3 as iio
+
+    clip = tmp_path / "clip.mp4"
+    iio.imwrite(clip, np.stack([iio.imread(p) for p in sorted(face_frames.iterdir())]),
+                fps=25)
+    r = run_cli("--json", "inspect", clip)
+    assert r.code == 0, r.err
+    info = json.loads(r.out)
+    assert info["kind"] == "video" and info["frames"] == 8 and info["fps"] == 25.0
+    assert (info["width"], info["height"]) == (320, 240) and info["duration_s"] == 0.32
+    assert info["rotation_deg"] == 0 and info["faces_in_frame_0"] == 1
+    r = run_cli("inspect", clip)
+    assert "8 at 25 fps (0.32 s)" in r.out and "1 face(s) found" in r.out

@@ -110,6 +110,19 @@ def _format_image(r: dict[str, Any]) -> str:
     ])
 
 
+def _format_video(r: dict[str, Any]) -> str:
+    duration = "unknown" if r["duration_s"] is None else f"{r['duration_s']:g} s"
+    return "\n".join([
+        f"{r['path']}: video",
+        f"  frames       {r['frames'] or 'unknown'} at {r['fps']:g} fps ({duration})",
+        f"  size         {r['width']}x{r['height']}"
+        + (f", rotated {r['rotation_deg']} degrees by its metadata" if r["rotation_deg"]
+           else ""),
+        f"  frame 0      {r['faces_in_frame_0']} face(s) found",
+        f"  file size    {r['bytes']} bytes",
+    ])
+
+
 def _colours(profile: str | None, converted: bool | None) -> str:
     """How ``inspect`` names an image's colour profile, and what loading does with it."""
     if profile is None:
@@ -216,6 +229,7 @@ def inspect(file: str, on_bad: str, stream_fps: float | None, plot: str | None) 
       head360 inspect take.csv --plot take.png
       head360 inspect models/generator.pt     which generator, trained how long
       head360 inspect me.glb                  morph targets and texture of an export
+      head360 inspect clip.mp4                frames, rate, size, a face in frame 0
       cat take.csv | head360 inspect - --on-bad skip
     """
     from head360cli.report import inspect_file
@@ -223,11 +237,11 @@ def inspect(file: str, on_bad: str, stream_fps: float | None, plot: str | None) 
     result = inspect_file(file, on_bad=on_bad, plot=plot, fps=stream_fps)
     if result["kind"] != "arkit_stream":
         what = {"image": "an image", "head": "a head", "model": "a model file",
-                "mesh": "a mesh"}[result["kind"]]
+                "mesh": "a mesh", "video": "a video"}[result["kind"]]
         warn_unused(("on_bad", "stream_fps"), f"for {what}")
     for w in result.get("warnings", []):
         warn(w)
     formatter = {"arkit_stream": _format_stream, "image": _format_image,
                  "head": _format_head, "model": _format_model,
-                 "mesh": _format_mesh}[result["kind"]]
+                 "mesh": _format_mesh, "video": _format_video}[result["kind"]]
     emit(result, formatter(result))
