@@ -164,7 +164,8 @@ def test_inspect_a_text_file_without_a_suffix_reads_it_as_a_stream(run_cli, tmp_
     assert r.code == 0 and json.loads(r.out)["frames"] == 1
     path.write_bytes(bytes(range(256)))
     r = run_cli("inspect", path)
-    assert r.code == 3 and "expected an ARKit stream (.csv), an image or a head file" in r.err
+    assert r.code == 3
+    assert "expected an ARKit stream (.csv), an image, a video or a head file" in r.err
 
 
 def test_inspect_warnings_and_quiet(run_cli, tmp_path):
@@ -208,7 +209,7 @@ def test_inspect_image_and_head(run_cli, tmp_path):
     r = run_cli("inspect", head, "--json")
     j = json.loads(r.out)
     assert j["kind"] == "head"
-    assert j["metadata"]["format_version"] == 1
+    assert j["metadata"]["format_version"] == 2
     assert j["arrays"]["shape"] == {"shape": [50], "dtype": "float32"}
     assert "head file" in run_cli("inspect", head).out
 
