@@ -280,7 +280,7 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
 @click.option("--face", type=click.IntRange(min=0), default=0, show_default=True,
               help="Which face when several show: 0 = the largest, 1 = the next...")
 @click.option("--start", type=float, default=None, help="Seconds into the input to start.")
-@click.option("--end", type=float, default=None, help="Seconds into the input to stop.")
+@click.option("--end", type=float, default=None, help="Stop before this second of the input.")
 @click.option("--on-bad", type=click.Choice(["hold", "skip", "error"]), default="hold",
               show_default=True,
               help="A frame without a face: hold the last reading, skip the frame, or stop.")

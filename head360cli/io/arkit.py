@@ -167,13 +167,14 @@ class ArkitStream:
         }
 
     def between(self, start: float | None = None, end: float | None = None) -> ArkitStream:
-        """The frames with ``start <= t < end`` (seconds), re-timed to start at zero."""
+        """The frames with ``start <= t < end`` (seconds; to a nanosecond, as a video's
+        frames are cut), re-timed to start at zero."""
         t = self.timestamps
         keep = np.ones(len(t), dtype=bool)
         if start is not None:
-            keep &= t >= start
+            keep &= t >= start - 1e-9
         if end is not None:
-            keep &= t < end
+            keep &= t < end - 1e-9
         if not keep.any():
             span = (f"from {start} s" if end is None else f"before {end} s" if start is None
                     else f"from {start} s to {end} s")

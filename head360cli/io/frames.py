@@ -51,8 +51,8 @@ class FrameSource:
 
     def frames(self, start: float | None = None, end: float | None = None
                ) -> Iterator[tuple[int, float, np.ndarray]]:
-        """``(index, seconds, rgb (H, W, 3) uint8)`` for each frame from ``start`` to
-        ``end`` seconds (inclusive), in order.
+        """``(index, seconds, rgb (H, W, 3) uint8)`` for each frame at ``start <= t <
+        end`` seconds (``--end`` stops before that second, as for a stream), in order.
 
         Raises:
             BadInputError: A folder's frame of another size, or one that does not read.
@@ -63,7 +63,7 @@ class FrameSource:
         if self.kind == "folder":
             for i in range(first, len(self._files)):
                 t = i / self.fps
-                if end is not None and t > end + 1e-9:
+                if end is not None and t >= end - 1e-9:
                     return
                 img = cv2.imread(str(self._files[i]), cv2.IMREAD_COLOR)
                 if img is None:
@@ -85,7 +85,7 @@ class FrameSource:
                 if not ok:
                     return
                 t = i / self.fps
-                if end is not None and t > end + 1e-9:
+                if end is not None and t >= end - 1e-9:
                     return
                 if i >= first:
                     self.decoded += 1

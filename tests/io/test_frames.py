@@ -36,7 +36,8 @@ def test_a_video_reads_in_order_at_its_rate(tmp_path, suffix):
 def test_start_and_end_cut_a_video(tmp_path):
     _clip(tmp_path / "clip.mp4", fps=10.0)
     with open_frames(tmp_path / "clip.mp4") as src:
-        assert [i for i, _, _ in src.frames(0.25, 0.6)] == [3, 4, 5, 6]
+        # from 0.25 s, stopping before 0.6 s
+        assert [i for i, _, _ in src.frames(0.25, 0.6)] == [3, 4, 5]
 
 
 def test_a_folder_reads_in_name_order_and_refuses_a_frame_of_another_size(tmp_path):
@@ -81,3 +82,25 @@ def test_a_truncated_video_reads_the_frames_it_holds(tmp_path):
     with src:
         n = sum(1 for _ in src.frames())
     assert 0 < n <= 60
+
+
+def test_end_stops_before_that_second_for_videos_folders_and_streams(tmp_path):
+    """--end 0.2 of 25 fps: frames at 0, 0.04, ..., 0.16 (5 frames), for a video, a
+    folder of frames and an ARKit stream alike; --start 0.08 starts at the frame there."""
+    import cv2
+
+    from head360cli.io.arkit import ArkitStream
+
+    _clip(tmp_path / "clip.mp4", fps=25.0)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(12):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), np.full((16, 16, 3), i * 10, np.uint8))
+    for source in (tmp_path / "clip.mp4", folder):
+        with open_frames(source, 25.0 if source == folder else None) as src:
+            got = [round(t, 3) for _, t, _ in src.frames(None, 0.2)]
+            assert got == [0.0, 0.04, 0.08, 0.12, 0.16], source
+            assert [round(t, 3) for _, t, _ in src.frames(0.08, 0.2)] == [0.08, 0.12, 0.16]
+    stream = ArkitStream(np.zeros((12, 52), np.float32), np.arange(12) / 25.0, 25.0)
+    assert stream.between(None, 0.2).num_frames == 5
+    assert stream.between(0.08, 0.2).num_frames == 3
