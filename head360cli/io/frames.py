@@ -42,7 +42,8 @@ class FrameSource:
     count: int | None
     """Frames the container says it holds (``None`` when unknown)."""
     kind: str
-    """``video`` or ``folder``."""
+    """``video``, ``animation`` (an animated GIF, PNG or WebP, read by Pillow) or
+    ``folder``."""
     _path: Path
     _files: list[Path] = dataclasses.field(default_factory=list)
     _temporary: bool = False
@@ -60,6 +61,9 @@ class FrameSource:
         import cv2
 
         first = 0 if start is None else max(0, int(np.ceil(start * self.fps - 1e-9)))
+        if self.kind == "animation":
+            yield from self._animation_frames(first, end)
+            return
         if self.kind == "folder":
             for i in range(first, len(self._files)):
                 t = i / self.fps
@@ -106,6 +110,46 @@ class FrameSource:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+    def _animation_frames(self, first: int, end: float | None
+                          ) -> Iterator[tuple[int, float, np.ndarray]]:
+        """:meth:`frames` of an animated image, every frame composed by Pillow."""
+        from PIL import Image
+
+        with Image.open(self._path) as im:
+            for i in range(first, self.count or 0):
+                t = i / self.fps
+                if end is not None and t >= end - 1e-9:
+                    return
+                im.seek(i)
+                self.decoded += 1
+                yield i, t, np.ascontiguousarray(np.asarray(im.convert("RGB")))
+
+
+def _open_animation(path: Path, name: str, fps: float | None) -> FrameSource | None:
+    """An animated GIF, PNG or WebP as frames read by Pillow, which composes each frame
+    as the format says (OpenCV's FFmpeg read a 19-frame GIF written by Pillow as one
+    frame); ``None`` for anything else."""
+    from PIL import Image
+
+    try:
+        im = Image.open(path)
+    except Exception:
+        return None
+    with im:
+        count = int(getattr(im, "n_frames", 1))
+        if im.format not in ("GIF", "PNG", "WEBP") or (count < 2 and im.format != "GIF"):
+            return None
+        durations = []
+        for i in range(count):
+            im.seek(i)
+            im.load()  # WebP states a frame's duration once it is loaded
+            durations.append(float(im.info.get("duration") or 0.0))
+        size = im.size
+    shown = [d for d in durations if d > 0]
+    rate = 1000.0 / float(np.median(shown)) if shown else DEFAULT_FOLDER_FPS
+    return FrameSource(name, fps or min(rate, 1000.0), size, count, "animation", path)
 
 
 def open_frames(source: str | os.PathLike[str], fps: float | None = None) -> FrameSource:
@@ -177,6 +221,9 @@ def _open_video(path: Path, name: str, fps: float | None) -> FrameSource:
 
     if path.is_file() and path.stat().st_size == 0:
         raise FileFormatError(f"expected a video, found {name!r}, an empty file")
+    animation = _open_animation(path, name, fps)
+    if animation is not None:
+        return animation
     quiet_ffmpeg()
     cap = cv2.VideoCapture(str(path))
     try:

@@ -24,7 +24,9 @@ def test_a_video_reads_in_order_at_its_rate(tmp_path, suffix):
     path = tmp_path / f"clip{suffix}"
     _clip(path)
     with open_frames(path) as src:
-        assert src.kind == "video" and src.size == (96, 64)
+        # a GIF is read by Pillow, frame by frame as the format composes them
+        assert src.kind == ("animation" if suffix == ".gif" else "video")
+        assert src.size == (96, 64)
         assert src.fps == pytest.approx(25.0, rel=0.01)
         got = list(src.frames())
     assert [i for i, _, _ in got] == list(range(12))
@@ -104,3 +106,22 @@ def test_end_stops_before_that_second_for_videos_folders_and_streams(tmp_path):
     stream = ArkitStream(np.zeros((12, 52), np.float32), np.arange(12) / 25.0, 25.0)
     assert stream.between(None, 0.2).num_frames == 5
     assert stream.between(0.08, 0.2).num_frames == 3
+
+
+@pytest.mark.parametrize(("suffix", "fmt"), [(".gif", "GIF"), (".png", "PNG"),
+                                             (".webp", "WEBP")])
+def test_every_frame_of_an_animated_image_is_read(tmp_path, suffix, fmt):
+    """A 19-frame animation written by Pillow (GIF, APNG, WebP) reads as 19 frames at its
+    own rate, each the one written (OpenCV's FFmpeg read such a GIF as one frame)."""
+    from PIL import Image
+
+    frames = [Image.fromarray(np.full((24, 32, 3), 12 * i, np.uint8)) for i in range(19)]
+    path = tmp_path / f"anim{suffix}"
+    frames[0].save(path, format=fmt, save_all=True, append_images=frames[1:], duration=40,
+                   loop=0, **({"lossless": True} if fmt == "WEBP" else {}))
+    with open_frames(path) as src:
+        assert src.kind == "animation" and src.count == 19 and src.size == (32, 24)
+        assert src.fps == pytest.approx(25.0)
+        got = list(src.frames())
+    assert [i for i, _, _ in got] == list(range(19))
+    assert [int(rgb[0, 0, 0]) for _, _, rgb in got] == [12 * i for i in range(19)]
