@@ -249,3 +249,32 @@ def test_inspect_tells_what_a_video_holds(run_cli, face_frames, tmp_path):
     assert info["rotation_deg"] == 0 and info["faces_in_frame_0"] == 1
     r = run_cli("inspect", clip)
     assert "8 at 25 fps (0.32 s)" in r.out and "1 face(s) found" in r.out
+
+
+def test_animate_video_skipping_faceless_frames_keeps_the_timing(run_cli, head_file,
+                                                                face_frames, tmp_path):
+    """--on-bad skip: a frame without a face is written blank, not left out, so the
+    video lines up with the clip beside it (2.00 s came out of a 3.00 s clip)."""
+    import shutil
+
+    import cv2
+    import imageio.v3 as iio
+
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(clip / f"{i:04d}.png"), np.full((240, 320, 3), 200, np.uint8))
+    for i, p in enumerate(sorted(face_frames.iterdir())):
+        shutil.copy(p, clip / f"{i + 3:04d}.png")
+    out = tmp_path / "both"
+    r = run_cli("--json", "animate", head_file, "--video", clip, "--fps", "10",
+                "--on-bad", "skip", "--side-by-side", "--size", "64", "-o", out)
+    assert r.code == 0, r.err
+    res = json.loads(r.out)
+    assert res["frames"] == 11 and res["frames_skipped"] == 3
+    assert res["duration_s"] == pytest.approx(1.1)
+    frames = [iio.imread(p) for p in sorted(out.iterdir())]
+    assert len(frames) == 11
+    head = [f[:, -64:] for f in frames]
+    assert all(h.min() == 255 for h in head[:3])  # blank where the clip has no face
+    assert all(h.min() < 200 for h in head[3:])

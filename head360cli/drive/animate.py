@@ -339,20 +339,28 @@ def animate_video(renderer, video, out: str | Path, cfg: AnimateConfig | None = 
     written = 0
     with open_frames(video, track.fps) as frames:
         total = frames.count
-        chunk: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
+        # (weights, head rotation, the input frame beside or None); weights None: a
+        # skipped frame, written blank so that the video keeps the input's timing
+        chunk: list[tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]] = []
+        blank = np.full((renderer.size, renderer.size, 3), 255, np.uint8)
         with VideoWriter(out, fps=frames.fps) as writer:
 
             def flush() -> None:
                 nonlocal written
                 if not chunk:
                     return
-                weights = np.stack([c[0] for c in chunk])
-                rot = np.stack([c[1] for c in chunk])
-                cams = (head_pose_cameras(rot, base) if cfg.head_pose
-                        else base[None].expand(len(chunk), 4, 4))
-                rendered = (f for batch in renderer.frames(cams, weights, k, hair=cfg.hair)
-                            for f in batch)
-                for (_, _, rgb), frame in zip(chunk, rendered, strict=True):
+                drawn = [c for c in chunk if c[0] is not None]
+                rendered = iter(())
+                if drawn:
+                    weights = np.stack([c[0] for c in drawn])
+                    rot = np.stack([c[1] for c in drawn])
+                    cams = (head_pose_cameras(rot, base) if cfg.head_pose
+                            else base[None].expand(len(drawn), 4, 4))
+                    rendered = (f for batch in renderer.frames(cams, weights, k,
+                                                               hair=cfg.hair)
+                                for f in batch)
+                for w, _, rgb in chunk:
+                    frame = blank if w is None else next(rendered)
                     writer.write(frame if rgb is None else _beside(rgb, frame))
                     written += 1
                     if progress:
@@ -361,6 +369,9 @@ def animate_video(renderer, video, out: str | Path, cfg: AnimateConfig | None = 
 
             for _, _, rgb, reading in track_frames(frames, track, None, counts):
                 if reading is None and track.on_bad == "skip":
+                    chunk.append((None, None, rgb if side_by_side else None))
+                    if len(chunk) == VIDEO_CHUNK:
+                        flush()
                     continue
                 w = np.zeros(52, np.float32) if reading is None else reading.weights
                 r = np.zeros(3, np.float32) if reading is None else reading.head
