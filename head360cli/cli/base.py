@@ -262,6 +262,18 @@ def warn_unused(names: tuple[str, ...], why: str) -> None:
         warn(f"{' and '.join(flags)} {'is' if len(flags) == 1 else 'are'} not used {why}")
 
 
+def check_size(size: int | None, name: str = "--size") -> None:
+    """Refuse an image size no generator renders, before anything is loaded: one
+    wording for every command that takes one.
+
+    Raises:
+        BadInputError: ``size`` is not an even number from 32 to 2048.
+    """
+    if size is not None and not (32 <= size <= 2048 and size % 2 == 0):
+        raise BadInputError(f"expected {name} a multiple of 2 between 32 and 2048, found "
+                            f"{size}")
+
+
 def refuse_given(names: tuple[str, ...], why: str) -> None:
     """Refuse the options among ``names`` (parameter names) that were given on the
     command line though they conflict ``why`` (for example "with --views"), in one line.

@@ -12,6 +12,7 @@ from head360cli.cli.base import (
     BENCH_OUT,
     InputPath,
     OutputPath,
+    check_size,
     cli,
     common_options,
     cpu_only_warning,
@@ -369,9 +370,9 @@ def bench_onnx_cmd(heads: int, size: int, samples: int | None, repeats: int, rou
     if not 1 <= heads <= 10000 or not 1 <= repeats <= 1000 or not 1 <= rounds <= 100:
         raise BadInputError(f"expected --heads in 1..10000, --repeats in 1..1000 and "
                             f"--rounds in 1..100, found {heads}, {repeats} and {rounds}")
-    if (samples is not None and not 1 <= samples <= 64) or not 32 <= size <= 2048:
-        raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
-                            f"{samples} and {size}")
+    check_size(size)
+    if samples is not None and not 1 <= samples <= 64:
+        raise BadInputError(f"expected --samples between 1 and 64, found {samples}")
     if graph is not None and not Path(graph).is_file():
         raise BadInputError(f"ONNX graph {graph!r} does not exist")
     progress = None if current_settings().quiet else (lambda t: click.echo(f"bench onnx: {t}",

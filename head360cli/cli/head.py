@@ -15,6 +15,7 @@ from head360cli.cli.base import (
     STREAM_FPS,
     InputPath,
     OutputPath,
+    check_size,
     cli,
     common_options,
     cpu_only_warning,
@@ -46,8 +47,7 @@ def _renderer(head: str, samples: int | None, size: int | None, precision: str =
 
     if samples is not None and not 1 <= samples <= 64:
         raise BadInputError(f"expected --samples between 1 and 64, found {samples}")
-    if size is not None and not 32 <= size <= 2048:
-        raise BadInputError(f"expected --size between 32 and 2048, found {size}")
+    check_size(size)
     if not Path(head).exists():  # a pipe (<(...)) is read like a file
         from head360cli.io.sources import missing
 
@@ -374,6 +374,7 @@ def animate(head: str | None, arkit: str | None, video: str | None, side_by_side
         raise BadInputError(f"expected --workers between 1 and 64, found {workers}")
     if batch is not None and not 1 <= batch <= 1024:
         raise BadInputError(f"expected --batch between 1 and 1024, found {batch}")
+    check_size(size)
     from head360cli.drive.views import check_angles
 
     check_angles(yaw, pitch)  # as render
@@ -743,9 +744,9 @@ def export_onnx_cmd(out: str, head: str | None, samples: int | None, size: int) 
     from head360cli.export.onnx import export_onnx, head_inputs
     from head360cli.io.sources import input_stem
 
-    if (samples is not None and not 1 <= samples <= 64) or not 32 <= size <= 2048:
-        raise BadInputError(f"expected --samples in 1..64 and --size in 32..2048, found "
-                            f"{samples} and {size}")
+    check_size(size)
+    if samples is not None and not 1 <= samples <= 64:
+        raise BadInputError(f"expected --samples between 1 and 64, found {samples}")
     # the graph is the same for any device, and torch's exporter failed to trace a CUDA
     # renderer (a data-dependent size in the hair planes' grid_sample; torch 2.11 on an
     # H200) where it traced the same renderer on that machine's CPU in 51 s

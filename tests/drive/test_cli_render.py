@@ -383,3 +383,24 @@ def test_options_that_conflict_are_refused_in_one_line(run_cli, head_file, tmp_p
                 "30", "-o", tmp_path / "a.mp4")
     assert r.code == 3 and "expected no --stream-fps with --video" in r.err
     assert len(r.err.strip().splitlines()) == 1 and not (tmp_path / "a.mp4").exists()
+
+
+def test_image_sizes_are_checked_before_loading_with_one_wording(run_cli, head_file, tmp_path,
+                                                                 monkeypatch):
+    """--size 255 (odd) and --size -2 (below the range) say the same thing, before the
+    head or the generator is loaded, in render, animate and export-onnx alike."""
+    import head360cli.fitting.pipeline as pipeline
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("loaded before the size was checked")
+
+    monkeypatch.setattr(pipeline, "load_head_renderer", refuse)
+    (tmp_path / "s.csv").write_text("time,jawOpen\n0,0.1\n0.1,0.5\n")
+    for size in ("255", "-2", "4096"):
+        wanted = f"expected --size a multiple of 2 between 32 and 2048, found {size}"
+        for args in (("render", head_file, "-o", tmp_path / "v.png"),
+                     ("animate", head_file, "--arkit", tmp_path / "s.csv", "-o",
+                      tmp_path / "a.mp4"),
+                     ("export-onnx", "-o", tmp_path / "g.onnx")):
+            r = run_cli(*args, "--size", size)
+            assert r.code == 3 and wanted in r.err, (args, r.err)
