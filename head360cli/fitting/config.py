@@ -79,7 +79,8 @@ class FitConfig:
             raise BadInputError(f"expected detector {', '.join(DETECTORS)}, found "
                                 f"{self.detector!r}")
         if self.hair_style is not None and not 0 <= self.hair_style < HAIRSTYLE_COUNT:
-            raise BadInputError(f"expected a hairstyle id 0..{HAIRSTYLE_COUNT - 1}, found "
-                                f"{self.hair_style}")
+            from head360cli.synth.hair import style_index
+
+            style_index(int(self.hair_style))  # raises, in its one wording
         check_camera(self.focal, self.distance)
         return self

@@ -165,8 +165,8 @@ def open_frames(source: str | os.PathLike[str], fps: float | None = None) -> Fra
         FileFormatError: A file no decoder reads (an unknown codec, not a video), or a
             video with no frame that decodes.
     """
-    if fps is not None and not (np.isfinite(fps) and 0 < fps <= 1000):
-        raise BadInputError(f"expected --fps in (0, 1000], found {fps}")
+    if fps is not None and not (np.isfinite(fps) and 0.01 <= fps <= 1000):
+        raise BadInputError(f"expected --fps between 0.01 and 1000, found {fps}")
     name = str(source)
     if name == "-":
         from head360cli.io.sources import check_stdin

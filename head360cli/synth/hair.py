@@ -145,20 +145,23 @@ assert len(HAIRSTYLES) == 30 and len({s.name for s in HAIRSTYLES}) == 30
 
 def style_index(name_or_id: str | int) -> int:
     """Style id from a name (case-insensitive) or an id."""
+    import re
+
     from head360cli.errors import BadInputError
 
-    if isinstance(name_or_id, int) or str(name_or_id).isdigit():
+    top = len(HAIRSTYLES) - 1
+    expected = (f"expected a hairstyle id between 0 and {top} or one of: "
+                + ", ".join(s.name for s in HAIRSTYLES))
+    if isinstance(name_or_id, int) or re.fullmatch(r"\s*[+-]?\d+\s*", str(name_or_id)):
         k = int(name_or_id)
-        if 0 <= k < len(HAIRSTYLES):
+        if 0 <= k <= top:
             return k
-        raise BadInputError(f"expected a hairstyle id 0..{len(HAIRSTYLES) - 1}, found {k}")
+        raise BadInputError(f"{expected}; found {k}")
     key = str(name_or_id).strip().lower().replace("_", " ").replace("-", " ")
     for k, style in enumerate(HAIRSTYLES):
         if style.name == key:
             return k
-    names = ", ".join(s.name for s in HAIRSTYLES)
-    raise BadInputError(f"unknown hairstyle {name_or_id!r}; expected an id "
-                        f"0..{len(HAIRSTYLES) - 1} or one of: {names}")
+    raise BadInputError(f"{expected}; found {str(name_or_id)!r}")
 
 
 FIGARO_CLASSES: dict[str, tuple[str, ...]] = {

@@ -68,8 +68,12 @@ def test_library_swap_takes_names_numbers_and_refuses_unknown_styles(head_file, 
     res = swap_hair(head_file, tmp_path / "b.h360", style=np.int64(3),
                     colour=np.array([0.1, 0.1, 0.1]))
     assert res["hair_style"]["id"] == 3
-    for style, colour, message in ((99, None, "hairstyle id 0..29, found 99"),
-                                   (-1, None, "hairstyle id 0..29, found -1"),
+    for style, colour, message in ((99, None, "hairstyle id between 0 and 29 or one of: "
+                                               "bald, .*; found 99$"),
+                                   (-1, None, "between 0 and 29 or one of: .*; found -1$"),
+                                   ("-1", None, "between 0 and 29 or one of: .*; found -1$"),
+                                   ("perm", None, "between 0 and 29 or one of: .*; "
+                                                  "found 'perm'"),
                                    (None, (2.0, 0, 0), r"in \[0, 1\], found '2.0,0,0'"),
                                    (None, (0.1, 0.2), "found '[(]0.1, 0.2[)]'")):
         with pytest.raises(BadInputError, match=message):
