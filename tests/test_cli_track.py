@@ -278,3 +278,42 @@ def test_animate_video_skipping_faceless_frames_keeps_the_timing(run_cli, head_f
     head = [f[:, -64:] for f in frames]
     assert all(h.min() == 255 for h in head[:3])  # blank where the clip has no face
     assert all(h.min() < 200 for h in head[3:])
+
+
+def test_stills_and_cuts_are_not_smoothed_together(run_cli, face_frames, tmp_path):
+    """A folder of frames is one shot unless --stills (said in a warning); with --stills
+    every frame is read on its own, as with no filter at all; a jump of the face (a cut
+    to another framing) starts the filter again; the summary counts the cuts."""
+    import csv
+    import shutil
+
+    import cv2
+
+    def smiles(path):
+        return [float(r["mouthSmileLeft"]) for r in csv.DictReader(open(path))]
+
+    out = tmp_path / "t.csv"
+    r = run_cli("--json", "track", face_frames, "-o", out, "--format", "generic")
+    assert r.code == 0 and json.loads(r.out)["cuts"] == 0
+    assert "give --stills for separate photos" in r.err
+    r = run_cli("--json", "track", face_frames, "-o", out, "--format", "generic", "--stills")
+    assert r.code == 0 and json.loads(r.out)["cuts"] == 7 and "--stills" not in r.err
+    stills = smiles(out)
+    run_cli("track", face_frames, "-o", out, "--format", "generic", "--smooth", "0")
+    # (each still is found afresh, not followed from the last frame's crop: the mesh
+    # reads its frame from a slightly other crop, 0.034 apart at most here)
+    assert stills == pytest.approx(smiles(out), abs=0.05)
+    # the same frames, the second half zoomed out to half size: a cut at frame 4
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    for i, p in enumerate(sorted(face_frames.iterdir())):
+        if i < 4:
+            shutil.copy(p, cut / p.name)
+        else:
+            img = cv2.imread(str(p))
+            small = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2))
+            canvas = np.full_like(img, 128)
+            canvas[:small.shape[0], :small.shape[1]] = small
+            cv2.imwrite(str(cut / p.name), canvas)
+    r = run_cli("--json", "track", cut, "-o", out)
+    assert r.code == 0 and json.loads(r.out)["cuts"] == 1, r.out

@@ -286,9 +286,13 @@ def demo(out_dir: str, preset: str, frames: int) -> None:
               help="A frame without a face: hold the last reading, skip the frame, or stop.")
 @click.option("--fps", type=float, default=None,
               help="Frame rate of a folder of frames (default 30), or in place of a video's.")
+@click.option("--stills", is_flag=True,
+              help="Every frame is a photo of its own: searched whole, never smoothed with "
+                   "another (a cut in a video, or between unrelated photos, is found "
+                   "without it).")
 @common_options
 def track(source: str, out: str, fmt: str, smooth: float, face: int, start: float | None,
-          end: float | None, on_bad: str, fps: float | None) -> None:
+          end: float | None, on_bad: str, fps: float | None, stills: bool) -> None:
     """Track a face through a video into an ARKit-52 stream: 52 blendshape weights, head
     and eye rotations, at the video's frame rate.
 
@@ -303,6 +307,7 @@ def track(source: str, out: str, fmt: str, smooth: float, face: int, start: floa
       cat clip.webm | head360 track - -o take.csv --smooth 0 --json
       head360 track clip.mp4 -o take.csv && head360 animate me.h360 --arkit take.csv -o me.mp4
       head360 track clip.mp4 -o - | head360 animate me.h360 --arkit - -o me.mp4
+      head360 track portraits/ --stills --format generic -o scores.csv
     """
     from head360cli.io.arkit import write_arkit_csv
     from head360cli.io.atomic import check_file_target
@@ -312,7 +317,8 @@ def track(source: str, out: str, fmt: str, smooth: float, face: int, start: floa
     if not to_stdout and Path(out).suffix.lower() not in (".csv", ".txt"):
         raise BadInputError(f"expected an output ending in .csv (or - for standard output), "
                             f"found {out!r}")
-    cfg = TrackConfig(face=face, start=start, end=end, smooth=smooth, on_bad=on_bad, fps=fps)
+    cfg = TrackConfig(face=face, start=start, end=end, smooth=smooth, on_bad=on_bad, fps=fps,
+                      stills=stills)
     if not to_stdout:
         check_file_target(out)  # before the video is read
     cpu_only_warning("track", "tracks")
@@ -331,8 +337,10 @@ def track(source: str, out: str, fmt: str, smooth: float, face: int, start: floa
     for message in summary["warnings"]:
         warn(message)
     summary["out"], summary["format"] = out, fmt
+    cuts = summary["cuts"]
     line = (f"tracked {summary['frames_with_face']} of {summary['frames']} frames "
-            f"({summary['tracking_fps']:g} frames/s tracking, "
+            + (f"in {cuts + 1} shots " if cuts else "")
+            + f"({summary['tracking_fps']:g} frames/s tracking, "
             f"{summary['fps_all_in']:g} with decoding) -> "
             f"{'standard output' if to_stdout else out}")
     if to_stdout:  # standard output carries the stream: the summary goes beside it

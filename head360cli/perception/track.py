@@ -193,7 +193,11 @@ class TrackConfig:
     start: float | None = None
     """Seconds into the input where tracking starts (``None``: the first frame)."""
     end: float | None = None
-    """Seconds into the input where it stops, inclusive (``None``: the last frame)."""
+    """Seconds into the input where it stops (``None``: the last frame)."""
+    stills: bool = False
+    """Treat every frame as unrelated to the one before (a folder of photos): each is
+    searched whole and none is smoothed with another. Without it, cuts are found by
+    :func:`is_cut`."""
     smooth: float = 1.5
     """The One Euro filter's cutoff in Hz when still (:class:`OneEuroFilter`); 0 turns the
     filter off."""
@@ -245,13 +249,24 @@ def track_frames(source, cfg: TrackConfig, progress=None, frames=None):
     from head360cli.errors import NoFaceError
 
     counts = frames if frames is not None else {}
-    counts.update(decoded=0, with_face=0, held=0, skipped=0, detections=0, seconds=0.0)
+    counts.update(decoded=0, with_face=0, held=0, skipped=0, detections=0, seconds=0.0,
+                  cuts=0)
     tracker = FaceTracker(cfg.face)
     filt = OneEuroFilter(cfg.smooth, cfg.beta) if cfg.smooth > 0 else None
     last: TrackedFace | None = None
     total = source.count
+    seen = None  # the last frame's thumbnail
     for index, t, rgb in source.frames(cfg.start, cfg.end):
         t0 = time.perf_counter()
+        small = thumbnail(rgb)
+        if (cfg.stills and counts["decoded"]) or is_cut(seen, small):
+            # a new shot: nothing of the last one carries over
+            counts["cuts"] += 1
+            tracker.reset()
+            if filt is not None:
+                filt = OneEuroFilter(cfg.smooth, cfg.beta)
+            last = None
+        seen = small
         reading = tracker(rgb)
         counts["seconds"] += time.perf_counter() - t0
         counts["decoded"] += 1
@@ -259,6 +274,10 @@ def track_frames(source, cfg: TrackConfig, progress=None, frames=None):
         if reading is not None:
             counts["with_face"] += 1
             counts["detections"] += int(reading.detected)
+            if last is not None and face_jumped(last.points, reading.points):
+                counts["cuts"] += 1  # another face, or the same one in another shot
+                if filt is not None:
+                    filt = OneEuroFilter(cfg.smooth, cfg.beta)
             if filt is not None:
                 sig = filt(t, np.concatenate([reading.weights, reading.head, reading.eyes]))
                 reading = dataclasses.replace(
@@ -279,6 +298,44 @@ def track_frames(source, cfg: TrackConfig, progress=None, frames=None):
         yield index, t, rgb, last
         if progress:
             progress(counts["decoded"], total)
+
+
+CUT_DIFFERENCE = 0.12
+"""Mean absolute difference (0 to 1) of two consecutive frames' 32 x 24 grey thumbnails
+from which the second starts a new shot: the tracker searches it whole and the filter
+starts again, so that unrelated photos or a cut in a video are not smoothed together.
+A moving head in one shot stays far below it (the tests' moving astronaut: under 0.05)."""
+
+
+def thumbnail(rgb: np.ndarray) -> np.ndarray:
+    """``(24, 32)`` float32 grey in [0, 1]: what :func:`is_cut` compares."""
+    import cv2
+
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    return cv2.resize(grey, (32, 24), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
+
+
+def is_cut(before: np.ndarray | None, now: np.ndarray) -> bool:
+    """Whether thumbnail ``now`` starts a new shot after ``before`` (:data:`CUT_DIFFERENCE`;
+    the first frame is not a cut)."""
+    return before is not None and float(np.abs(now - before).mean()) > CUT_DIFFERENCE
+
+
+FACE_JUMP = 0.4
+"""Share of the face's size by which its centre may move between two frames of one shot;
+a larger move, or a size that changes by more than a factor of 1.4, starts a new shot."""
+
+
+def face_jumped(before: np.ndarray, now: np.ndarray) -> bool:
+    """Whether the face mesh's points ``now (478, 3)`` are too far from ``before`` for one
+    shot (:data:`FACE_JUMP`): a cut to another face or another framing."""
+    def frame(p: np.ndarray) -> tuple[np.ndarray, float]:
+        lo, hi = p[:, :2].min(0), p[:, :2].max(0)
+        return (lo + hi) / 2, float(max(hi - lo))
+
+    (c0, s0), (c1, s1) = frame(before), frame(now)
+    ratio = s1 / max(s0, 1e-6)
+    return bool(np.linalg.norm(c1 - c0) > FACE_JUMP * s0 or not 1 / 1.4 <= ratio <= 1.4)
 
 
 def no_face_message(face: int, counts: dict, name: str) -> str:
@@ -329,6 +386,7 @@ def track_video(source, cfg: TrackConfig | None = None, progress=None):
             rows.append(None if reading is None else np.concatenate(
                 [reading.weights, reading.head, reading.eyes]).astype(np.float32))
         name, fps, count, size = frames.name, frames.fps, frames.count, frames.size
+        folder = frames.kind == "folder"
     if counts["decoded"] == 0:
         raise BadInputError(f"expected frames between --start and --end, found none in "
                             f"{name} ({count or 'an unknown number of'} frames at {fps:g} fps)")
@@ -336,6 +394,9 @@ def track_video(source, cfg: TrackConfig | None = None, progress=None):
     if first is None:
         raise NoFaceError(no_face_message(cfg.face, counts, name))
     warnings = []
+    if folder and not cfg.stills and counts["decoded"] > 1:
+        warnings.append("a folder of frames is tracked as one shot, each frame smoothed with "
+                        "the ones before; give --stills for separate photos")
     if counts["held"] or counts["skipped"]:
         verb = "held the last reading" if cfg.on_bad == "hold" else "skipped"
         warnings.append(f"no face in {counts['held'] + counts['skipped']} of "
@@ -353,7 +414,8 @@ def track_video(source, cfg: TrackConfig | None = None, progress=None):
     summary = {"input": name, "size": list(size), "fps": round(float(fps), 3),
                "frames": counts["decoded"], "frames_with_face": counts["with_face"],
                "frames_held": counts["held"], "frames_skipped": counts["skipped"],
-               "detections": counts["detections"], "rows": len(rows),
+               "detections": counts["detections"], "cuts": counts["cuts"],
+               "rows": len(rows),
                "tracking_fps": round(counts["decoded"] / max(counts["seconds"], 1e-9), 1),
                "fps_all_in": round(counts["decoded"] / max(seconds, 1e-9), 1),
                "seconds": round(seconds, 2), "warnings": warnings}
