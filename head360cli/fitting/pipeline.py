@@ -151,6 +151,7 @@ def fit_shape_photo(photo: str | Path, out_dir: str | Path, *, face: int | str =
                 "face_turn_degrees": found.turn,
                 "landmarks_detected": (found.landmarks / scale).round(2).tolist(),
                 "landmarks_fitted": (fit.landmarks_fitted / scale).round(2).tolist(),
+                "landmarks_3d": (fit.landmarks_3d(model) / scale).round(2).tolist(),
                 "shape": fit.shape.round(6).tolist(),
                 "expression": {n: round(float(w), 4) for n, w in zip(ARKIT52, fit.expression,
                                                                       strict=True)},

