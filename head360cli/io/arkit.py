@@ -68,6 +68,9 @@ BadCellPolicy = Literal["error", "skip", "hold"]
 STANDARD_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 90.0, 100.0, 120.0, 240.0)
 """Frame rates a timecode's frame field is snapped to."""
 
+NTSC_RATES = (23.976, 29.97, 59.94)
+"""NTSC's rates (24, 30 and 60 times 1000/1001), reported as themselves."""
+
 DEFAULT_FPS = 60.0
 """Rate assumed for a stream without any time column (ARKit tracks at 60 Hz)."""
 
@@ -554,11 +557,11 @@ def _effective_fps(timestamps: np.ndarray, fallback: float) -> float:
     if steps.size == 0:
         return float(fallback)
     rate = 1.0 / float(np.median(steps))
-    # Report the nominal rate when the median interval matches it within 1 %.
-    for nominal in (fallback, *STANDARD_RATES):
-        if abs(rate - nominal) <= 0.01 * nominal:
-            return float(nominal)
-    return rate
+    # Report the nearest named rate when the median interval matches it within 1 %
+    # (29.97 is NTSC's, not 30).
+    named = sorted({float(fallback), *STANDARD_RATES, *NTSC_RATES},
+                   key=lambda r: abs(rate - r) / r)
+    return named[0] if abs(rate - named[0]) <= 0.01 * named[0] else rate
 
 
 @dataclasses.dataclass
@@ -812,33 +815,37 @@ def _timecode(seconds: float, fps: float) -> str:
     return f"{h:02d}:{m:02d}:{s:02d}:{ff:02d}.{round(frac * 1000):03d}"
 
 
-def _timecode_rate(timestamps: np.ndarray, fps: float) -> float:
-    """The frame rate to number Live Link Face timecodes at, so that reading them back
-    gives the same times.
-
-    A reader infers the rate from the largest frame number (the next standard rate above
-    it). The stream's own rate is used when that inference recovers it. Otherwise (a rate
-    that is not standard, 10 frames per second say, or a take shorter than a second, whose
-    frame numbers never reach the top of its rate) the timecodes are numbered at a
-    standard rate that the inference does recover: the smallest one above the stream's
-    rate, else the largest below. Timecodes carry fractions of a frame, so the times are
-    kept either way. 24 is always recovered (a frame number below 24 infers 24), so the
-    search always ends.
-    """
-    if len(timestamps) == 0:
-        return fps
-    frac = np.asarray(timestamps, np.float64) % 1.0
-
-    def recovered(rate: float) -> bool:
-        top = int(np.floor(frac * rate + 1e-9).max())
-        return next((r for r in STANDARD_RATES if r > top), None) == rate
-
-    above = [r for r in STANDARD_RATES if r >= fps]
-    below = [r for r in reversed(STANDARD_RATES) if r < fps]
-    for rate in (fps, *above, *below):
-        if recovered(rate):
+def _timecode_rate(fps: float) -> float:
+    """The frame rate to number Live Link Face timecodes at: the stream's own where it is
+    a standard one (NTSC's 29.97 numbered at 30, with fractions), else the smallest
+    standard rate it divides (12.5 -> 25, 10 -> 30), else the nearest standard one
+    (fractions of a frame keep the times). The reader infers it from the largest frame
+    number, which :func:`_timecode_start` makes reach it."""
+    near = min(STANDARD_RATES, key=lambda r: abs(r - fps) / r)
+    if abs(near - fps) <= 0.002 * near:
+        return near
+    for rate in STANDARD_RATES:
+        k = rate / fps
+        if k >= 1 and abs(k - round(k)) < 1e-6:
             return rate
-    return fps  # not reached: see the docstring
+    return near
+
+
+def _timecode_start(timestamps: np.ndarray, rate: float, start: float) -> float:
+    """Where to put the first frame (seconds of the day, from ``start``) so that the
+    largest frame number of the take is ``rate - 1`` and a reader infers ``rate`` (the
+    next standard rate above its largest frame number), and the take is not all within
+    one second (which a reader warns does not tell the rate): a take that does not do so
+    by itself starts on the last frame of a second."""
+    t = start + np.asarray(timestamps, np.float64)
+    if not len(t):
+        return start
+    top = int(np.floor((t % 1.0) * rate + 1e-6).max())
+    one_second = np.floor(t[0] + 1e-9) == np.floor(t[-1] + 1e-9)
+    if next((r for r in STANDARD_RATES if r > top), None) == rate and not one_second:
+        return start
+    # the first frame on the last frame number of its second, the others after it
+    return math.floor(t[0] + 1e-9) + (rate - 1) / rate - float(timestamps[0])
 
 
 def write_arkit_csv(
@@ -860,9 +867,10 @@ def write_arkit_csv(
             (``timestamp_ms``, then the 51 names MediaPipe's Face Landmarker scores, in
             its order, then rotations if present).
         decimals: Digits after the decimal point.
-        start_seconds: Time of day of the first frame, for Live Link Face timecodes.
+        start_seconds: Time of day of the first frame, for Live Link Face timecodes (a
+            take that would lie within one second, or not reach the last frame number of
+            its rate, starts up to a second later: see :func:`_timecode_start`).
     """
-    fps = stream.nominal_fps or stream.fps
     rows: Iterable[list[str]]
     fmt = f"{{:.{decimals}f}}"
     head = stream.head_rotation
@@ -876,10 +884,11 @@ def write_arkit_csv(
             rot[:, :3] = head
         if eyes is not None:
             rot[:, 3:] = eyes
-        rate = _timecode_rate(start_seconds + stream.timestamps, fps)
+        rate = _timecode_rate(stream.fps)
+        begin = _timecode_start(stream.timestamps, rate, start_seconds)
         rows = (
             [
-                _timecode(start_seconds + float(stream.timestamps[i]), rate),
+                _timecode(begin + float(stream.timestamps[i]), rate),
                 "61",
                 *(fmt.format(v) for v in stream.weights[i, order]),
                 *(fmt.format(v) for v in rot[i]),

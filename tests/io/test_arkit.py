@@ -546,3 +546,30 @@ def test_a_mediapipe_file_head360_writes_reads_back_without_warnings(tmp_path):
                              for line in lines) + "\n")
     warned = read_arkit_csv(cut).warnings
     assert any("blendshapes missing, set to zero: jawOpen" in w for w in warned)
+
+
+@pytest.mark.parametrize("fps", [12.5, 24.0, 25.0, 29.97, 30.0, 60.0])
+def test_takes_head360_writes_read_back_at_their_rate_without_warnings(tmp_path, fps):
+    """Live Link Face timecodes carry no rate: a reader infers it from the largest frame
+    number. head360 numbers a take at its own rate (or the standard one it divides) and
+    starts a short take on the last frame of a second, so it reads back at its rate,
+    with its times, unwarned, from 1 to 100 frames; the rate given as the warning once
+    advised (--stream-fps) reads it the same."""
+    import numpy as np
+
+    from head360cli.io.arkit import ArkitStream, read_arkit_csv, write_arkit_csv
+
+    for n in (1, 2, 3, 10, 12, 24, 25, 29, 30, 31, 59, 60, 61, 100):
+        stream = ArkitStream(np.zeros((n, 52), np.float32), np.arange(n) / fps, fps)
+        path = tmp_path / f"t{n}.csv"
+        write_arkit_csv(stream, path)
+        back = read_arkit_csv(path)
+        assert back.warnings == [], (n, back.warnings)
+        assert back.num_frames == n
+        assert back.timestamps[-1] == pytest.approx((n - 1) / fps, abs=1e-3)
+        if n > 1:  # one frame has no rate to read
+            assert back.fps == pytest.approx(fps, rel=1e-3), n
+            assert back.duration == pytest.approx(n / fps, abs=1e-3)
+        if fps in (24.0, 25.0, 30.0, 60.0):
+            again = read_arkit_csv(path, fps=fps)
+            assert again.timestamps[-1] == pytest.approx((n - 1) / fps, abs=1e-3)
