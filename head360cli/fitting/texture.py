@@ -552,7 +552,7 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
                                         landmarks, slack, losses, progress, total)
         start = None
         if cfg.project and not cfg.grey and gen.kind == "deferred":
-            start = _projected(problem, code, cam, log_gain)
+            start = _projected(problem, code, cam, log_gain, keep)
         texture, log_gain = _fit_texture(problem, raster, code, cam, log_gain, keep, losses,
                                          progress, total, start)
     return Inversion(texture[0], code.detach()[0], cam[0], losses, len(losses),
@@ -744,9 +744,10 @@ def _fit_code(problem: _Problem, raster, start_code: torch.Tensor, c2w: torch.Te
 
 
 def _projected(problem: _Problem, code: torch.Tensor, cam: torch.Tensor,
-               log_gain: torch.Tensor) -> torch.Tensor:
+               log_gain: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
     """``(1, C, R, R)``: the photo projected into the code's texture (see
-    :attr:`InvertConfig.project`)."""
+    :attr:`InvertConfig.project`), the ``keep (R, R)`` texels left the code's (the inside
+    of a closed mouth, which the photo shows only as the lips in front of it)."""
     from head360cli.fitting.project import project_photo
     from head360cli.mesh.bilinear import load_bilinear
 
@@ -755,8 +756,11 @@ def _projected(problem: _Problem, code: torch.Tensor, cam: torch.Tensor,
     with torch.no_grad():
         start = gen.texture(code)
     light = _light(log_gain) if problem.cfg.gain else None
-    return project_photo(gen, problem.v[0], mirror, cam[0], problem.k[0], problem.tgt[0],
-                         problem.m[0], start, light).texture
+    texture = project_photo(gen, problem.v[0], mirror, cam[0], problem.k[0], problem.tgt[0],
+                            problem.m[0], start, light).texture
+    if keep is not None:
+        texture = torch.where(keep.to(texture.device), start, texture)
+    return texture
 
 
 def _fit_texture(problem: _Problem, raster, code: torch.Tensor, cam: torch.Tensor,
