@@ -237,7 +237,11 @@ def close_lids(gen, neutral: torch.Tensor, blink: torch.Tensor, texture: torch.T
             change, size=(side, side), mode="bilinear", align_corners=False)
         return up * keep
 
-    opt = Adam([change], lr=cfg.lr)
+    # the deferred generator reads each lid texel where it is seen: the texture steps'
+    # rate scale (fitting.texture.DEFERRED_RATES) keeps Adam from overshooting there too
+    from head360cli.fitting.texture import DEFERRED_RATES
+
+    opt = Adam([change], lr=cfg.lr * (DEFERRED_RATES[0] if deferred else 1.0))
     losses = []
     with gen.image_size(s), gen.samples_per_ray(cfg.samples), _deterministic(), \
             torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):

@@ -101,7 +101,7 @@ def test_close_lids_fits_a_change_on_the_lid_texels_only(head):
     changed = (out.change != 0).any(0).numpy()
     assert changed.sum() > 500 and not (changed & ~texels).any()
     assert out.loss_last < 0.8 * out.loss_first
-    assert gen.cfg.samples == 12 and gen.cfg.image_res == 256  # settings restored
+    assert gen.cfg.pixel_samples == 2 and gen.cfg.image_res == 256  # settings restored
 
 
 @pytest.mark.slow

@@ -134,7 +134,10 @@ def test_the_loss_window_gives_the_losses_of_the_whole_image(scene):
     mask[:, :100] = 0  # a face region: the lower middle of the head
     mask[:, :, :80] = 0
     mask[:, :, 180:] = 0
-    side = loss_window(mask[0] != 0, 2, 2 * gen.refine.reach * 2)[2]
+    from head360cli.fitting.texture import _reach_pixels
+
+    ratio = gen.cfg.image_res // gen.cfg.render_res
+    side = loss_window(mask[0] != 0, ratio, 2 * _reach_pixels(gen))[2]
     assert side < 256
     sizes = []
     hook = gen.register_forward_hook(lambda m, a, out: sizes.append(out["rgb"].shape[-1]))
