@@ -273,7 +273,10 @@ class DeferredGenerator(GeneratorBase):
         if view_rays is not None and "gbuffer" in view_rays:
             buf = view_rays["gbuffer"]
         else:
-            with torch.no_grad():
+            # the G-buffer carries gradients only to a camera or mesh being fitted (the
+            # texture lookups move with them); training and renders build it without
+            fitted = c2w.requires_grad or verts.requires_grad
+            with torch.set_grad_enabled(torch.is_grad_enabled() and fitted):
                 buf = self.gbuffer(verts, c2w, k, hair, cache)
             if view_rays is not None:
                 view_rays["gbuffer"] = buf

@@ -133,10 +133,27 @@ def test_refine_on_a_crop_equals_the_whole_image(where):
 
 
 @pytest.fixture(scope="module")
-def renderer(head_file):
-    from head360cli.fitting.pipeline import load_head_renderer
+def renderer(tmp_path_factory):
+    """A head drawn from a tiny hex-plane generator (trained one step): the reuse of
+    decoded points belongs to that generator only (the deferred one decodes no volume)."""
+    import dataclasses
 
-    return load_head_renderer(head_file, samples=4, size=64, precision="fp32")
+    from head360cli.drive.sample import sample_heads, write_samples
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.model.train import CHECKPOINT, TrainConfig, save_generator, train
+    from head360cli.paths import use_generator
+    from tests.model.test_generator import TINY
+
+    folder = tmp_path_factory.mktemp("hexplane")
+    train(folder / "run", TrainConfig(identities=2, steps=1, batch=2, log_every=1),
+          dataclasses.replace(TINY, renderer="hexplane"), progress=False)
+    save_generator(folder / "run" / CHECKPOINT, folder / "hex.pt")
+    weights = folder / "hex.pt"
+    with use_generator(weights):
+        head = write_samples(sample_heads(1, seed=0, lids=False), folder)[0]
+        r = load_head_renderer(head, samples=4, size=64, precision="fp32")
+    assert r.gen.kind == "hexplane"
+    return r
 
 
 def _frames(r, weights, cams, tol):
