@@ -44,6 +44,19 @@ from head360cli.model.networks import (
 __all__ = ["DeferredGenerator", "read_texels"]
 
 
+def exact_hair_colour(texture: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
+    """Hair textures ``(B, C, r, r)`` whose albedo channels (0-2) are the colour of the
+    corpus's strand texture of ``colour (B, 3)`` (linear RGB; plus 0.03 for near-black
+    hair) times the network's strand shading (its albedo's brightness over its mean), as
+    the corpus makes them. The network learnt ten colours and turns any other towards
+    them (green came out grey); this keeps its strands and takes the colour asked for."""
+    target = colour + 0.03 * (colour.amax(-1, keepdim=True) < 0.1).to(colour.dtype)
+    bright = texture[:, :3].mean(1, keepdim=True).clamp_min(0.0)
+    shade = bright / bright.mean((-2, -1), keepdim=True).clamp_min(1e-4)
+    albedo = (target[..., None, None] * shade).clamp(0.0, 1.0)
+    return torch.cat([albedo, texture[:, 3:]], 1)
+
+
 def read_texels(table: torch.Tensor, base: torch.Tensor, res: torch.Tensor,
                uv: torch.Tensor) -> torch.Tensor:
     """Bilinear reads of textures stored texel by texel in one table.
@@ -163,6 +176,8 @@ class DeferredGenerator(GeneratorBase):
         if items:
             idx = torch.tensor(items, device=hair.style.device)
             tex = self.hair_texture_generator(hair.style[idx], hair.colour[idx])
+            if not self.training:
+                tex = exact_hair_colour(tex, hair.colour[idx])
             made: dict[int, torch.Tensor] = {}
             for j, i in enumerate(items):  # one texture per mesh object (views of a head)
                 textures[i] = made.setdefault(id(hair.meshes[i]), tex[j:j + 1])

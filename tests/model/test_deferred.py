@@ -140,6 +140,36 @@ def test_hair_is_drawn_and_items_sharing_it_render_as_one_by_one(parts):
     assert both["hair_texture"].shape == (2, 16, 8, 8)
 
 
+def test_hair_takes_any_colour_asked_for_in_renders_and_learns_in_training(parts):
+    """Rendering (eval mode), the hair's albedo channels are the colour of the corpus's
+    strand texture of the colour asked for (any colour, green too) times the network's
+    strand shading; the other channels are the network's. Training leaves all to it."""
+    from head360cli.model.deferred import exact_hair_colour
+
+    model, _, _, _ = parts
+    neutral = model.vertices(np.zeros(model.rank), np.zeros(52))
+    gen = _gen()
+    hair = hair_for(neutral, [3], np.array([[0.0, 1.0, 0.0]]))
+    with torch.no_grad():
+        made = gen.prepare_hair(hair).planes[0]
+        gen.train()
+        learnt = gen.prepare_hair(hair).planes[0]
+        gen.eval()
+    torch.testing.assert_close(made, exact_hair_colour(learnt, hair.colour))
+    assert not torch.equal(made[:, :3], learnt[:, :3])
+    # the function itself, on a texture whose strands are known
+    torch.manual_seed(0)
+    tex = torch.rand(2, 6, 8, 8)
+    colours = torch.tensor([[0.0, 0.4, 0.0], [0.035, 0.03, 0.028]])
+    out = exact_hair_colour(tex, colours)
+    torch.testing.assert_close(out[:, :3].mean((-2, -1)),
+                               torch.tensor([[0.0, 0.4, 0.0], [0.065, 0.06, 0.058]]),
+                               atol=1e-6, rtol=0)  # near-black hair: + 0.03, as the corpus
+    bright = tex[:, :3].mean(1)
+    torch.testing.assert_close(out[1, 0], 0.065 * bright[1] / bright[1].mean())
+    assert torch.equal(out[:, 3:], tex[:, 3:])
+
+
 def test_gbuffer_normals_and_view_directions(parts):
     """Unit vectors; the view direction points at the camera, and a visible surface
     faces it."""
