@@ -552,11 +552,11 @@ def invert_texture(gen, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torc
     with gen.samples_per_ray(cfg.samples), gen.image_size(problem.side), _deterministic():
         code, cam, log_gain = _fit_code(problem, raster, start_code, c2w, intrinsics,
                                         landmarks, slack, losses, progress, total)
-        start = None
+        start, seen = None, None
         if cfg.project and not cfg.grey and gen.kind == "deferred":
-            start = _projected(problem, code, cam, log_gain, keep)
+            start, seen = _projected(problem, code, cam, log_gain, keep)
         texture, log_gain = _fit_texture(problem, raster, code, cam, log_gain, keep, losses,
-                                         progress, total, start)
+                                         progress, total, start, seen)
     return Inversion(texture[0], code.detach()[0], cam[0], losses, len(losses),
                      time.perf_counter() - t0, _light(log_gain) if cfg.gain else None)
 
@@ -746,10 +746,12 @@ def _fit_code(problem: _Problem, raster, start_code: torch.Tensor, c2w: torch.Te
 
 
 def _projected(problem: _Problem, code: torch.Tensor, cam: torch.Tensor,
-               log_gain: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+               log_gain: torch.Tensor, keep: torch.Tensor | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(1, C, R, R)``: the photo projected into the code's texture (see
     :attr:`InvertConfig.project`), the ``keep (R, R)`` texels left the code's (the inside
-    of a closed mouth, which the photo shows only as the lips in front of it)."""
+    of a closed mouth, which the photo shows only as the lips in front of it); and the
+    ``(R, R)`` weight of each texel's own read of the photo."""
     from head360cli.fitting.project import project_photo
     from head360cli.mesh.bilinear import load_bilinear
 
@@ -758,20 +760,32 @@ def _projected(problem: _Problem, code: torch.Tensor, cam: torch.Tensor,
     with torch.no_grad():
         start = gen.texture(code)
     light = _light(log_gain) if problem.cfg.gain else None
-    texture = project_photo(gen, problem.v[0], mirror, cam[0], problem.k[0], problem.tgt[0],
-                            problem.m[0], start, light).texture
+    made = project_photo(gen, problem.v[0], mirror, cam[0], problem.k[0], problem.tgt[0],
+                         problem.m[0], start, light)
+    texture = made.texture
     if keep is not None:
         texture = torch.where(keep.to(texture.device), start, texture)
-    return texture
+    return texture, made.photo
+
+
+SEEN_FROM = 0.1
+"""Weight of a texel's own read of the photo from which the texture steps fit it, at
+their full rate (see :func:`_fit_texture`)."""
+SEEN_REACH = 3
+"""Texels by which the texture steps may reach past those the photo sees (see
+:func:`_fit_texture`)."""
 
 
 def _fit_texture(problem: _Problem, raster, code: torch.Tensor, cam: torch.Tensor,
                  log_gain: torch.Tensor, keep, losses: list[float], progress, total: int,
-                 start: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 start: torch.Tensor | None = None, seen: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The texture steps: the change of the ``start`` texture (default: the code's) on a
     coarse grid plus a smooth fine layer, and the light, with the camera fixed; stops
-    when the loss stalls. Returns ``(the lowest-loss texture (1, C, R, R), light's log
-    (3,))``."""
+    when the loss stalls. With ``seen (R, R)`` (a projected start's weights of the
+    photo's own reads) the change of each texel is scaled by it: a texel the photo sees
+    edge-on or not at all keeps what the projection gave it. Returns ``(the lowest-loss
+    texture (1, C, R, R), light's log (3,))``."""
     from head360cli.fitting.adam import Adam
 
     gen, cfg = problem.gen, problem.cfg
@@ -794,6 +808,17 @@ def _fit_texture(problem: _Problem, raster, code: torch.Tensor, cam: torch.Tenso
     opt = Adam(groups)
 
     free = None if keep is None else (~keep).to(start)  # the texels that may change
+    if seen is not None:
+        # Fitted everywhere, the change painted the few pixels of texels seen edge-on
+        # (cheeks beside the ears, the hairline's border) over the many pixels they
+        # cover from the side: dark blotches on a curly-haired woman's cheeks at 45-135
+        # degrees, her fringe's outline on the forehead.
+        # The weights grown by SEEN_REACH texels: the eroded ring at the face mask's
+        # edge, which the projection leaves to the code, is still fitted.
+        seen = torch.nn.functional.max_pool2d((seen > SEEN_FROM)[None, None].to(start),
+                                              2 * SEEN_REACH + 1, stride=1,
+                                              padding=SEEN_REACH)[0, 0]
+        free = seen if free is None else free * seen
 
     def fitted() -> torch.Tensor:
         coarse = delta if cfg.texture_stride == 1 else torch.nn.functional.interpolate(
