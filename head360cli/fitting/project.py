@@ -45,6 +45,11 @@ class ProjectConfig:
     gives nothing."""
     blur: float = 1.5
     """Texels: the Gaussian blur of the weights that blends the seams."""
+    match: float = 0.05
+    """The reach (Gaussian sigma, a share of the texture's side: 12.8 texels at 256)
+    over which the filled skin next to what the photo shows takes on the photo's skin's
+    colour, fading out beyond (0: none). The fill's one tone for the whole head left a
+    seam of another colour along the jaw and the cheeks' sides."""
 
 
 @dataclasses.dataclass
@@ -59,6 +64,11 @@ class Projection:
     mirror: torch.Tensor
     tone: torch.Tensor
     covered: torch.Tensor
+
+
+MATCH_FULL = 0.5
+"""Blurred weight of the photo's skin from which the fill takes all of its colour (at a
+straight edge of what the photo shows, the blurred weight is 0.5)."""
 
 
 def _smooth(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
@@ -180,6 +190,14 @@ def project_photo(gen, verts: torch.Tensor, mirror: torch.Tensor, c2w: torch.Ten
     else:
         tone = torch.ones(3, dtype=photo.dtype, device=photo.device)
     toned = base * tone
+    if cfg.match > 0:  # the seen skin's low frequencies carried into the fill beside it
+        w = texels(w_own) * skin_part
+        sigma = cfg.match * res
+        spread = _blur(w, sigma)
+        diff = texels(own) - toned
+        near = torch.stack([_blur(w * d, sigma) for d in diff.unbind(-1)], -1)
+        fade = (spread / MATCH_FULL).clamp(0, 1)[..., None]
+        toned = toned + fade * near / spread.clamp_min(1e-6)[..., None]
     detail = _skin_detail(res, toned)
     if detail is not None:  # the scan's pores where the code's painted skin has none
         toned = toned * detail
