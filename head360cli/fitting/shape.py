@@ -37,7 +37,7 @@ from head360cli.geometry.rig import RIG_TARGET
 from head360cli.mesh.bilinear import BilinearModel
 
 __all__ = ["FOCAL_35MM_RANGE", "ShapeFit", "ShapeFitConfig", "ShapeFitter", "check_camera",
-           "check_focal", "default_focal"]
+           "check_focal", "default_focal", "frontal_jaw"]
 
 
 def _mv(a: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -171,9 +171,13 @@ class ShapeFit:
         """``(68, 2)`` pixels of the bilinear ``model``'s 68 landmarks as fixed points on
         its surface, projected: AFLW2000-3D's convention, where the jawline is the 3D
         jaw's, against :attr:`landmarks_fitted`, whose jawline follows the silhouette
-        (300-W's)."""
+        (300-W's). The jawline's fixed points are where this head's neutral face shows
+        its outline from straight ahead (:func:`frontal_jaw`), so a turned face's far
+        jaw is drawn on the jaw, not on the cheek's silhouette."""
         v = model.vertices(self.shape, self.expression)
         points = (v[model.landmark_tri] * model.landmark_bary[..., None]).sum(1)
+        sliding, vertices = frontal_jaw(model, model.vertices(self.shape, np.zeros(52)))
+        points[sliding] = v[vertices]
         cam = points @ self.rotation.T + self.translation
         z = np.maximum(cam[:, 2], 1e-6)
         return np.stack([self.focal * cam[:, 0] / z + self.centre[0],
@@ -196,6 +200,27 @@ class ShapeFit:
         pitch = np.degrees(np.arcsin(np.clip(c[1, 2], -1.0, 1.0)))
         roll = np.degrees(np.arctan2(c[1, 0], c[1, 1]))
         return {"yaw": float(yaw), "pitch": float(pitch), "roll": float(roll)}
+
+
+_JAW_SLICES: dict[int, tuple] = {}
+"""Per bilinear model (by identity): its sliding jawline points, their slices and sides."""
+
+
+def frontal_jaw(model: BilinearModel, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The jawline landmarks that slide (``(12,)`` iBUG indices) and, for each, the vertex
+    of its slice that is the outline of ``vertices (V, 3)`` (a head of ``model``) seen
+    from straight ahead: the slice's extreme towards its own side, in model x."""
+    cached = _JAW_SLICES.get(id(model))
+    if cached is None or cached[0] is not model:
+        lm = np.asarray(model.landmarks, dtype=np.int64)
+        sliding = np.array([k for k in JAW if k not in CHIN_FIXED])
+        cached = _JAW_SLICES[id(model)] = (model, sliding,
+                                           ShapeFitter._contour_candidates(model, lm),
+                                           np.sign(model.neutral_mean[lm[sliding], 0]))
+    _, sliding, slices, side = cached
+    chosen = np.array([slices[k][np.argmax(vertices[slices[k], 0] * sd)]
+                       for k, sd in zip(sliding, side, strict=True)])
+    return sliding, chosen
 
 
 class ShapeFitter:

@@ -97,3 +97,47 @@ def test_landmarks_3d_are_the_models_surface_points_projected():
     # the nose tip (30) near the principal point, the chin (8) below it, eyes above
     assert abs(pts[30, 0] - 320) < 5 and pts[8, 1] > pts[30, 1] > pts[36, 1]
     assert abs(pts[36, 0] - pts[45, 0]) > 50  # the outer eye corners, apart
+
+
+def test_landmarks_3d_jaw_is_the_frontal_outline_fixed_on_the_surface():
+    """The fixed jaw points are where a head's front view shows its outline: from straight
+    ahead they are the slid jawline; turned 35 degrees they stay on the jaw, inside the
+    silhouette that the slid points follow (each no further out; measured up to 24 mm in).
+    """
+    import numpy as np
+
+    from head360cli.fitting.shape import ShapeFit, ShapeFitter, frontal_jaw
+    from head360cli.mesh.bilinear import load_bilinear
+
+    model = load_bilinear()
+    fitter = ShapeFitter(model)
+    shape = np.random.default_rng(0).normal(0, 0.5, model.rank)
+    verts = model.vertices(shape, np.zeros(52))
+    sliding, chosen = frontal_jaw(model, verts)
+    assert list(sliding) == list(fitter.sliding)
+
+    def fit_at(yaw_deg):
+        a = np.radians(yaw_deg)
+        turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        rot = np.diag([1.0, -1.0, -1.0]) @ turn
+        t = np.array([0, 0, 40.0]) - rot @ verts.mean(0)  # far away: nearly orthographic
+        return ShapeFit(shape=shape, expression=np.zeros(52), rotation=rot, translation=t,
+                        focal=40000.0, centre=np.zeros(2), landmarks_fitted=np.zeros((68, 2)),
+                        landmark_vertices=np.zeros(68, int), timings={}), rot, t
+
+    fit, rot, t = fit_at(0.0)
+    slid = fitter.contour_landmarks(verts, rot, t, fit.focal, fit.centre)
+    np.testing.assert_allclose(slid[sliding], verts[chosen])
+    fit, rot, t = fit_at(35.0)
+    pts = fit.landmarks_3d(model)
+    slid = fitter._project(fitter.contour_landmarks(verts, rot, t, fit.focal, fit.centre),
+                           rot, t, fit.focal, fit.centre)[0]
+    side = fitter.cand_side
+    out_3d = (pts[sliding, 0] - pts[30, 0]) * side
+    out_slid = (slid[sliding, 0] - pts[30, 0]) * side
+    assert (out_3d <= out_slid + 1e-6).all()
+    far = out_slid - out_3d
+    assert far.max() > 10.0  # pixels, 1000 a metre here: more than a centimetre
+    # points the turn does not move stay where they were
+    np.testing.assert_allclose(np.delete(pts, sliding, 0),
+                               np.delete(slid, sliding, 0), atol=1e-6)
