@@ -81,13 +81,17 @@ def _hair_parse(data: Path) -> dict[str, Any]:
     return out
 
 
+FIGARO_LENGTH = {"short-men": "short", "straight": "long", "wavy": "long"}
+"""The hair length each Figaro-1k class shows, where it tells one."""
+
+
 def _figaro_classes(data: Path) -> dict[str, Any]:
     """Agreement of the top style's Figaro class (:data:`FIGARO_CLASSES`) with Figaro's
     label, on the Figaro photos where a face is found (classification needs the fitted
     head)."""
     from head360cli.errors import NoFaceError
     from head360cli.fitting.pipeline import classify_photo
-    from head360cli.synth.hair import figaro_class
+    from head360cli.synth.hair import figaro_class, hair_length
 
     folder = data / "hair" / "figaro"
     labels = dict(line.split() for line in (folder / "classes.txt").read_text().splitlines()
@@ -99,9 +103,13 @@ def _figaro_classes(data: Path) -> dict[str, Any]:
         except NoFaceError:
             continue
         rows.append({"photo": stem, "label": label, "style": top["name"],
-                     "class": figaro_class(top["id"])})
+                     "class": figaro_class(top["id"]), "length": hair_length(top["id"])})
     agree = sum(r["class"] == r["label"] for r in rows)
-    return {"photos": len(labels), "with_face": len(rows), "agree": agree, "rows": rows}
+    # short-men's hair is short; Figaro's straight and wavy photos show long hair
+    lengths = [r for r in rows if r["label"] in FIGARO_LENGTH]
+    return {"photos": len(labels), "with_face": len(rows), "agree": agree, "rows": rows,
+            "length_photos": len(lengths),
+            "length_agree": sum(r["length"] == FIGARO_LENGTH[r["label"]] for r in lengths)}
 
 
 def _hair_style(views: int = 30, seed: int = 0) -> dict[str, Any]:
@@ -420,6 +428,36 @@ def _distances(head_file: Path, ref, device: str = "cpu") -> dict[str, float | N
     return dist
 
 
+def hair_at_photo(head_file: Path, rgb: np.ndarray, summary: dict[str, Any],
+                  device: str = "cpu") -> dict[str, Any]:
+    """The fitted head's hair at the photo's own view against the hair MediaPipe's
+    segmenter finds in the photo's crop: IoU, CIEDE2000 of the median colours (``None``
+    where either shows under :data:`~head360cli.bench.hair.MIN_HAIR_PIXELS`) and the
+    stair steps on the render's hair silhouette."""
+    import torch
+
+    from head360cli.bench.hair import hair_colour_difference, segmented_hair, silhouette_steps
+    from head360cli.fitting.hair_parse import mask_iou
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.fitting.texture import crop_image
+    from head360cli.io.headfile import read_head
+    from head360cli.model.head_render import to_uint8
+
+    size = int(summary["crop"]["size"])
+    crop = crop_image(rgb, np.asarray(summary["crop"]["affine"], np.float64), size)
+    arrays = read_head(head_file).arrays
+    head = load_head_renderer(head_file, device=device, precision="fp32", size=size)
+    image, _, hair = head.render(torch.tensor(np.asarray(arrays["pose"]))[None],
+                                 torch.tensor(np.asarray(arrays["intrinsics"])),
+                                 alpha=True, hair_alpha=True)
+    image, hair = to_uint8(image)[0], hair[0, 0].numpy() > 0.5
+    real = segmented_hair(crop)
+    de = hair_colour_difference(image, hair, crop, real)
+    return {"hair_iou": round(mask_iou(hair, real), 4),
+            "hair_delta_e": None if de is None else round(de, 2),
+            "hair_steps": silhouette_steps(hair)}
+
+
 def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
           ) -> dict[str, Any]:
     from head360cli.fitting.pipeline import fit_photo
@@ -440,6 +478,7 @@ def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
                      "descriptor_distance": dist, "hair": s["hair_style"]["name"],
                      "colour_outliers": colour_outliers(out, rgb, device),
                      "mouth_inside": s["inversion"]["mouth_inside"],
+                     **hair_at_photo(out, rgb, s, device),
                      "seconds": s["timings"]["total"]})
     ok = [r for r in rows if "error" not in r]
 
@@ -458,6 +497,9 @@ def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"
         "distance_0_renders": [sum(d is not None for d in at_0), len(at_0)],
         "distance_30_renders": [sum(d is not None for d in at_30), len(at_30)],
         "colour_outliers": mean([r["colour_outliers"] for r in ok]),
+        "hair_iou": mean([r["hair_iou"] for r in ok]),
+        "hair_delta_e": mean([r["hair_delta_e"] for r in ok]),
+        "hair_steps": sum(r["hair_steps"] for r in ok),
         "seconds": mean([r["seconds"] for r in ok])}}
 
 
@@ -757,7 +799,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f = r["figaro_classes"]
         lines += [f"Figaro coarse classes: {f['agree']} of {f['with_face']} photos with a "
                   f"face found agree ({f['photos']} photos in all; the others show no face "
-                  "to fit).", ""]
+                  "to fit). Hair length (short-men short; straight and wavy long): "
+                  f"{f.get('length_agree', '-')} of {f.get('length_photos', '-')}.", ""]
     lines += ["## Synthetic fit (one frontal render -> 72 views; the render's focal and "
               "camera distance given to the fit)", "",
               "| preset | PSNR all views | SSIM all views | PSNR input view | s per fit "
@@ -786,8 +829,9 @@ def _markdown(r: dict[str, Any]) -> str:
     if "real" in r:
         lines += ["", "## Real photos", "",
                   "| preset | face PSNR | same, bald | descriptor distance 0 deg | at +-30 deg "
-                  "| colour outliers | s per fit | one fit from the command line: fit s, "
-                  "wall s |", "|---|---|---|---|---|---|---|---|"]
+                  "| colour outliers | hair IoU, photo's view | hair CIEDE2000 | hair steps "
+                  "| s per fit | one fit from the command line: fit s, wall s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for p, v in r["real"].items():
             m = v["mean"]
 
@@ -801,7 +845,9 @@ def _markdown(r: dict[str, Any]) -> str:
                          f"{f(m['psnr_face_bald'], '.2f')} | {f(m['distance_0'])}"
                          f"{found('distance_0_renders')} | {f(m['distance_30'])}"
                          f"{found('distance_30_renders')} | "
-                         f"{_pct(m.get('colour_outliers'))} | {f(m['seconds'], '.1f')} | "
+                         f"{_pct(m.get('colour_outliers'))} | {f(m.get('hair_iou'))} | "
+                         f"{f(m.get('hair_delta_e'), '.1f')} | {m.get('hair_steps', '-')} | "
+                         f"{f(m['seconds'], '.1f')} | "
                          f"{_cold_cell(v.get('cold'))} |")
     if r.get("sweep"):
         lines += ["", "## Inversion steps against quality (first photo, fast preset)", "",

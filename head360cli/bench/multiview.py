@@ -15,7 +15,12 @@ real photos are cropped by the same map. Per |yaw| bin:
   costs the descriptor, the floor for the first;
 - the IoU of the head's silhouette: the render's coverage against the real photo's
   foreground on its plain backdrop, both above the fitted chin (below it the real photo
-  shows the neck and clothes, the render a cut neck).
+  shows the neck and clothes, the render a cut neck);
+- the hair (:mod:`head360cli.bench.hair`): the IoU of the render's hair (where it is the
+  nearest surface) with the hair MediaPipe's segmenter finds in the real photo, the
+  CIEDE2000 between their median colours, whether the segmenter reads the render's hair
+  as hair where it finds hair in the real photo, and the stair steps on the render's
+  hair silhouette.
 
 It writes ``multiview_sheet.png``: for one person the real photos in one row and the
 renders of each preset below.
@@ -35,6 +40,10 @@ __all__ = ["bench_multiview", "foreground_mask", "orbit", "read_pointing04"]
 
 YAW_BINS = ((15.0, 45.0), (60.0, 60.0), (75.0, 90.0), (15.0, 90.0))
 """|yaw| bins reported (inclusive), as the goals are stated, and all turned views."""
+HAIR_BINS = ((0.0, 0.0), (15.0, 45.0), (60.0, 60.0), (75.0, 90.0), (90.0, 90.0),
+             (15.0, 90.0))
+"""|yaw| bins of the hair's measures (inclusive): the photo's own view, the turned ones
+as above, and the sides alone."""
 FOREGROUND_DIFF = 28.0
 """A pixel further than this (0-255, largest channel) from every colour the backdrop has
 in its row is foreground (:func:`foreground_mask`)."""
@@ -115,6 +124,7 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
 
     from head360cli.bench.colours import outlier_share, photo_palette_of
     from head360cli.bench.fit import _descriptor
+    from head360cli.bench.hair import segmented_hair
     from head360cli.drive.views import photo_expression
     from head360cli.fitting.pipeline import fit_photo, load_head_renderer
     from head360cli.fitting.texture import crop_image
@@ -130,7 +140,7 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
     out: dict[str, Any] = {"person": rows[0]["person"], "series": rows[0]["series"],
                            "pans": pans, "presets": {}}
     sheet_rows: dict[str, list[np.ndarray]] = {}
-    real_crops = None
+    real_crops = real_hair = None
     palette = photo_palette_of(real[0])
     for preset in presets:
         head_file = work / f"p{out['person']}s{out['series']}_{preset}.h360"
@@ -151,10 +161,13 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
         chin_row = float(_project(np.asarray(arrays["vertices"])[chin][None], c2w, k)[0, 1])
         cut = int(np.clip(round(chin_row), 0, res))
         cams = torch.tensor(np.stack([orbit(c2w, p) for p in pans]))
-        rgb, alpha = head.render(cams, torch.tensor(k), expression=photo_expression(
-            head.expression), alpha=True)
+        rgb, alpha, hair_alpha = head.render(cams, torch.tensor(k), expression=photo_expression(
+            head.expression), alpha=True, hair_alpha=True)
         renders = to_uint8(rgb)
         alpha = alpha[:, 0].numpy()
+        hair_alpha = hair_alpha[:, 0].numpy()
+        if real_hair is None:
+            real_hair = {p: segmented_hair(real_crops[p]) for p in pans}
         per_pan = []
         for i, p in enumerate(pans):
             d = _descriptor(renders[i])
@@ -169,7 +182,9 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
                 else round(float(np.linalg.norm(d - ref)), 4),
                 "real_to_front": None if ref is None or ref0 is None
                 else round(float(np.linalg.norm(ref - ref0)), 4),
-                "iou": None if (r := _iou(sil, fg)) is None else round(r, 4)})
+                "iou": None if (r := _iou(sil, fg)) is None else round(r, 4),
+                **_hair_measures(renders[i], hair_alpha[i] > 0.5, real_crops[p],
+                                 real_hair[p])})
         shares = [] if palette is None else [
             x for x in outlier_share(renders, alpha, palette) if x is not None]
         out["presets"][preset] = {"pans": per_pan, "seconds": s["timings"]["total"],
@@ -178,6 +193,47 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
                                   if shares else None}
         sheet_rows[preset] = list(renders)
     out["sheet_rows"] = sheet_rows
+    return out
+
+
+def _hair_measures(render: np.ndarray, hair: np.ndarray, real: np.ndarray,
+                   real_hair: np.ndarray) -> dict[str, Any]:
+    """The hair's measures at one yaw: a render ``(H, W, 3)`` uint8 and its hair pixels
+    ``(H, W)`` bool against the real photo's crop and the hair the segmenter finds there.
+    """
+    from head360cli.bench.hair import (
+        MIN_HAIR_PIXELS,
+        hair_colour_difference,
+        reads_as_hair,
+        silhouette_steps,
+    )
+    from head360cli.fitting.hair_parse import mask_iou
+
+    real_has = int(np.count_nonzero(real_hair)) >= MIN_HAIR_PIXELS
+    de = hair_colour_difference(render, hair, real, real_hair)
+    return {"real_hair": real_has,
+            "hair_iou": round(mask_iou(hair, real_hair), 4),
+            "hair_delta_e": None if de is None else round(de, 2),
+            "hair_read": reads_as_hair(render, hair) if real_has else None,
+            "hair_steps": silhouette_steps(hair)}
+
+
+def _hair_bins(people: list[dict[str, Any]], preset: str) -> list[dict[str, Any]]:
+    """The hair's per-pan measures of ``preset`` over every person, by |yaw| bin."""
+    rows = [r for p in people for r in p["presets"][preset]["pans"]]
+    out = []
+    for lo, hi in HAIR_BINS:
+        sel = [r for r in rows if lo <= abs(r["pan"]) <= hi]
+        real = [r for r in sel if r["real_hair"]]
+        out.append({
+            "yaw": f"{lo:.0f}-{hi:.0f}" if lo != hi else f"{lo:.0f}",
+            "views": len(sel),
+            "hair_iou": _mean([r["hair_iou"] for r in sel]),
+            "hair_delta_e": _mean([r["hair_delta_e"] for r in sel]),
+            "colours": sum(r["hair_delta_e"] is not None for r in sel),
+            "read_where_real": [sum(bool(r["hair_read"]) for r in real), len(real)],
+            "steps": sum(r["hair_steps"] for r in sel),
+            "views_with_steps": sum(r["hair_steps"] > 0 for r in sel)})
     return out
 
 
@@ -273,6 +329,8 @@ def bench_multiview(presets: tuple[str, ...] = ("fast", "quality"),
     for p in result["people"]:
         del p["sheet_rows"]
     result["bins"] = {preset: _bins(result["people"], preset) for preset in presets}
+    result["hair_bins"] = {preset: _hair_bins(result["people"], preset)
+                           for preset in presets}
     result["colour_outliers"] = {preset: _mean([p["presets"][preset]["colour_outliers"]
                                                 for p in result["people"]])
                                  for preset in presets}
@@ -297,6 +355,18 @@ def _markdown(r: dict[str, Any]) -> str:
                 f"| {preset} | {b['yaw']} | {f(b['distance'])} ({b['distances']}) | "
                 f"{f(b['real_to_front'])} | {fw[0]}/{fw[1]} | {fr[0]} / {fe[0]} of {fe[1]} "
                 f"| {f(b['iou'])} |")
+    lines += ["", "Hair, render against real photo (the segmenter's hair on the real "
+              "photo; CIEDE2000 of the median colours; read: the segmenter finds the "
+              "render's hair where it finds hair in the real photo; steps: jumps of 2 px "
+              "or more on the render's hair silhouette):", "",
+              "| preset | \\|yaw\\| | views | hair IoU | hair colour CIEDE2000 (views) | "
+              "read as hair | steps (views with any) |", "|---|---|---|---|---|---|---|"]
+    for preset, bins in r.get("hair_bins", {}).items():
+        for b in bins:
+            rw = b["read_where_real"]
+            lines.append(f"| {preset} | {b['yaw']} | {b['views']} | {f(b['hair_iou'])} | "
+                         f"{f(b['hair_delta_e'], '.1f')} ({b['colours']}) | {rw[0]}/{rw[1]} "
+                         f"| {b['steps']} ({b['views_with_steps']}) |")
     lines += ["", "Colour outliers (head pixels of the renders whose colour the frontal "
               "photo's skin and hair do not have): " + ", ".join(
                   f"{k} {'-' if v is None else format(v, '.2%')}"

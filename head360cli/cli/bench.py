@@ -187,8 +187,10 @@ def bench_multiview_cmd(presets: tuple[str, ...], people: tuple[int, ...],
                         out_dir: str) -> None:
     """360 degrees on real photos: fit each person's frontal photo, turn the head to the
     yaws of their other photos (-90 to +90 degrees) and compare: dlib descriptor distance
-    render-real, faces found, the real turn's own distance, head silhouette IoU; and a
-    contact sheet (real photos above, renders below). Needs ../shared/data/multiview.
+    render-real, faces found, the real turn's own distance, head silhouette IoU; the
+    hair against the segmenter's on the real photo (IoU, colour CIEDE2000, read as hair,
+    silhouette steps); and a contact sheet (real photos above, renders below). Needs
+    ../shared/data/multiview.
 
     \b
     Examples:

@@ -311,12 +311,19 @@ class HeadRenderer:
     @torch.no_grad()
     def render(self, c2w: torch.Tensor, intrinsics: torch.Tensor,
                expression: np.ndarray | None = None, hair: bool = True,
-               batch: int | None = None, alpha: bool = False
-               ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+               batch: int | None = None, alpha: bool = False, hair_alpha: bool = False
+               ) -> torch.Tensor | tuple[torch.Tensor, ...]:
         """Views ``(B, 3, H, W)`` in [0, 1] on white from cameras ``c2w (B, 4, 4)`` with
         ``intrinsics (3, 3)`` for ``self.size`` images, ``batch`` at a time.
         ``expression``: ``(52,)`` for every view or ``(B, 52)``, one per view. With
-        ``alpha``, also the head's coverage ``(B, 1, H, W)`` in [0, 1]."""
+        ``alpha``, also the head's coverage ``(B, 1, H, W)`` in [0, 1]; with
+        ``hair_alpha`` (torch generators only), after it the share of each pixel where
+        the hair is the nearest surface, ``(B, 1, H, W)``."""
+        if hair_alpha:
+            if self.runner is not None:
+                raise ValueError("expected a torch generator for the hair's coverage, "
+                                 "found an exported graph")
+            alpha = "hair"
         if expression is not None and np.ndim(expression) == 2:
             weights = np.asarray(expression)
         else:
@@ -326,13 +333,13 @@ class HeadRenderer:
                                drive=expression is not None, alpha=alpha))
         if not alpha:
             return torch.cat([torch.as_tensor(f) for f in out])
-        return (torch.cat([torch.as_tensor(f) for f, _ in out]),
-                torch.cat([torch.as_tensor(a) for _, a in out]))
+        return tuple(torch.cat([torch.as_tensor(part[j]) for part in out])
+                     for j in range(len(out[0])))
 
     @torch.no_grad()
     def frames(self, c2w: torch.Tensor, weights: np.ndarray, intrinsics: torch.Tensor,
                hair: bool = True, batch: int | None = None, uint8: bool = True,
-               drive: bool = True, alpha: bool = False) -> Iterator[Any]:
+               drive: bool = True, alpha: bool | str = False) -> Iterator[Any]:
         """Render frame after frame (an animation): camera ``c2w[i] (4, 4)`` and ARKit
         weights ``weights[i] (52,)`` (driving weights, see :meth:`drive`; with
         ``drive=False`` the mesh's own), ``batch`` frames per generator call (default: 1 on
@@ -344,7 +351,8 @@ class HeadRenderer:
         Yields:
             Per batch, ``(b, H, W, 3)`` uint8 frames (or ``(b, 3, H, W)`` float tensors in
             [0, 1] with ``uint8=False``); with ``alpha``, pairs of float frames and the
-            head's coverage ``(b, 1, H, W)`` in [0, 1]. Nothing is kept between batches,
+            head's coverage ``(b, 1, H, W)`` in [0, 1]; with ``alpha="hair"`` (torch
+            generators), triples that add the hair's. Nothing is kept between batches,
             so memory does not grow with the number of frames.
 
         Raises:
@@ -426,7 +434,10 @@ class HeadRenderer:
             out = res["rgb"].clamp(0, 1)  # RefineNet may overshoot
             if self.colour_gain is not None:  # as the exported graphs' runner does
                 out = lit(out, res["alpha"], self.colour_gain.to(out.dtype)).clamp(0, 1)
-            if with_alpha:
+            if with_alpha == "hair":
+                yield (out.cpu(), res["alpha"].clamp(0, 1).cpu(),
+                       res["hair_alpha"].clamp(0, 1).cpu())
+            elif with_alpha:
                 yield out.cpu(), res["alpha"].clamp(0, 1).cpu()
             else:
                 yield to_uint8(out) if uint8 else out.cpu()

@@ -21,9 +21,9 @@ import numpy as np
 
 from head360cli.synth.sculpt import HeadFrame, _column_angles, topology
 
-__all__ = ["FIGARO_CLASSES", "HAIRSTYLES", "HAIR_COLOURS", "HairMesh", "HairStyle",
-           "build_hair", "figaro_class", "fit_hair", "fit_hairs", "head_normals",
-           "style_index"]
+__all__ = ["FIGARO_CLASSES", "HAIRSTYLES", "HAIR_COLOURS", "LONG_EXTRAS", "HairMesh",
+           "HairStyle", "build_hair", "figaro_class", "fit_hair", "fit_hairs", "hair_length",
+           "head_normals", "style_index"]
 
 INNER_GAP = 0.0015
 """Distance between the scalp and the hair shell's inner surface, metres."""
@@ -183,6 +183,18 @@ def figaro_class(style: int) -> str:
     """The Figaro-1k class of a SynHead-P style id."""
     name = HAIRSTYLES[style].name
     return next(k for k, names in FIGARO_CLASSES.items() if name in names)
+
+
+LONG_EXTRAS = ("ponytail_high", "ponytail_low", "braid", "twin_tails")
+"""Extra pieces that hang below the chin: a style with one of them is long."""
+
+
+def hair_length(style: int) -> str:
+    """``"long"`` where a SynHead-P style's hair hangs below the chin (at the sides or the
+    back, or as a tail or braid), else ``"short"`` (a bob that ends above it too)."""
+    s = HAIRSTYLES[style]
+    hangs = "length" in (s.side, s.back) and s.length > 0.0
+    return "long" if hangs or any(e in LONG_EXTRAS for e in s.extras) else "short"
 
 
 @dataclasses.dataclass

@@ -90,10 +90,14 @@ def test_markdown_lists_every_part():
                                              "pitch_refined": 4.5},
                                     "known_geometry": {"mean": {"psnr_all_views": 27.0,
                                                                 "psnr_input_view": 26.0}}}},
+         "figaro_classes": {"photos": 14, "with_face": 12, "agree": 5, "rows": [],
+                            "length_photos": 6, "length_agree": 4},
          "real": {"fast": {"mean": {"psnr_face": 22.0, "psnr_face_bald": 25.0,
                                     "distance_0": None, "distance_0_renders": [0, 2],
                                     "distance_30": 0.7, "distance_30_renders": [3, 4],
-                                    "colour_outliers": 0.0712, "seconds": 13.0},
+                                    "colour_outliers": 0.0712, "hair_iou": 0.61,
+                                    "hair_delta_e": 12.34, "hair_steps": 7,
+                                    "seconds": 13.0},
                            "cold": {"photo": "a.png", "wall_s": 16.0, "total_s": 13.5}}},
          "sweep": [{"texture_steps": 5, "psnr_face": 20.0, "invert_s": 3.0, "total_s": 9.0}],
          "stability": {"photo": "a.png", "draws": 1, "range_psnr_face": 1.5,
@@ -109,8 +113,10 @@ def test_markdown_lists_every_part():
                  "| parsed by GrabCut with the learned prior | 40.00% | 70.00% | - | - |",
                  "| fast | 15.00 | 0.800 | 20.00 | 12.0 | +9.9 / +4.5 | 27.00 | 26.00 |",
                  "| fast | 22.00 | 25.00 | - (0 of 2 renders with a face) | 0.700 (3 of 4 "
-                 "renders with a face) | 7.12% | 13.0 | 13.5, 16.0 (a.png) |",
+                 "renders with a face) | 7.12% | 0.610 | 12.3 | 7 | 13.0 | 13.5, 16.0 (a.png) |",
                  "| 5 | 20.00 | 3.0 | 9.0 |",
+                 "Figaro coarse classes: 5 of 12 photos with a face found agree (14 photos",
+                 "Hair length (short-men short; straight and wavy long): 4 of 6.",
                  "| none | 22.00 | 25.00 | - | bob | black |",
                  "| 1 | 20.50 | 25.25 | - | lob | black |",
                  "Range: face PSNR 1.50 dB, bald 0.25 dB.",
@@ -362,3 +368,21 @@ def test_cold_fit_runs_the_command_on_the_device(tmp_path, monkeypatch):
     row = _cold_fit(tmp_path / "p.png", "fast", tmp_path, device="cuda:1")
     assert row["total_s"] == 1.0
     assert calls[0][-2:] == ["--device", "cuda:1"] and "fit" in calls[0]
+
+
+@pytest.mark.slow
+def test_the_astronaut_s_hair_at_her_photo_s_view(fitted_astronaut):
+    """Her fitted hair rendered where the photo saw it, against the segmenter's hair in
+    the photo's crop: overlapping, of a measured colour, with few stair steps."""
+    from PIL import Image
+
+    from head360cli.bench.fit import hair_at_photo
+
+    rgb = np.asarray(Image.open(fitted_astronaut.photo).convert("RGB"))
+    h = hair_at_photo(fitted_astronaut.head, rgb, fitted_astronaut.summary)
+    assert set(h) == {"hair_iou", "hair_delta_e", "hair_steps"}
+    # measured: IoU 0.609 (a procedural style placed on her parsed hair), CIEDE2000 9.91
+    # (a learnt colour), 5 steps
+    assert 0.5 < h["hair_iou"] < 0.75
+    assert 6.0 < h["hair_delta_e"] < 14.0
+    assert 0 <= h["hair_steps"] <= 15

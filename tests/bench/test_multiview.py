@@ -64,3 +64,21 @@ def test_without_the_shared_photos_it_says_so(run_cli, tmp_path, monkeypatch):
     r = run_cli("bench", "multiview", "--out", tmp_path / "out")
     assert r.code == 3, r.err
     assert "multiview/pointing04" in r.err and len(r.err.strip().splitlines()) == 1
+
+
+def test_hair_bins_count_reads_where_the_real_photo_has_hair():
+    from head360cli.bench.multiview import _hair_bins
+
+    def pan(p, real, iou, de, read, steps):
+        return {"pan": p, "real_hair": real, "hair_iou": iou, "hair_delta_e": de,
+                "hair_read": read, "hair_steps": steps}
+
+    pans = [pan(0, True, 0.9, 4.0, True, 0), pan(30, True, 0.7, 8.0, False, 2),
+            pan(-90, True, 0.5, None, None, 0), pan(90, False, 1.0, None, None, 1)]
+    b = {x["yaw"]: x for x in _hair_bins([{"presets": {"fast": {"pans": pans}}}], "fast")}
+    assert b["0"]["hair_iou"] == 0.9 and b["0"]["read_where_real"] == [1, 1]
+    assert b["15-45"]["hair_delta_e"] == 8.0 and b["15-45"]["steps"] == 2
+    # a render without hair where the real photo has some is not read as hair
+    assert b["90"]["read_where_real"] == [0, 1] and b["90"]["colours"] == 0
+    assert b["90"]["views_with_steps"] == 1 and b["90"]["hair_iou"] == pytest.approx(0.75)
+    assert b["15-90"]["views"] == 3 and b["15-90"]["read_where_real"] == [0, 2]

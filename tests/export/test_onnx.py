@@ -131,6 +131,11 @@ def test_a_graph_without_alpha_cannot_draw_a_heads_light(head_file):
     with pytest.raises(FileFormatError, match="export it again with head360 export-onnx"):
         lit.use_runner(OldRunner())
     r.use_runner(OldRunner())
+    # a graph's frames carry no hair coverage: asking for it is refused, not guessed
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    with pytest.raises(ValueError, match="torch generator for the hair's coverage"):
+        r.render(view_cameras([0.0], 0.0), view_intrinsics(48), hair_alpha=True)
 
 
 def _tiny_graph_pair(folder, meta: dict | None, outputs: int):

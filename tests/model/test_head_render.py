@@ -270,3 +270,24 @@ def test_render_gives_the_head_s_coverage_with_the_same_images(renderer):
     assert 0.1 < float((alpha > 0.5).float().mean()) < 0.9  # a head, and room around it
     off = (1.0 - rgb.permute(0, 2, 3, 1)[alpha[:, 0] < 0.01]).abs()
     assert float(off.mean()) < 0.01 and float(off.quantile(0.99)) < 0.1  # white
+
+
+def test_render_gives_the_hair_s_coverage_inside_the_head_s(renderer):
+    """The hair's coverage: within the head's, part of it from the front, nearly all of it
+    from behind, none when the hair is left out; the images are a plain render's."""
+    from head360cli.drive.views import view_cameras, view_intrinsics
+
+    cams = view_cameras([0.0, 180.0], 0.0)
+    k = view_intrinsics(renderer.size)
+    rgb, alpha, hair = renderer.render(cams, k, alpha=True, hair_alpha=True)
+    assert torch.equal(rgb, renderer.render(cams, k))
+    assert hair.shape == alpha.shape and float(hair.min()) >= 0.0
+    # the head's coverage is the image network's, the hair's the rasterizer's: measured
+    # at most 0.0056 over
+    assert bool((hair <= alpha + 0.01).all())
+    # the hair's share of the head: measured 0.42 from the front (the face shows), 0.96
+    # from behind
+    front, back = ((hair > 0.5).sum((1, 2, 3)) / (alpha > 0.5).sum((1, 2, 3))).tolist()
+    assert 0.3 < front < 0.55 and back > 0.9
+    _, _, bald = renderer.render(cams, k, hair=False, hair_alpha=True)
+    assert float(bald.max()) == 0.0

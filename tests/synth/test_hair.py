@@ -152,3 +152,13 @@ def test_soft_hairlines_follow_the_line_between_rows():
     for style in range(len(HAIRSTYLES)):
         hair = build_hair(verts, frame, style, soft=True)
         assert len(hair.faces) <= HAIR_FACES and len(hair.verts) <= HAIR_VERTS
+
+
+def test_hair_length_is_long_below_the_chin_or_with_a_tail():
+    from head360cli.synth.hair import hair_length, style_index
+
+    long = {"lob", "bangs", "shoulder straight", "long wavy", "long curly", "dreadlocks",
+            "middle part long", "mullet", "ponytail low", "braid", "twin tails"}
+    short = {"bald", "buzz", "crew", "pixie", "afro", "bob", "bun", "top knot", "mohawk"}
+    assert {hair_length(style_index(n)) for n in long} == {"long"}
+    assert {hair_length(style_index(n)) for n in short} == {"short"}
