@@ -617,7 +617,7 @@ def colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
         texture = gen.texture(code[None])  # the same head under every candidate
     # the same hair mesh too: fitted to the head once, each candidate only recoloured
     shape = hair_for(neutral, [style], np.asarray(estimate, np.float32)[None],
-                     soft=gen.cfg.soft_hair).to(verts.device)
+                     soft=gen.soft_hairlines).to(verts.device)
 
     def render(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = gen.prepare_hair(dataclasses.replace(shape, colour=torch.as_tensor(

@@ -68,9 +68,10 @@ class GeneratorConfig:
     hair_styles: int = 30
     """Hairstyles the hair branch knows (the corpus's style library)."""
     soft_hair: bool = False
-    """Hairstyle meshes with soft hairlines, as in the corpus it was trained on
+    """The corpus it was trained on had hairstyle meshes with soft hairlines
     (:func:`head360cli.synth.hair.build_hair`); ``False``: hairlines stepped from grid
-    row to grid row."""
+    row to grid row. The hex-plane generator renders the same at run time; the deferred
+    one always renders soft hairlines (``soft_hairlines``)."""
     hair_embed_dim: int = 16
     """Length of a hairstyle's learnt embedding; the hair colour (RGB) is appended."""
     hair_texture_res: int = 64

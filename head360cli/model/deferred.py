@@ -103,6 +103,10 @@ class DeferredGenerator(GeneratorBase):
 
     kind = "deferred"
     """Which generator this is (the hex-plane ``Generator.kind`` is ``"hexplane"``)."""
+    soft_hairlines = True
+    """Run-time hair meshes have soft hairlines, whatever the corpus had: the hair texture
+    is read at each pixel's strand UV, which the soft mesh keeps, so the stair steps go
+    and the learnt texture stays (measured: docs/decisions.md)."""
 
     def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
                  faces_uv: np.ndarray, normal_groups: np.ndarray | None = None) -> None:

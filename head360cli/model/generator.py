@@ -168,6 +168,12 @@ class Generator(GeneratorBase):
     kind = "hexplane"
     """Which generator this is (``DeferredGenerator.kind`` is ``"deferred"``)."""
 
+    @property
+    def soft_hairlines(self) -> bool:
+        """Whether run-time hair meshes have soft hairlines: as the corpus it learnt had
+        them (its hair planes learnt where that corpus's hair was)."""
+        return self.cfg.soft_hair
+
     def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
                  faces_uv: np.ndarray) -> None:
         if cfg.planes not in PLANE_SETS:

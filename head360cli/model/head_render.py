@@ -231,7 +231,7 @@ class HeadRenderer:
         self.hair = None
         if self.gen.cfg.hair:
             hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None],
-                            self.hair_offset[None], soft=self.gen.cfg.soft_hair)
+                            self.hair_offset[None], soft=self.gen.soft_hairlines)
             if hair.meshes[0] is not None:
                 with torch.no_grad():
                     self.hair = self.gen.prepare_hair(hair.to(self.device))

@@ -272,7 +272,8 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle,
 
     Returns:
         ``(covered (R, C) bool, thick (R, C), pts (R, C, 3))``: with ``soft``, the points
-        just outside the hairline moved onto it, their hair a quarter as thick.
+        just outside the hairline (lifted half a row) moved onto it, their hair a quarter
+        as thick.
     """
     lv = frame.levels
     phi = np.broadcast_to(_column_angles()[None], pts.shape[:2])
@@ -290,6 +291,15 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle,
     line = face_line * (1 - temple) + (side_line * (1 - behind) + back_y * behind) * temple
     covered = y >= line
     if soft:
+        # The stepped edge is the last row above the line: on average half a row above
+        # it. The soft line is lifted by that half row, so that it covers as much.
+        edge = np.zeros_like(covered)
+        edge[:-1] = covered[:-1] & ~covered[1:]
+        r, j = np.nonzero(edge)
+        lift = np.zeros(covered.shape[1])
+        lift[j] = 0.5 * (y[r, j] - y[r + 1, j])
+        line = line + lift[None]
+        covered = y >= line
         # One more row below each column's hairline, its points slid up onto the line
         # (the zero of y - line between the rows): the edge follows the line between
         # grid rows instead of stepping from row to row, and tapers to a thin edge.
@@ -489,9 +499,10 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
         style: A :class:`HairStyle` or its index in :data:`HAIRSTYLES`.
         normals: ``(V, 3)`` :func:`head_normals` of ``verts``, when already made (for
             several styles on one head); made here otherwise.
-        soft: Hairlines that follow the style's line between grid rows and thin out at
-            the edge; ``False`` steps from row to row (the hair the shipped generator
-            learnt).
+        soft: Hairlines that follow the style's line (lifted half a row, as high as
+            the steps reach on average) between grid rows and thin out at the edge;
+            ``False`` steps from row to row (the hair the shipped generator learnt, and
+            what the deferred generator is not shown).
 
     Returns:
         The hair mesh (empty for ``bald``).

@@ -103,6 +103,25 @@ def test_hair_offset_moves_every_style_and_old_files_have_none(head_file, tmp_pa
                                    atol=1e-6, rtol=0)
 
 
+def test_the_deferred_generator_wears_soft_hairlines(renderer):
+    """Whatever corpus it learnt, the deferred generator's run-time hair is the style's
+    soft mesh (hairlines between grid rows), with the stepped mesh's strand UVs; a
+    hex-plane generator keeps its corpus's kind."""
+    from head360cli.model.generator import Generator
+    from head360cli.synth.hair import fit_hair
+
+    assert renderer.gen.kind == "deferred" and renderer.gen.soft_hairlines
+    assert not renderer.gen.cfg.soft_hair  # the shipped weights learnt stepped hair
+    neutral = renderer.neutral[0] if renderer.neutral.ndim == 3 else renderer.neutral
+    soft = fit_hair(np.asarray(neutral), renderer.hair_style, soft=True)
+    stepped = fit_hair(np.asarray(neutral), renderer.hair_style)
+    verts, faces, _ = renderer.hair.meshes[0]
+    np.testing.assert_allclose(verts.cpu().numpy(), soft.verts, atol=1e-6)
+    np.testing.assert_array_equal(faces.cpu().numpy(), soft.faces)
+    assert not np.allclose(soft.verts, stepped.verts, atol=1e-4)
+    assert Generator.soft_hairlines.fget(renderer.gen) is False  # the hex-plane's rule
+
+
 def test_a_malformed_hair_offset_is_refused(renderer):
     from head360cli.model.head_render import HeadRenderer
 
