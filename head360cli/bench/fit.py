@@ -436,8 +436,7 @@ def hair_at_photo(head_file: Path, rgb: np.ndarray, summary: dict[str, Any],
     stair steps on the render's hair silhouette."""
     import torch
 
-    from head360cli.bench.hair import hair_colour_difference, segmented_hair, silhouette_steps
-    from head360cli.fitting.hair_parse import mask_iou
+    from head360cli.bench.hair import compare_hair, segmented_hair
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.fitting.texture import crop_image
     from head360cli.io.headfile import read_head
@@ -450,12 +449,8 @@ def hair_at_photo(head_file: Path, rgb: np.ndarray, summary: dict[str, Any],
     image, _, hair = head.render(torch.tensor(np.asarray(arrays["pose"]))[None],
                                  torch.tensor(np.asarray(arrays["intrinsics"])),
                                  alpha=True, hair_alpha=True)
-    image, hair = to_uint8(image)[0], hair[0, 0].numpy() > 0.5
-    real = segmented_hair(crop)
-    de = hair_colour_difference(image, hair, crop, real)
-    return {"hair_iou": round(mask_iou(hair, real), 4),
-            "hair_delta_e": None if de is None else round(de, 2),
-            "hair_steps": silhouette_steps(hair)}
+    return compare_hair(to_uint8(image)[0], hair[0, 0].numpy() > 0.5, crop,
+                        segmented_hair(crop))
 
 
 def _real(photos: list[Path], preset: str, work: Path, device: str = "cpu"

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_HAIR_PIXELS", "READ_SHARE", "hair_colour_difference", "median_lab",
-           "reads_as_hair", "segmented_hair", "silhouette_steps"]
+__all__ = ["MIN_HAIR_PIXELS", "READ_SHARE", "compare_hair", "hair_colour_difference",
+           "median_lab", "reads_as_hair", "segmented_hair", "silhouette_steps"]
 
 MIN_HAIR_PIXELS = 50
 """Fewer hair pixels than this (at 256 x 256) count as no hair: no colour is measured."""
@@ -97,3 +97,16 @@ def silhouette_steps(mask: np.ndarray, min_step: int = 2, flat: float = 0.5,
     mask = np.asarray(mask, bool)
     return (_profile_steps(mask, min_step, flat, reach)
             + _profile_steps(mask.T, min_step, flat, reach))
+
+
+def compare_hair(render: np.ndarray, hair: np.ndarray, real: np.ndarray,
+                 real_hair: np.ndarray) -> dict[str, float | int | None]:
+    """A render ``(H, W, 3)`` uint8 and its hair ``(H, W)`` bool against a photo's crop and
+    the hair the segmenter finds there: ``hair_iou``, ``hair_delta_e`` (``None`` under
+    :data:`MIN_HAIR_PIXELS` on either side) and the render's ``hair_steps``."""
+    from head360cli.fitting.hair_parse import mask_iou
+
+    de = hair_colour_difference(render, hair, real, real_hair)
+    return {"hair_iou": round(mask_iou(hair, real_hair), 4),
+            "hair_delta_e": None if de is None else round(de, 2),
+            "hair_steps": silhouette_steps(hair)}

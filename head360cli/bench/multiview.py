@@ -140,7 +140,7 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
     out: dict[str, Any] = {"person": rows[0]["person"], "series": rows[0]["series"],
                            "pans": pans, "presets": {}}
     sheet_rows: dict[str, list[np.ndarray]] = {}
-    real_crops = real_hair = None
+    real_crops = None
     palette = photo_palette_of(real[0])
     for preset in presets:
         head_file = work / f"p{out['person']}s{out['series']}_{preset}.h360"
@@ -153,6 +153,7 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
             real_fg = {p: foreground_mask(real[p]) for p in pans}
             real_fg = {p: crop_image(real_fg[p].astype(np.uint8), affine, res, nearest=True)
                        > 0 for p in pans}
+            real_hair = {p: segmented_hair(real_crops[p]) for p in pans}
             sheet_rows["real"] = [real_crops[p] for p in pans]
         arrays = read_head(head_file).arrays
         head = load_head_renderer(head_file, device=device, precision="fp32", size=res)
@@ -166,8 +167,6 @@ def _person(rows: list[dict[str, Any]], presets: tuple[str, ...], work: Path,
         renders = to_uint8(rgb)
         alpha = alpha[:, 0].numpy()
         hair_alpha = hair_alpha[:, 0].numpy()
-        if real_hair is None:
-            real_hair = {p: segmented_hair(real_crops[p]) for p in pans}
         per_pan = []
         for i, p in enumerate(pans):
             d = _descriptor(renders[i])
@@ -201,21 +200,11 @@ def _hair_measures(render: np.ndarray, hair: np.ndarray, real: np.ndarray,
     """The hair's measures at one yaw: a render ``(H, W, 3)`` uint8 and its hair pixels
     ``(H, W)`` bool against the real photo's crop and the hair the segmenter finds there.
     """
-    from head360cli.bench.hair import (
-        MIN_HAIR_PIXELS,
-        hair_colour_difference,
-        reads_as_hair,
-        silhouette_steps,
-    )
-    from head360cli.fitting.hair_parse import mask_iou
+    from head360cli.bench.hair import MIN_HAIR_PIXELS, compare_hair, reads_as_hair
 
     real_has = int(np.count_nonzero(real_hair)) >= MIN_HAIR_PIXELS
-    de = hair_colour_difference(render, hair, real, real_hair)
-    return {"real_hair": real_has,
-            "hair_iou": round(mask_iou(hair, real_hair), 4),
-            "hair_delta_e": None if de is None else round(de, 2),
-            "hair_read": reads_as_hair(render, hair) if real_has else None,
-            "hair_steps": silhouette_steps(hair)}
+    return {"real_hair": real_has, **compare_hair(render, hair, real, real_hair),
+            "hair_read": reads_as_hair(render, hair) if real_has else None}
 
 
 def _hair_bins(people: list[dict[str, Any]], preset: str) -> list[dict[str, Any]]:

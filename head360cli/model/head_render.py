@@ -319,18 +319,15 @@ class HeadRenderer:
         ``alpha``, also the head's coverage ``(B, 1, H, W)`` in [0, 1]; with
         ``hair_alpha`` (torch generators only), after it the share of each pixel where
         the hair is the nearest surface, ``(B, 1, H, W)``."""
-        if hair_alpha:
-            if self.runner is not None:
-                raise ValueError("expected a torch generator for the hair's coverage, "
-                                 "found an exported graph")
-            alpha = "hair"
         if expression is not None and np.ndim(expression) == 2:
             weights = np.asarray(expression)
         else:
             w = self.expression if expression is None else np.asarray(expression)
             weights = np.broadcast_to(w, (len(c2w), 52))
+        alpha = alpha or hair_alpha  # the hair's coverage comes after the head's
         out = list(self.frames(c2w, weights, intrinsics, hair, batch, uint8=False,
-                               drive=expression is not None, alpha=alpha))
+                               drive=expression is not None, alpha=alpha,
+                               hair_alpha=hair_alpha))
         if not alpha:
             return torch.cat([torch.as_tensor(f) for f in out])
         return tuple(torch.cat([torch.as_tensor(part[j]) for part in out])
@@ -339,7 +336,8 @@ class HeadRenderer:
     @torch.no_grad()
     def frames(self, c2w: torch.Tensor, weights: np.ndarray, intrinsics: torch.Tensor,
                hair: bool = True, batch: int | None = None, uint8: bool = True,
-               drive: bool = True, alpha: bool | str = False) -> Iterator[Any]:
+               drive: bool = True, alpha: bool = False, hair_alpha: bool = False
+               ) -> Iterator[Any]:
         """Render frame after frame (an animation): camera ``c2w[i] (4, 4)`` and ARKit
         weights ``weights[i] (52,)`` (driving weights, see :meth:`drive`; with
         ``drive=False`` the mesh's own), ``batch`` frames per generator call (default: 1 on
@@ -351,15 +349,19 @@ class HeadRenderer:
         Yields:
             Per batch, ``(b, H, W, 3)`` uint8 frames (or ``(b, 3, H, W)`` float tensors in
             [0, 1] with ``uint8=False``); with ``alpha``, pairs of float frames and the
-            head's coverage ``(b, 1, H, W)`` in [0, 1]; with ``alpha="hair"`` (torch
-            generators), triples that add the hair's. Nothing is kept between batches,
+            head's coverage ``(b, 1, H, W)`` in [0, 1]; with ``hair_alpha`` too (torch
+            generators only), triples that add the hair's. Nothing is kept between batches,
             so memory does not grow with the number of frames.
 
         Raises:
             ValueError: The cameras, weights or intrinsics are not of those shapes, not
-                as many weights as cameras, or not finite (on the first frame asked for).
+                as many weights as cameras, or not finite (on the first frame asked for);
+                the hair's coverage asked of an exported graph.
         """
         c2w, weights, intrinsics = check_frame_inputs(c2w, weights, intrinsics)
+        if hair_alpha and self.runner is not None:
+            raise ValueError("expected a torch generator for the hair's coverage, found an "
+                             "exported graph")
         k = intrinsics.to(self.device)
         batch = batch or (1 if self.device.type == "cpu" else 32)
         if drive:
@@ -371,7 +373,8 @@ class HeadRenderer:
         with samples(self.samples), self.gen.image_size(
                 None if self.size == self.gen.cfg.image_res else self.size):
             try:
-                yield from self._frames(c2w, weights, k, hair, batch, uint8, alpha)
+                yield from self._frames(c2w, weights, k, hair, batch, uint8, alpha,
+                                        hair_alpha)
             finally:
                 self.gen.network_dtype = own_dtype
 
@@ -409,7 +412,7 @@ class HeadRenderer:
             else:
                 yield to_uint8(out) if uint8 else out
 
-    def _frames(self, c2w, weights, k, hair, batch, uint8, with_alpha):
+    def _frames(self, c2w, weights, k, hair, batch, uint8, with_alpha, with_hair_alpha):
         if self.runner is not None:
             yield from self._runner_frames(c2w, weights, k, hair, uint8, with_alpha)
             return
@@ -434,7 +437,7 @@ class HeadRenderer:
             out = res["rgb"].clamp(0, 1)  # RefineNet may overshoot
             if self.colour_gain is not None:  # as the exported graphs' runner does
                 out = lit(out, res["alpha"], self.colour_gain.to(out.dtype)).clamp(0, 1)
-            if with_alpha == "hair":
+            if with_hair_alpha:
                 yield (out.cpu(), res["alpha"].clamp(0, 1).cpu(),
                        res["hair_alpha"].clamp(0, 1).cpu())
             elif with_alpha:
