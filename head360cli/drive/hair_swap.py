@@ -110,6 +110,8 @@ def swap_hair(head_path: str | Path, out: str | Path, style: int | str | None = 
     before = {"hair_style": int(arrays["hair_style"]),
               "hair_color": np.asarray(arrays["hair_color"], float).round(4).tolist()}
     if style is not None:
+        if int(style) != before["hair_style"]:
+            arrays.pop("hair_scale", None)  # the fitted style's shape, not the new one's
         arrays["hair_style"] = np.array(int(style), np.int64)
         info["hair_style_name"] = HAIRSTYLES[int(style)].name
     if colour is not None:

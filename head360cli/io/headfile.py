@@ -69,6 +69,7 @@ KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "hair_style": (0, "i"),  # () hairstyle index
     "hair_color": (1, "f"),  # (3,) linear RGB hair colour
     "hair_offset": (1, "f"),  # (3,) metres the hair is moved by (optional; default 0)
+    "hair_scale": (1, "f"),  # (32,) hair thickness by direction (optional; default 1)
     "vertices": (2, "f"),  # (V, 3) fitted neutral mesh
     "lid_index": (1, "i"),  # (N,) flat texel indices of the lid change (optional)
     "lid_change": (2, "f"),  # (C, N) the texture's change there, eyes closed (optional)

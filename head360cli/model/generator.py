@@ -100,11 +100,14 @@ class Hair:
 
 
 def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,
-             offsets: np.ndarray | None = None, soft: bool = False) -> Hair:
+             offsets: np.ndarray | None = None, soft: bool = False,
+             scales: np.ndarray | None = None) -> Hair:
     """Hair of hairstyles ``styles`` and ``colours (B, 3)`` fitted to neutral heads
     ``(B, V, 3)`` (or one ``(V, 3)`` head for all), each moved by ``offsets (B, 3)``
-    metres in the head's frame (a fit's hair placement; default: not moved); ``soft``
-    hairlines for a generator trained on them (``GeneratorConfig.soft_hair``)."""
+    metres in the head's frame (a fit's hair placement; default: not moved) and its
+    thickness scaled by ``scales (B, WARP_BINS)`` (a fit's; default: as built,
+    :func:`~head360cli.synth.hair.warp_hair`); ``soft`` hairlines for a generator trained
+    on them (``GeneratorConfig.soft_hair``)."""
     from head360cli.synth.hair import fit_hair
 
     neutral = np.asarray(neutral)
@@ -112,7 +115,8 @@ def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,
              else np.broadcast_to(np.asarray(offsets, np.float64), (len(styles), 3)))
     meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None] = []
     for i, style in enumerate(styles):
-        m = fit_hair(neutral if neutral.ndim == 2 else neutral[i], int(style), soft=soft)
+        m = fit_hair(neutral if neutral.ndim == 2 else neutral[i], int(style), soft=soft,
+                     scale=None if scales is None else scales[i])
         meshes.append(None if len(m.faces) == 0 else (
             torch.tensor(m.verts + shift[i], dtype=torch.float32), torch.tensor(m.faces),
             torch.tensor(m.uv, dtype=torch.float32)))

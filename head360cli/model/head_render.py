@@ -88,6 +88,10 @@ class HeadRenderer:
             nothing.
         hair_offset: ``(3,)`` metres, in the head's frame, that the hair is moved by
             (a head file's ``hair_offset``; default none).
+        hair_scale: ``(WARP_BINS,)`` the fitted style's thickness by direction (a head
+            file's ``hair_scale``, :func:`~head360cli.synth.hair.warp_hair`; default
+            none). It is the fitted style's: another style put on by :meth:`set_hair`
+            wears its own shape.
         lid_change: ``(C, R, R)`` the texture's change with both eyes closed
             (:func:`~head360cli.fitting.lids.close_lids`); a frame's texture adds the part
             on each eye's lid texels as far as that eye closes beyond the head's own
@@ -105,6 +109,7 @@ class HeadRenderer:
                  samples: int | None = None, size: int | None = None,
                  precision: str = "auto", reuse: float | None = REUSE_TOL,
                  hair_offset: np.ndarray | None = None,
+                 hair_scale: np.ndarray | None = None,
                  lid_change: torch.Tensor | np.ndarray | None = None,
                  colour_gain: np.ndarray | torch.Tensor | None = None) -> None:
         from head360cli.devices import fast_bfloat16
@@ -157,6 +162,17 @@ class HeadRenderer:
                              f"{np.asarray(hair_offset).tolist()}")
         """``(3,)`` metres every hairstyle this head wears is moved by (its fit's
         placement, :func:`head360cli.fitting.hair_class.place_hair`)."""
+        from head360cli.synth.hair import WARP_BINS
+
+        self.hair_scale = None
+        """``(WARP_BINS,)`` the thickness by direction of the style worn, or ``None``."""
+        if hair_scale is not None:
+            scale = np.asarray(hair_scale, np.float64)
+            if scale.shape != (WARP_BINS,) or not (np.isfinite(scale) & (scale > 0)).all():
+                raise ValueError(f"expected a hair scale of {WARP_BINS} positive finite "
+                                 f"numbers, found shape {scale.shape}")
+            self.hair_scale = scale
+        self._scaled_style = int(hair_style)
         self.colour_gain = None
         """``(1, 3, 1, 1)`` the photo's light on the head's pixels, or ``None``."""
         if colour_gain is not None:
@@ -223,15 +239,19 @@ class HeadRenderer:
         self.runner = runner
 
     def set_hair(self, hair_style: int, hair_colour: np.ndarray) -> None:
-        """Put on another hairstyle and colour (its planes are made once, here)."""
+        """Put on another hairstyle and colour (its planes are made once, here); the
+        fitted style keeps its fitted thickness, another style wears its own."""
         from head360cli.model.generator import hair_for
 
         self.hair_style = int(hair_style)
         self.hair_colour = np.asarray(hair_colour, np.float64).reshape(3)
         self.hair = None
         if self.gen.cfg.hair:
+            scale = (self.hair_scale if self.hair_scale is not None
+                     and self.hair_style == self._scaled_style else None)
             hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None],
-                            self.hair_offset[None], soft=self.gen.soft_hairlines)
+                            self.hair_offset[None], soft=self.gen.soft_hairlines,
+                            scales=None if scale is None else scale[None])
             if hair.meshes[0] is not None:
                 with torch.no_grad():
                     self.hair = self.gen.prepare_hair(hair.to(self.device))

@@ -21,9 +21,24 @@ import numpy as np
 
 from head360cli.synth.sculpt import HeadFrame, _column_angles, topology
 
-__all__ = ["FIGARO_CLASSES", "HAIRSTYLES", "HAIR_COLOURS", "LONG_EXTRAS", "HairMesh",
-           "HairStyle", "build_hair", "figaro_class", "fit_hair", "fit_hairs", "hair_length",
-           "head_normals", "style_index"]
+__all__ = [
+    "FIGARO_CLASSES",
+    "HAIRSTYLES",
+    "HAIR_COLOURS",
+    "LONG_EXTRAS",
+    "WARP_BINS",
+    "HairMesh",
+    "HairStyle",
+    "build_hair",
+    "figaro_class",
+    "fit_hair",
+    "fit_hairs",
+    "hair_length",
+    "head_normals",
+    "style_index",
+    "warp_centre",
+    "warp_hair",
+]
 
 INNER_GAP = 0.0015
 """Distance between the scalp and the hair shell's inner surface, metres."""
@@ -489,8 +504,69 @@ def _extras(style: HairStyle, frame: HeadFrame, head_top: float, back_z: float
     return pieces
 
 
+WARP_BINS = 32
+"""Directions around the head's forward axis (every 11.25 degrees, the first towards the
+head's left, +x, counter-clockwise seen from the front) at which a fit scales the hair's
+thickness (:func:`warp_hair`)."""
+
+WARP_AXIS = 0.03
+"""Metres from the forward axis within which the hair's scale fades to the mean of all
+directions: behind and in front of the centre a direction is ill defined."""
+
+
+def warp_centre(frame: HeadFrame) -> np.ndarray:
+    """``(3,)`` the point a hair warp's directions are taken from: on the head's midline
+    at eye level, as deep as the ears, so that every ray from it leaves the head and the
+    hair once."""
+    return np.array([0.0, frame.levels["eye"], float(frame.ear_centres[:, 2].mean())])
+
+
+def warp_hair(hair: np.ndarray, head: np.ndarray, scale: np.ndarray, centre: np.ndarray
+              ) -> np.ndarray:
+    """Hair whose thickness over the head is scaled by direction.
+
+    Each hair vertex moves along the line from its nearest head vertex, its distance from
+    that vertex beyond :data:`INNER_GAP` multiplied by ``scale`` at the vertex's
+    direction around the head's
+    forward (z) axis seen from ``centre`` (interpolated between the bins, in log space).
+    So a scale of 2 towards the temples doubles the hair's volume there, all the way
+    round to the back, and a scale below 1 towards the shoulders shortens long hair.
+
+    Args:
+        hair: ``(H, 3)`` hair vertices fitted to ``head``.
+        head: ``(V, 3)`` the head's vertices (neutral).
+        scale: ``(WARP_BINS,)`` positive factors (ones: unchanged).
+        centre: ``(3,)`` from :func:`warp_centre`.
+
+    Returns:
+        ``(H, 3)`` the warped vertices.
+    """
+    from scipy.spatial import cKDTree
+
+    log = np.log(np.asarray(scale, np.float64))
+    if len(hair) == 0 or not np.any(log):
+        return hair
+    _, nearest = cKDTree(head).query(hair)
+    rel = hair - centre
+    angle = np.arctan2(rel[:, 1], rel[:, 0])
+    pos = np.mod(angle / (2 * np.pi) * len(log), len(log))
+    lo = np.floor(pos).astype(int)
+    frac = pos - lo
+    at = (1 - frac) * log[lo % len(log)] + frac * log[(lo + 1) % len(log)]
+    near_axis = np.clip(np.hypot(rel[:, 0], rel[:, 1]) / WARP_AXIS, 0.0, 1.0)
+    factor = np.exp(near_axis * at + (1 - near_axis) * log.mean())
+    anchor = head[nearest]
+    away = hair - anchor
+    dist = np.linalg.norm(away, axis=1, keepdims=True)
+    # the part beyond the inner gap scales: the shell's inner surface stays off the skin
+    beyond = np.maximum(dist - INNER_GAP, 0.0)
+    return anchor + away / np.maximum(dist, 1e-12) * (dist - beyond
+                                                      + factor[:, None] * beyond)
+
+
 def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
-               normals: np.ndarray | None = None, soft: bool = False) -> HairMesh:
+               normals: np.ndarray | None = None, soft: bool = False,
+               scale: np.ndarray | None = None) -> HairMesh:
     """Fit a hairstyle to a head.
 
     Args:
@@ -503,6 +579,9 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
             the steps reach on average) between grid rows and thin out at the edge;
             ``False`` steps from row to row (the hair the shipped generator learnt, and
             what the deferred generator is not shown).
+        scale: ``(WARP_BINS,)`` a fit's scale of the hair's thickness by direction
+            (:func:`warp_hair`) over the head; the extra pieces keep their shape.
+            Default none.
 
     Returns:
         The hair mesh (empty for ``bald``).
@@ -514,7 +593,10 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
     bottom = min(frame.levels["menton"] - style.length, frame.levels["neck_bottom"])
     base, normal = _base_grid(verts, frame, bottom, normals)
     covered, thick, base = _coverage_and_thickness(base, frame, style, soft)
-    pieces = [_shell(base, normal, covered, thick, style, frame)]
+    shell = _shell(base, normal, covered, thick, style, frame)
+    if scale is not None:  # the extras keep their shape: a photo shows a tail or none
+        shell = (warp_hair(shell[0], verts, scale, warp_centre(frame)), *shell[1:])
+    pieces = [shell]
     head_top = float(verts[:, 1].max())
     back_z = float(verts[:, 2].min())
     pieces += _extras(style, frame, head_top, back_z)
@@ -527,23 +609,26 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
     return HairMesh(np.concatenate(all_v), np.concatenate(all_f), np.concatenate(all_uv))
 
 
-def fit_hair(verts: np.ndarray, style: HairStyle | int, soft: bool = False) -> HairMesh:
+def fit_hair(verts: np.ndarray, style: HairStyle | int, soft: bool = False,
+             scale: np.ndarray | None = None) -> HairMesh:
     """Fit a hairstyle to any head of this topology, its frame read off the vertices
     (:func:`head360cli.synth.sculpt.frame_from_vertices`); for a corpus head this is the
-    same mesh as :func:`build_hair` with the head's own frame."""
+    same mesh as :func:`build_hair` with the head's own frame (``scale``: a fit's
+    thickness by direction, :func:`warp_hair`)."""
     from head360cli.synth.sculpt import frame_from_vertices
 
-    return build_hair(verts, frame_from_vertices(verts), style, soft=soft)
+    return build_hair(verts, frame_from_vertices(verts), style, soft=soft, scale=scale)
 
 
-def fit_hairs(verts: np.ndarray, styles: list[int]) -> dict[int, HairMesh]:
+def fit_hairs(verts: np.ndarray, styles: list[int], soft: bool = False
+              ) -> dict[int, HairMesh]:
     """:func:`fit_hair` for several styles on one head, its frame and normals made once:
     ``{style: mesh}``, the same meshes."""
     from head360cli.synth.sculpt import frame_from_vertices
 
     frame = frame_from_vertices(verts)
     normals = head_normals(verts)
-    return {s: build_hair(verts, frame, s, normals) for s in dict.fromkeys(styles)}
+    return {s: build_hair(verts, frame, s, normals, soft=soft) for s in dict.fromkeys(styles)}
 
 
 def hair_texture(colour: tuple[float, float, float], size: int = 256, seed: int = 0

@@ -59,6 +59,22 @@ def test_swap_rewrites_only_the_hair(head_file, tmp_path):
         swap_hair(head_file, tmp_path / "x.h360")
 
 
+def test_swap_drops_the_fitted_style_s_shape_with_the_style(head_file, tmp_path):
+    """The thickness by direction fitted to a style is that style's: another style
+    leaves it behind, a colour alone keeps it."""
+    from head360cli.io.headfile import read_head, write_head
+    from head360cli.synth.hair import WARP_BINS
+
+    head = read_head(head_file)
+    head.arrays["hair_scale"] = np.full(WARP_BINS, 1.5, np.float32)
+    shaped = write_head(head, tmp_path / "shaped.h360")
+    style = int(head.arrays["hair_style"])
+    swap_hair(shaped, tmp_path / "recoloured.h360", style=style, colour="red")
+    assert "hair_scale" in read_head(tmp_path / "recoloured.h360").arrays
+    swap_hair(shaped, tmp_path / "restyled.h360", style=style % 29 + 1)
+    assert "hair_scale" not in read_head(tmp_path / "restyled.h360").arrays
+
+
 def test_library_swap_takes_names_numbers_and_refuses_unknown_styles(head_file, tmp_path):
     """From Python, style 99 was an IndexError, -1 wore the last style until the file
     check refused it, and a colour tuple an AttributeError."""

@@ -103,6 +103,37 @@ def test_hair_offset_moves_every_style_and_old_files_have_none(head_file, tmp_pa
                                    atol=1e-6, rtol=0)
 
 
+def test_hair_scale_shapes_the_fitted_style_only(head_file, tmp_path):
+    """A head file's ``hair_scale`` (a fit's thickness by direction) warps the fitted
+    style's mesh as :func:`~head360cli.synth.hair.warp_hair` does; another style put on
+    wears its own shape, and a malformed scale is refused."""
+    from head360cli.fitting.pipeline import load_head_renderer
+    from head360cli.io.headfile import read_head, write_head
+    from head360cli.model.head_render import HeadRenderer
+    from head360cli.synth.hair import WARP_BINS, fit_hair
+
+    head = read_head(head_file)
+    style = int(head.arrays["hair_style"])
+    scale = np.linspace(0.5, 2.0, WARP_BINS).astype(np.float32)
+    head.arrays["hair_scale"] = scale
+    shaped = load_head_renderer(write_head(head, tmp_path / "shaped.h360"), samples=4,
+                                size=64, precision="fp32")
+    plain = load_head_renderer(head_file, samples=4, size=64, precision="fp32")
+    assert plain.hair_scale is None
+    want = fit_hair(shaped.neutral, style, soft=True, scale=scale).verts
+    np.testing.assert_allclose(shaped.hair.meshes[0][0].numpy(),
+                               want + shaped.hair_offset, atol=1e-6)
+    assert not np.allclose(shaped.hair.meshes[0][0].numpy(), plain.hair.meshes[0][0].numpy(),
+                           atol=1e-4)
+    other = (style % 29) + 1
+    np.testing.assert_array_equal(shaped.with_hair(other, shaped.hair_colour).hair.meshes[0][0],
+                                  plain.with_hair(other, plain.hair_colour).hair.meshes[0][0])
+    for bad in (scale[:5], np.zeros(WARP_BINS)):
+        with pytest.raises(ValueError, match=f"expected a hair scale of {WARP_BINS}"):
+            HeadRenderer(shaped.gen, shaped.shape, shaped.texture[0], style,
+                         shaped.hair_colour, size=64, hair_scale=bad)
+
+
 def test_the_deferred_generator_wears_soft_hairlines(renderer):
     """Whatever corpus it learnt, the deferred generator's run-time hair is the style's
     soft mesh (hairlines between grid rows), with the stepped mesh's strand UVs; a

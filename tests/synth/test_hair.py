@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -162,3 +164,72 @@ def test_hair_length_is_long_below_the_chin_or_with_a_tail():
     short = {"bald", "buzz", "crew", "pixie", "afro", "bob", "bun", "top knot", "mohawk"}
     assert {hair_length(style_index(n)) for n in long} == {"long"}
     assert {hair_length(style_index(n)) for n in short} == {"short"}
+
+
+@pytest.mark.parametrize("pattern", ["thin", "mixed"])
+def test_a_warped_style_stays_closed_and_off_the_scalp(pattern):
+    """Scaled to the fit's limits (all thin, or thin and thick in turn round the head),
+    a style is still closed, thin is less hair, and the shell stays off the skin above
+    the neck's end (below it there is no skin to clear)."""
+    import trimesh
+
+    from head360cli.fitting.hair_shape import SCALE_RANGE
+    from head360cli.synth.hair import WARP_BINS
+
+    verts, frame = build_head(sample_identity(1))
+    topo = topology()
+    faces = topo.faces[topo.face_parts == 0]
+    tri = verts[faces]
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    skin = trimesh.Trimesh(verts, faces[area > 1e-10], process=False)
+    low, high = SCALE_RANGE
+    scale = (np.full(WARP_BINS, low) if pattern == "thin"
+             else np.where(np.arange(WARP_BINS) % 8 < 4, low, high))
+    for name in ("crew", "bob", "long wavy", "twin tails"):
+        hair = build_hair(verts, frame, style_index(name), soft=True, scale=scale)
+        mesh = trimesh.Trimesh(hair.verts, hair.faces, process=False)
+        assert mesh.is_watertight, name
+        if pattern == "thin":  # less hair (volumes of the pieces, whichever way they face)
+            plain = build_hair(verts, frame, style_index(name), soft=True)
+            whole = trimesh.Trimesh(plain.verts, plain.faces, process=False)
+            assert (sum(abs(b.volume) for b in mesh.split(only_watertight=False))
+                    < 0.9 * sum(abs(b.volume) for b in whole.split(only_watertight=False)))
+        pts = hair.verts[np.unique(hair.faces)]
+        pts = pts[pts[:, 1] > frame.levels["neck_bottom"] + 0.01]  # no skin below
+        closest, dist, fid = trimesh.proximity.closest_point(skin, pts)
+        outside = np.einsum("ij,ij->i", pts - closest, skin.face_normals[fid]) > 0
+        # never in the skin (0.9 mm at the thin limit, 0.24 mm where the limits alternate)
+        assert np.where(outside, dist, -dist).min() > 0.0001, name
+
+
+def test_warp_scales_the_hair_s_thickness_on_its_own_side_only():
+    """Ones leave the hair as built; 2 towards the head's left (+x) doubles the hair's
+    thickness beyond the inner gap on that side and leaves the right side, the extras
+    too, where they were."""
+    from head360cli.synth.hair import INNER_GAP, WARP_BINS, warp_centre, warp_hair
+
+    verts, frame = build_head(sample_identity(1))
+    plain = build_hair(verts, frame, style_index("bob"))
+    same = build_hair(verts, frame, style_index("bob"), scale=np.ones(WARP_BINS))
+    np.testing.assert_array_equal(plain.verts, same.verts)
+    scale = np.ones(WARP_BINS)
+    scale[[WARP_BINS - 2, WARP_BINS - 1, 0, 1, 2]] = 2.0  # +-22.5 degrees round +x
+    warped = warp_hair(plain.verts, verts, scale, warp_centre(frame))
+    from scipy.spatial import cKDTree
+
+    dist, near = cKDTree(verts).query(plain.verts)
+    rel = plain.verts - warp_centre(frame)
+    left = (np.abs(np.arctan2(rel[:, 1], rel[:, 0])) < np.radians(10)) & (rel[:, 0] > 0.03)
+    right = rel[:, 0] < -0.03
+    new = np.linalg.norm(warped - verts[near], axis=1)
+    beyond = np.maximum(dist[left] - INNER_GAP, 0.0)
+    np.testing.assert_allclose(new[left], dist[left] + beyond, atol=1e-9)
+    assert beyond.max() > 0.005
+    np.testing.assert_allclose(warped[right], plain.verts[right], atol=1e-12)
+    style = HAIRSTYLES[style_index("twin tails")]
+    tails = build_hair(verts, frame, style)
+    tails_w = build_hair(verts, frame, style, scale=scale)
+    shell = len(build_hair(verts, frame, dataclasses.replace(style, extras=())).verts)
+    assert 0 < shell < len(tails.verts)
+    assert not np.allclose(tails_w.verts[:shell], tails.verts[:shell])
+    np.testing.assert_array_equal(tails_w.verts[shell:], tails.verts[shell:])
