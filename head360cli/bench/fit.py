@@ -124,6 +124,7 @@ def _hair_style(views: int = 30, seed: int = 0) -> dict[str, Any]:
         style_silhouettes,
     )
     from head360cli.fitting.hair_parse import mask_iou, parse_hair
+    from head360cli.fitting.hair_shape import rank_shaped
     from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere, project
     from head360cli.mesh.bilinear import load_bilinear
     from head360cli.model.data import Views
@@ -157,6 +158,10 @@ def _hair_style(views: int = 30, seed: int = 0) -> dict[str, Any]:
         valid = ~hidden_by_body(lm, (res, res))
         for key, mask in masks.items():
             guess = classify_hair(mask, sil, valid, faces[key], HAIR_AREA_CM2)
+            # ranked again with the first styles' shapes fitted, as a fit does
+            guess = rank_shaped(guess, sil, head.verts, batch.verts[0].numpy(), model.faces,
+                                c2w[0].numpy(), data.intrinsics.numpy(), mask, valid,
+                                faces[key], True, HAIR_AREA_CM2)
             rank = guess.ranking
             hits[key][0] += rank[0] == head.hair_style
             hits[key][1] += head.hair_style in rank[:3]

@@ -75,6 +75,11 @@ class HairGuess:
         matched: Whether some style overlaps the hair mask by :data:`MIN_STYLE_IOU`
             (``False``: the mask is ranked as no hair, bald first with probability 1;
             ``iou`` still holds the measured overlaps).
+        score: ``(30,)`` the score the ranking follows (``None``: not kept).
+        shaped: Style ids whose IoU and score are of their shape fitted to the hair
+            (:func:`~head360cli.fitting.hair_shape.rank_shaped`).
+        contradicted: Style ids whose extra pieces the hair mask contradicts (ranked
+            after every other style with hair).
     """
 
     ranking: list[int]
@@ -82,6 +87,9 @@ class HairGuess:
     probability: np.ndarray
     same_as_first: np.ndarray
     matched: bool = True
+    score: np.ndarray | None = None
+    shaped: tuple[int, ...] = ()
+    contradicted: tuple[int, ...] = ()
 
     def top(self, k: int = 3) -> list[dict[str, float | int | str | bool]]:
         """The best ``k`` styles as ``{"id", "name", "score", "iou",
@@ -340,7 +348,7 @@ def classify_hair(hair: np.ndarray, silhouettes: np.ndarray,
     ranking = [int(i) for i in np.lexsort((area, -iou, -score))]
     first = silhouettes[ranking[0]]
     same = np.array([np.array_equal(sil, first) for sil in silhouettes])
-    return HairGuess(ranking, iou, p, same, matched)
+    return HairGuess(ranking, iou, p, same, matched, score)
 
 
 COLOUR_MAP = (1.164, 0.581)

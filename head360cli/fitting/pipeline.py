@@ -292,8 +292,10 @@ def classify_photo(photo: str | Path, *, face: int = 0, detector: str = "auto",
         shape, timings["shape"] = _timed(stages.fit_shape, seen, cfg, warnings)
         parse, timings["parse"] = job.result()
     t0 = time.perf_counter()
+    # soft hairlines, as the shipped (deferred) generator draws them
     guess, estimate, name, colour = stages.guess_hair(seen.image, parse, shape.fit,
-                                                      shape.model, seen.face.landmarks)
+                                                      shape.model, seen.face.landmarks,
+                                                      soft=True)
     timings["classify"] = time.perf_counter() - t0
     return {"photo": str(photo), "top": guess.top(top),
             "warnings": warnings + prior_missing(learned_prior and hair_parser == "grabcut"),
@@ -521,7 +523,8 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
         first_s = time.perf_counter() - t0
         parse, timings["parse"] = job.result()
     warnings += prior_missing(cfg.learned_prior and cfg.hair_parser == "grabcut")
-    hair, t = _timed(stages.choose_hairstyle, seen, shape, parse, cfg, silhouettes, warnings)
+    hair, t = _timed(stages.choose_hairstyle, seen, shape, parse, cfg, silhouettes, warnings,
+                     soft=gen.soft_hairlines)
     timings["classify"] = classify_s + t
 
     bald, t = _timed(stages.make_bald_target, seen, frame, parse, first)
@@ -546,7 +549,8 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
     placement = stages.HairPlacement(np.zeros(3), None, None)
     t0 = time.perf_counter()
     if hair.style != 0 and cfg.hair_placement:
-        placement = stages.place_hairstyle(seen, shape, frame, bald, hair.style, inv)
+        placement = stages.place_hairstyle(seen, shape, frame, bald, hair.style, inv,
+                                           soft=gen.soft_hairlines)
     timings["hair_placement"] = time.perf_counter() - t0
 
     say("preview", 0, 1)
@@ -556,6 +560,7 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                         samples=(invert_cfg.preview_samples if gen.kind == "hexplane"
                                  else None),
                         precision="fp32", hair_offset=placement.offset,
+                        hair_scale=placement.scale,
                         lid_change=None if lids is None else lids.change,
                         colour_gain=inv.gain)
     preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
@@ -574,6 +579,8 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                 "hair_style": np.array(hair.style, np.int64),
                 "hair_color": hair.colour.astype(np.float32),
                 "hair_offset": placement.offset.astype(np.float32),
+                **({} if placement.scale is None else
+                   {"hair_scale": placement.scale.astype(np.float32)}),
                 "vertices": frame.neutral.astype(np.float32),
                 **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy())),
                 **({} if inv.gain is None else
@@ -622,7 +629,12 @@ def _summary(photo, cfg: FitConfig, seen, shape, frame, parse, hair, placement, 
                     "iou_unplaced": None if placement.iou_unplaced is None
                     else round(placement.iou_unplaced, 4),
                     "iou_placed": None if placement.iou_placed is None
-                    else round(placement.iou_placed, 4)},
+                    else round(placement.iou_placed, 4),
+                    # its thickness scaled by direction to the parsed hair's outline
+                    "iou_scaled": None if placement.iou_scaled is None
+                    else round(placement.iou_scaled, 4),
+                    "scale_range": None if placement.scale is None
+                    else rounded([placement.scale.min(), placement.scale.max()], 3)},
         hair_candidates=hair.guess.top(3),
         hair_color=rounded(hair.colour), hair_color_name=hair.colour_name,
         hair_color_chosen_by=hair.colour_by, hair_color_estimate=rounded(hair.estimate),
@@ -676,6 +688,13 @@ def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
         if name in arrays and tuple(np.shape(arrays[name])) != (3,):
             raise FileFormatError(f"{where}: expected {name} of 3 numbers, found shape "
                                   f"{tuple(np.shape(arrays[name]))}")
+    if "hair_scale" in arrays:
+        from head360cli.synth.hair import WARP_BINS
+
+        scale = np.asarray(arrays["hair_scale"])
+        if scale.shape != (WARP_BINS,) or not (np.isfinite(scale) & (scale > 0)).all():
+            raise FileFormatError(f"{where}: expected hair_scale of {WARP_BINS} positive "
+                                  f"numbers, found shape {scale.shape}")
     if "colour_gain" in arrays and not (np.asarray(arrays["colour_gain"]) > 0).all():
         raise FileFormatError(f"{where}: expected a colour_gain above 0 in every channel, "
                               f"found {np.asarray(arrays['colour_gain']).tolist()}")
@@ -705,7 +724,8 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
                         a["hair_color"], a["expression"], samples=samples, size=size,
                         precision=precision,
                         reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
-                        hair_offset=a.get("hair_offset"), lid_change=lid_change_of(a),
+                        hair_offset=a.get("hair_offset"), hair_scale=a.get("hair_scale"),
+                        lid_change=lid_change_of(a),
                         colour_gain=a.get("colour_gain"))
 
 

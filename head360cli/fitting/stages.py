@@ -145,6 +145,12 @@ class HairPlacement:
     """Silhouette IoU with the parsed hair after the shift (``None``: not placed)."""
     iou_unplaced: float | None
     """...and before it."""
+    scale: np.ndarray | None = None
+    """``(WARP_BINS,)`` the style's thickness by direction, fitted to the parsed hair's
+    outline (:func:`~head360cli.fitting.hair_shape.fit_hair_scale`); ``None``: as built."""
+    iou_scaled: float | None = None
+    """Silhouette IoU with the parsed hair after the scale (``None``: not scaled, as the
+    scale gained nothing)."""
 
 
 @dataclasses.dataclass
@@ -283,12 +289,13 @@ def fit_shape(seen: PhotoFace, cfg: FitConfig, warnings: list[str]) -> Shape:
 
 
 def choose_hairstyle(seen: PhotoFace, shape: Shape, parse, cfg: FitConfig,
-                     silhouettes: np.ndarray | None, warnings: list[str]) -> HairChoice:
+                     silhouettes: np.ndarray | None, warnings: list[str],
+                     soft: bool = False) -> HairChoice:
     """The classifier's hairstyle for the parsed hair (or ``cfg.hair_style``) and the
     colour its pixels read as; a parse that matches no style adds a warning (the head is
-    then fitted bald)."""
+    then fitted bald). ``soft``: the generator's hairlines (:func:`guess_hair`)."""
     guess, estimate, name, colour = guess_hair(seen.image, parse, shape.fit, shape.model,
-                                               seen.face.landmarks, silhouettes)
+                                               seen.face.landmarks, silhouettes, soft=soft)
     style = guess.ranking[0] if cfg.hair_style is None else int(cfg.hair_style)
     if cfg.hair_style is None and not guess.matched:
         warnings.append(f"the parsed hair matches no hairstyle (best overlap "
@@ -407,17 +414,25 @@ def fit_closed_lids(gen, shape: Shape, inv):
 
 
 def place_hairstyle(seen: PhotoFace, shape: Shape, frame: Framing, bald: BaldTarget,
-                    style: int, inv) -> HairPlacement:
+                    style: int, inv, soft: bool = False) -> HairPlacement:
     """Shift the style's mesh so its silhouette from the refined camera best matches the
-    parsed hair (:func:`~head360cli.fitting.hair_class.place_hair`)."""
+    parsed hair (:func:`~head360cli.fitting.hair_class.place_hair`), then scale its
+    thickness by direction to the parsed hair's outline
+    (:func:`~head360cli.fitting.hair_shape.fit_hair_scale`)."""
     from head360cli.fitting.hair_class import place_hair
+    from head360cli.fitting.hair_shape import fit_hair_scale
 
     res = frame.crop.shape[0]
+    c2w = inv.c2w.cpu().numpy()
+    scored = bald.valid & outside_body(seen.face.landmarks, frame.affine, res)
     offset, placed, plain = place_hair(
-        frame.neutral, frame.posed, shape.model.faces, inv.c2w.cpu().numpy(), frame.k, style,
-        bald.hair, bald.valid & outside_body(seen.face.landmarks, frame.affine, res),
-        face=bald.face)
-    return HairPlacement(offset, placed, plain)
+        frame.neutral, frame.posed, shape.model.faces, c2w, frame.k, style,
+        bald.hair, scored, face=bald.face)
+    shaped = fit_hair_scale(frame.neutral, frame.posed, shape.model.faces, c2w, frame.k,
+                            style, bald.hair, scored, offset, bald.face, soft=soft)
+    if (shaped.scale == 1).all():  # kept only where it gains (fit_hair_scale)
+        return HairPlacement(offset, placed, plain)
+    return HairPlacement(offset, placed, plain, shaped.scale, shaped.iou_after)
 
 
 def render_preview(head, frame: Framing, bald: BaldTarget, inv, grey: bool) -> Preview:
@@ -547,29 +562,34 @@ def style_silhouettes(img, fit, model, res: int = CLASSIFY_RES) -> np.ndarray:
 
 
 def guess_hair(img, parse, fit, model, landmarks: np.ndarray,
-                silhouettes: np.ndarray | None = None, res: int = CLASSIFY_RES):
+               silhouettes: np.ndarray | None = None, res: int = CLASSIFY_RES,
+               soft: bool = False):
     """Hairstyle ranking and hair colour of a parsed photo with its detected
     ``landmarks (68, 2)`` (and the styles' ``silhouettes`` when already made by
     :func:`style_silhouettes`): ``(guess, colour estimate, nearest corpus colour name, its
-    RGB)``."""
+    RGB)``. The first styles are ranked with their shape fitted to the parsed hair
+    (:func:`~head360cli.fitting.hair_shape.rank_shaped`; ``soft``: the hairlines of the
+    generator that will render them)."""
     from head360cli.fitting.hair_class import (
         HAIR_AREA_CM2,
         classify_hair,
         hair_colour,
         nearest_colour_name,
     )
-    from head360cli.fitting.texture import crop_mask, photo_camera
+    from head360cli.fitting.hair_shape import rank_shaped
+    from head360cli.fitting.texture import crop_mask
     from head360cli.synth.hair import HAIR_COLOURS
 
-    # the crop's affine only (no crop image or meshes: the silhouettes have them)
-    affine = photo_camera(fit.rotation, fit.translation, fit.focal, fit.centre, res)[2]
-    hair = crop_mask(parse.hair, affine, res)
-    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), affine, res)
-    valid &= outside_body(landmarks, affine, res)
+    frame = frame_photo(img, fit, model, res)
+    hair = crop_mask(parse.hair, frame.affine, res)
+    valid = crop_mask(np.ones(img.pixels.shape[:2], bool), frame.affine, res)
+    valid &= outside_body(landmarks, frame.affine, res)
+    face = crop_mask(parse.face, frame.affine, res)
     if silhouettes is None:
         silhouettes = style_silhouettes(img, fit, model, res)
-    guess = classify_hair(hair, silhouettes, valid, crop_mask(parse.face, affine, res),
-                          HAIR_AREA_CM2)
+    guess = classify_hair(hair, silhouettes, valid, face, HAIR_AREA_CM2)
+    guess = rank_shaped(guess, silhouettes, frame.neutral, frame.posed, model.faces,
+                        frame.c2w, frame.k, hair, valid, face, soft, HAIR_AREA_CM2)
     estimate = hair_colour(img.pixels, parse.hair)
     # The hair branch learnt the corpus' named colours: the head wears the nearest one.
     name = nearest_colour_name(estimate)

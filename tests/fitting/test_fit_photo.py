@@ -133,6 +133,16 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     if placed["offset_mm"]["up"] == 0 and placed["offset_mm"]["forward"] == 0:
         assert placed["iou_placed"] == placed["iou_unplaced"]
     assert min(placed["iou_placed"], placed["iou_unplaced"]) > 0.3
+    # the thickness by direction: kept only when it gains IoU, saved with the head
+    from head360cli.fitting.hair_shape import SCALE_RANGE
+
+    if "hair_scale" in head.arrays:
+        assert placed["iou_scaled"] >= placed["iou_placed"] - 0.05  # less face covered
+        lo, hi = head.arrays["hair_scale"].min(), head.arrays["hair_scale"].max()
+        assert SCALE_RANGE[0] - 1e-6 <= lo <= hi <= SCALE_RANGE[1] + 1e-6
+        np.testing.assert_allclose(placed["scale_range"], [lo, hi], atol=1e-3)
+    else:  # a scale that gains less than MIN_GAIN is not kept
+        assert placed["iou_scaled"] is None and placed["scale_range"] is None
     preview = Image.open(tmp_path / "me_preview.png")
     assert preview.size == (6 * 256, 256)
 
