@@ -108,7 +108,7 @@ class HairChoice:
     estimate: np.ndarray
     """``(3,)`` linear RGB the parsed hair's pixels read as."""
     colour_name: str
-    """The SynHead-P colour worn."""
+    """The SynHead-P colour name nearest the colour worn."""
     colour: np.ndarray
     """``(3,)`` its linear RGB."""
     colour_by: str = "tone curve"
@@ -612,8 +612,10 @@ def colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
     """The hair colour the fitted head wears: of the :data:`COLOUR_CANDIDATES` SynHead-P
     colours nearest the tone curve's ``estimate``, the one whose render in ``style`` from
     the photo's camera (``cam (4, 4)``, ``k (3, 3)`` for ``crop``) differs least from the
-    photo's hair pixels (``crop (R, R, 3)`` uint8, ``hair (R, R)`` bool): ``(name, linear
-    RGB, "render" or "tone curve")``. The generator renders a named colour close to, but
+    photo's hair pixels (``crop (R, R, 3)`` uint8, ``hair (R, R)`` bool), then matched to
+    their median colour by render (:func:`~head360cli.fitting.hair_class.
+    match_colour_by_render`): ``(nearest colour name, linear RGB, "render" or "tone
+    curve")``. The generator renders a named colour close to, but
     not exactly as, the corpus renderer whose look the tone curve was fitted to. With
     ``gain (3,)`` (the photo's light, a tensor) the renders are drawn under it."""
     import dataclasses
@@ -621,7 +623,12 @@ def colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
     import cv2
     import torch
 
-    from head360cli.fitting.hair_class import nearest_colour_names, pick_colour_by_render
+    from head360cli.fitting.hair_class import (
+        match_colour_by_render,
+        nearest_colour_name,
+        nearest_colour_names,
+        pick_colour_by_render,
+    )
     from head360cli.model.generator import hair_for
     from head360cli.model.render import lit
     from head360cli.synth.hair import HAIR_COLOURS
@@ -652,8 +659,11 @@ def colour_by_render(gen, verts, cam, k, code, neutral: np.ndarray, style: int,
 
     candidates = nearest_colour_names(estimate, COLOUR_CANDIDATES)
     name, scores = pick_colour_by_render(render, photo, small_hair, candidates)
-    return (name, np.asarray(HAIR_COLOURS[name], np.float32),
-            "render" if scores else "tone curve")
+    if not scores:
+        return name, np.asarray(HAIR_COLOURS[name], np.float32), "tone curve"
+    # the nearest named colour's render is where the match starts: any colour can result
+    colour = match_colour_by_render(render, photo, small_hair, HAIR_COLOURS[name])
+    return nearest_colour_name(colour), colour, "render"
 
 
 

@@ -92,18 +92,21 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     assert s["device"] == "cpu"
     assert s["hair_parse"]["parser"] == "segmenter"
     assert s["hair_parse"]["learned_prior"] is False  # the GrabCut parser's only
-    # Short hair, light colour, a face fitted well at the input view. "twin tails" is a
-    # known miss since the face mesh's shape fit (pitch 21.7 instead of 16.6 degrees):
-    # from the front its crown matches hers best (0.25 against pixie's 0.18)
+    # Short hair, light colour, a face fitted well at the input view. Twin tails, the
+    # unshaped silhouettes' first since the face mesh's shape fit, hang where her photo
+    # shows her suit: contradicted, never worn
     assert s["hair_style"]["name"] in {"pixie", "side swept", "curly short", "crew", "bob",
-                                       "side part", "bangs", "twin tails"}
+                                       "side part", "bangs"}
     assert s["hair_color_name"] in {"blonde", "light brown", "brown", "auburn"}
     assert s["hair_color_chosen_by"] == "render"  # she has hair, and it shows
     # the style worn is the first of the ranking reported
     assert s["hair_candidates"][0]["id"] == s["hair_style"]["id"]
+    # matched to her hair by render, not snapped to a named colour (the name is the nearest)
+    from head360cli.fitting.hair_class import nearest_colour_name
     from head360cli.synth.hair import HAIR_COLOURS
 
-    np.testing.assert_allclose(s["hair_color"], HAIR_COLOURS[s["hair_color_name"]], atol=1e-4)
+    assert nearest_colour_name(np.array(s["hair_color"])) == s["hair_color_name"]
+    assert np.abs(np.array(s["hair_color"]) - HAIR_COLOURS[s["hair_color_name"]]).max() > 0.01
     assert s["psnr_face_input_view"] > 21.0
     assert s["inversion"]["loss_last"] < s["inversion"]["loss_first"]
     head = read_head(out)

@@ -304,6 +304,38 @@ def test_nearest_colour_names_are_ordered_by_distance():
     assert nearest_colour_names(np.array([0.03, 0.03, 0.03]), 1) == ["black"]
 
 
+@pytest.mark.parametrize("power", [1.0, 2.1, 3.0])
+def test_match_colour_by_render_reaches_the_photo_s_hair_colour(power):
+    """A fake renderer whose hair answers its albedo as ``0.5 * albedo ** power`` (linear;
+    the shipped generator's slope was about 2): three renders from a named colour give
+    the albedo whose render has the photo's median hair colour, a colour no name has;
+    without overlap the start is kept."""
+    from head360cli.fitting.hair_class import MATCH_RANGE, _srgb, match_colour_by_render
+    from head360cli.synth.hair import HAIR_COLOURS
+
+    hair = np.zeros((16, 16), bool)
+    hair[:6] = True
+    want = np.array([0.30, 0.12, 0.20])  # a plum no SynHead-P colour is
+    photo = np.zeros((16, 16, 3))
+    photo[hair] = _srgb(0.5 * want ** power)
+
+    def render(rgb):
+        image = np.zeros((16, 16, 3))
+        image[:8] = _srgb(0.5 * np.asarray(rgb, np.float64) ** power)
+        covered = np.zeros((16, 16), bool)
+        covered[:8] = True
+        return image, covered
+
+    start = np.asarray(HAIR_COLOURS["brown"])
+    got = match_colour_by_render(render, photo, hair, start)
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, want, rtol=0.02)
+    assert MATCH_RANGE[0] <= got.min() and got.max() <= MATCH_RANGE[1]
+    np.testing.assert_array_equal(
+        match_colour_by_render(render, photo, np.zeros((16, 16), bool), start),
+        start.astype(np.float32))
+
+
 def test_pick_colour_by_render_takes_the_render_most_like_the_photo():
     """A fake renderer paints the hair region in the colour's sRGB value; the photo's hair
     is blonde's, so blonde wins over the tone curve's first guess."""
