@@ -111,7 +111,9 @@ def swap_hair(head_path: str | Path, out: str | Path, style: int | str | None = 
               "hair_color": np.asarray(arrays["hair_color"], float).round(4).tolist()}
     if style is not None:
         if int(style) != before["hair_style"]:
-            arrays.pop("hair_scale", None)  # the fitted style's shape, not the new one's
+            # the fitted style's shape, not the new one's
+            arrays.pop("hair_scale", None)
+            arrays.pop("hair_end_shift", None)
         arrays["hair_style"] = np.array(int(style), np.int64)
         info["hair_style_name"] = HAIRSTYLES[int(style)].name
     if colour is not None:

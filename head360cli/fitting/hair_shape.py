@@ -21,11 +21,13 @@ import torch
 
 __all__ = [
     "CANDIDATES",
+    "END_SHIFTS",
     "EXTRA_SUPPORT",
     "ITERATIONS",
     "SCALE_RANGE",
     "HairShape",
     "extras_support",
+    "fit_hair_end",
     "fit_hair_scale",
     "rank_shaped",
     "ray_directions",
@@ -186,22 +188,24 @@ def _score(sil: np.ndarray, hair: np.ndarray, valid: np.ndarray, face: np.ndarra
     return iou, iou - FACE_COVER * float((sil & face)[valid].sum() / face[valid].sum())
 
 
-def _fit(scene: _Scene, style: int, hair: np.ndarray, valid: np.ndarray, shift: np.ndarray,
+def _fit(scene: _Scene, style, hair: np.ndarray, valid: np.ndarray, shift: np.ndarray,
          face: np.ndarray | None, soft: bool, iterations: int
          ) -> tuple[HairShape, float, float]:
-    """:func:`fit_hair_scale` on a made scene: ``(shape, score before, score after)``."""
-    from head360cli.synth.hair import WARP_BINS, warp_centre
+    """:func:`fit_hair_scale` on a made scene (``style`` an id or a
+    :class:`~head360cli.synth.hair.HairStyle`): ``(shape, score before, score after)``."""
+    from head360cli.synth.hair import HAIRSTYLES, WARP_BINS, warp_centre
 
+    style = HAIRSTYLES[int(style)] if isinstance(style, int | np.integer) else style
     ones = np.ones(WARP_BINS)
     origin, dirs = ray_directions(warp_centre(scene.frame) + shift, scene.c2w,
                                   scene.intrinsics, WARP_BINS)
     log = np.zeros(WARP_BINS)
-    sil = plain = scene.silhouette(int(style), shift, None, soft)
+    sil = plain = scene.silhouette(style, shift, None, soft)
     low, high = np.log(SCALE_RANGE[0]), np.log(SCALE_RANGE[1])
     for _ in range(iterations):
         step = _thickness_ratio(scene.head, sil, hair, valid, origin, dirs)
         log = np.clip(_smooth(log + np.clip(step, -1.0, 1.0)), low, high)
-        sil = scene.silhouette(int(style), shift, np.exp(log), soft)
+        sil = scene.silhouette(style, shift, np.exp(log), soft)
     (iou_0, score_0), (iou_1, score_1) = _score(plain, hair, valid, face), \
         _score(sil, hair, valid, face)
     if score_1 < score_0 + MIN_GAIN:
@@ -213,7 +217,7 @@ def fit_hair_scale(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
                    c2w: np.ndarray, intrinsics: np.ndarray, style: int, hair: np.ndarray,
                    valid: np.ndarray | None = None, offset: np.ndarray | None = None,
                    face: np.ndarray | None = None, soft: bool = False,
-                   iterations: int = ITERATIONS) -> HairShape:
+                   iterations: int = ITERATIONS, end_shift: float = 0.0) -> HairShape:
     """Scale a style's thickness by direction so that its silhouette ends where the
     parsed hair does.
 
@@ -230,18 +234,51 @@ def fit_hair_scale(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
             gains :data:`MIN_GAIN`.
         soft: The soft hairlines of the generator that renders it.
         iterations: Rounds of measuring and scaling.
+        end_shift: The style's ends moved by this (:func:`fit_hair_end`).
 
     Returns:
         The :class:`HairShape` (ones when the style is bald or the scale gains nothing).
     """
-    from head360cli.synth.hair import WARP_BINS
+    from head360cli.synth.hair import HAIRSTYLES, WARP_BINS
 
     if int(style) == 0:
         return HairShape(np.ones(WARP_BINS), 0.0, 0.0)
     valid = np.ones_like(hair) if valid is None else valid
     shift = np.zeros(3) if offset is None else np.asarray(offset, np.float64)
     scene = _Scene(neutral, posed, faces, c2w, intrinsics, hair.shape[0])
-    return _fit(scene, style, hair, valid, shift, face, soft, iterations)[0]
+    own = dataclasses.replace(HAIRSTYLES[int(style)], end_shift=float(end_shift))
+    return _fit(scene, own, hair, valid, shift, face, soft, iterations)[0]
+
+
+END_SHIFTS = (0.0, -0.01, -0.02, -0.03, -0.04, -0.06)
+"""Metres :func:`fit_hair_end` tries moving a style's ends at the sides and back up by:
+only up, so short hair stays short (a longer style is the ranking's to choose); 6 cm
+takes a bob's ends from below the ear lobes to the top of the ears."""
+
+
+def fit_hair_end(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
+                 c2w: np.ndarray, intrinsics: np.ndarray, style: int, hair: np.ndarray,
+                 valid: np.ndarray | None = None, offset: np.ndarray | None = None,
+                 face: np.ndarray | None = None, soft: bool = False) -> float:
+    """How far up a style's hair should end at the sides and back for its silhouette to
+    match the parsed hair: of :data:`END_SHIFTS`, the one whose IoU less the face it
+    covers (as :func:`fit_hair_scale` scores) is best, if it gains :data:`MIN_GAIN` over
+    none; 0 for bald. Arguments as :func:`fit_hair_scale`'s; metres (negative: up).
+
+    Scaling the thickness cannot shorten hair: it squeezes the ends onto the neck."""
+    from head360cli.synth.hair import HAIRSTYLES
+
+    if int(style) == 0:
+        return 0.0
+    valid = np.ones_like(hair) if valid is None else valid
+    shift = np.zeros(3) if offset is None else np.asarray(offset, np.float64)
+    scene = _Scene(neutral, posed, faces, c2w, intrinsics, hair.shape[0])
+    own = HAIRSTYLES[int(style)]
+    scores = [_score(scene.silhouette(dataclasses.replace(own, end_shift=e), shift,
+                                      soft=soft), hair, valid, face)[1]
+              for e in END_SHIFTS]
+    best = int(np.argmax(scores))
+    return float(END_SHIFTS[best]) if scores[best] >= scores[0] + MIN_GAIN else 0.0
 
 
 CANDIDATES = 5

@@ -560,7 +560,7 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                         samples=(invert_cfg.preview_samples if gen.kind == "hexplane"
                                  else None),
                         precision="fp32", hair_offset=placement.offset,
-                        hair_scale=placement.scale,
+                        hair_scale=placement.scale, hair_end_shift=placement.end_shift,
                         lid_change=None if lids is None else lids.change,
                         colour_gain=inv.gain)
     preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
@@ -581,6 +581,8 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                 "hair_offset": placement.offset.astype(np.float32),
                 **({} if placement.scale is None else
                    {"hair_scale": placement.scale.astype(np.float32)}),
+                **({} if not placement.end_shift else
+                   {"hair_end_shift": np.array(placement.end_shift, np.float32)}),
                 "vertices": frame.neutral.astype(np.float32),
                 **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy())),
                 **({} if inv.gain is None else
@@ -626,6 +628,8 @@ def _summary(photo, cfg: FitConfig, seen, shape, frame, parse, hair, placement, 
                     # parsed hair before and after
                     "offset_mm": {"up": round(float(offset[1]) * 1e3, 1),
                                   "forward": round(float(offset[2]) * 1e3, 1)},
+                    # the ends at the sides and back moved down (negative: up), mm
+                    "end_shift_mm": round(placement.end_shift * 1e3, 1),
                     "iou_unplaced": None if placement.iou_unplaced is None
                     else round(placement.iou_unplaced, 4),
                     "iou_placed": None if placement.iou_placed is None
@@ -688,6 +692,11 @@ def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
         if name in arrays and tuple(np.shape(arrays[name])) != (3,):
             raise FileFormatError(f"{where}: expected {name} of 3 numbers, found shape "
                                   f"{tuple(np.shape(arrays[name]))}")
+    if "hair_end_shift" in arrays:
+        shift = np.asarray(arrays["hair_end_shift"])
+        if shift.shape != () or not np.isfinite(shift) or abs(float(shift)) > 0.3:
+            raise FileFormatError(f"{where}: expected hair_end_shift of one number within "
+                                  f"0.3 m, found {shift.tolist()}")
     if "hair_scale" in arrays:
         from head360cli.synth.hair import WARP_BINS
 
@@ -725,6 +734,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
                         precision=precision,
                         reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
                         hair_offset=a.get("hair_offset"), hair_scale=a.get("hair_scale"),
+                        hair_end_shift=a.get("hair_end_shift"),
                         lid_change=lid_change_of(a),
                         colour_gain=a.get("colour_gain"))
 

@@ -101,13 +101,15 @@ class Hair:
 
 def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,
              offsets: np.ndarray | None = None, soft: bool = False,
-             scales: np.ndarray | None = None) -> Hair:
+             scales: np.ndarray | None = None, end_shifts: np.ndarray | None = None
+             ) -> Hair:
     """Hair of hairstyles ``styles`` and ``colours (B, 3)`` fitted to neutral heads
     ``(B, V, 3)`` (or one ``(V, 3)`` head for all), each moved by ``offsets (B, 3)``
     metres in the head's frame (a fit's hair placement; default: not moved) and its
     thickness scaled by ``scales (B, WARP_BINS)`` (a fit's; default: as built,
-    :func:`~head360cli.synth.hair.warp_hair`); ``soft`` hairlines for a generator trained
-    on them (``GeneratorConfig.soft_hair``)."""
+    :func:`~head360cli.synth.hair.warp_hair`) and its ends moved by ``end_shifts (B,)``
+    metres (a fit's length, :attr:`~head360cli.synth.hair.HairStyle.end_shift`);
+    ``soft`` hairlines for a generator trained on them (``GeneratorConfig.soft_hair``)."""
     from head360cli.synth.hair import fit_hair
 
     neutral = np.asarray(neutral)
@@ -116,7 +118,8 @@ def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,
     meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None] = []
     for i, style in enumerate(styles):
         m = fit_hair(neutral if neutral.ndim == 2 else neutral[i], int(style), soft=soft,
-                     scale=None if scales is None else scales[i])
+                     scale=None if scales is None else scales[i],
+                     end_shift=0.0 if end_shifts is None else float(end_shifts[i]))
         meshes.append(None if len(m.faces) == 0 else (
             torch.tensor(m.verts + shift[i], dtype=torch.float32), torch.tensor(m.faces),
             torch.tensor(m.uv, dtype=torch.float32)))

@@ -92,6 +92,9 @@ class HeadRenderer:
             file's ``hair_scale``, :func:`~head360cli.synth.hair.warp_hair`; default
             none). It is the fitted style's: another style put on by :meth:`set_hair`
             wears its own shape.
+        hair_end_shift: Metres the fitted style's ends at the sides and back are moved
+            down (negative: up; a head file's ``hair_end_shift``, default 0); the fitted
+            style's, as ``hair_scale``.
         lid_change: ``(C, R, R)`` the texture's change with both eyes closed
             (:func:`~head360cli.fitting.lids.close_lids`); a frame's texture adds the part
             on each eye's lid texels as far as that eye closes beyond the head's own
@@ -110,6 +113,7 @@ class HeadRenderer:
                  precision: str = "auto", reuse: float | None = REUSE_TOL,
                  hair_offset: np.ndarray | None = None,
                  hair_scale: np.ndarray | None = None,
+                 hair_end_shift: float | np.ndarray | None = None,
                  lid_change: torch.Tensor | np.ndarray | None = None,
                  colour_gain: np.ndarray | torch.Tensor | None = None) -> None:
         from head360cli.devices import fast_bfloat16
@@ -172,6 +176,12 @@ class HeadRenderer:
                 raise ValueError(f"expected a hair scale of {WARP_BINS} positive finite "
                                  f"numbers, found shape {scale.shape}")
             self.hair_scale = scale
+        shift = 0.0 if hair_end_shift is None else np.asarray(hair_end_shift, np.float64)
+        if np.shape(shift) != () or not np.isfinite(shift) or abs(float(shift)) > 0.3:
+            raise ValueError("expected a hair end shift of one number within 0.3 m, found "
+                             f"{np.asarray(hair_end_shift).tolist()}")
+        self.hair_end_shift = float(shift)
+        """Metres the fitted style's ends are moved down (negative: up)."""
         self._scaled_style = int(hair_style)
         self.colour_gain = None
         """``(1, 3, 1, 1)`` the photo's light on the head's pixels, or ``None``."""
@@ -247,11 +257,12 @@ class HeadRenderer:
         self.hair_colour = np.asarray(hair_colour, np.float64).reshape(3)
         self.hair = None
         if self.gen.cfg.hair:
-            scale = (self.hair_scale if self.hair_scale is not None
-                     and self.hair_style == self._scaled_style else None)
+            own = self.hair_style == self._scaled_style
+            scale = self.hair_scale if own else None
             hair = hair_for(self.neutral, [self.hair_style], self.hair_colour[None],
                             self.hair_offset[None], soft=self.gen.soft_hairlines,
-                            scales=None if scale is None else scale[None])
+                            scales=None if scale is None else scale[None],
+                            end_shifts=[self.hair_end_shift if own else 0.0])
             if hair.meshes[0] is not None:
                 with torch.no_grad():
                     self.hair = self.gen.prepare_hair(hair.to(self.device))

@@ -98,6 +98,9 @@ class HairStyle:
     extras: tuple[str, ...] = ()
     """Extra pieces: ``bun``, ``top_knot``, ``ponytail_high``, ``ponytail_low``,
     ``braid``, ``twin_tails``."""
+    end_shift: float = 0.0
+    """Metres the hair's ends at the sides and the back are moved down (negative: up): a
+    fit's length for one person, 0 in every style of the catalogue."""
 
 
 HAIRSTYLES: tuple[HairStyle, ...] = (
@@ -297,8 +300,8 @@ def _coverage_and_thickness(pts: np.ndarray, frame: HeadFrame, style: HairStyle,
     # Hairline height around the head: front, temples, sides, back.
     front_y = lv["forehead"] + style.front + style.sweep * np.sin(phi) * (c > 0)
     front_y = front_y + style.recede * np.exp(-0.5 * ((np.abs(phi) - 0.55) / 0.18) ** 2)
-    side_y = _level(style.side, frame, style)
-    back_y = _level(style.back, frame, style)
+    side_y = _level(style.side, frame, style) - style.end_shift
+    back_y = _level(style.back, frame, style) - style.end_shift
     temple = np.clip((np.abs(phi) - 0.75) / 0.45, 0, 1)  # 0 on the face, 1 at the ears
     behind = np.clip((np.abs(phi) - math.pi / 2) / (math.pi / 2), 0, 1)
     face_line = front_y
@@ -590,7 +593,8 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
         style = HAIRSTYLES[style]
     if style.top <= 0 and not style.extras:
         return HairMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 2)))
-    bottom = min(frame.levels["menton"] - style.length, frame.levels["neck_bottom"])
+    bottom = min(frame.levels["menton"] - style.length - max(style.end_shift, 0.0),
+                 frame.levels["neck_bottom"])
     base, normal = _base_grid(verts, frame, bottom, normals)
     covered, thick, base = _coverage_and_thickness(base, frame, style, soft)
     shell = _shell(base, normal, covered, thick, style, frame)
@@ -610,13 +614,18 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
 
 
 def fit_hair(verts: np.ndarray, style: HairStyle | int, soft: bool = False,
-             scale: np.ndarray | None = None) -> HairMesh:
+             scale: np.ndarray | None = None, end_shift: float = 0.0) -> HairMesh:
     """Fit a hairstyle to any head of this topology, its frame read off the vertices
     (:func:`head360cli.synth.sculpt.frame_from_vertices`); for a corpus head this is the
     same mesh as :func:`build_hair` with the head's own frame (``scale``: a fit's
-    thickness by direction, :func:`warp_hair`)."""
+    thickness by direction, :func:`warp_hair`; ``end_shift``: a fit's
+    :attr:`HairStyle.end_shift`)."""
     from head360cli.synth.sculpt import frame_from_vertices
 
+    if isinstance(style, int | np.integer):
+        style = HAIRSTYLES[int(style)]
+    if end_shift:
+        style = dataclasses.replace(style, end_shift=float(end_shift))
     return build_hair(verts, frame_from_vertices(verts), style, soft=soft, scale=scale)
 
 

@@ -67,12 +67,15 @@ def test_swap_drops_the_fitted_style_s_shape_with_the_style(head_file, tmp_path)
 
     head = read_head(head_file)
     head.arrays["hair_scale"] = np.full(WARP_BINS, 1.5, np.float32)
+    head.arrays["hair_end_shift"] = np.array(-0.02, np.float32)
     shaped = write_head(head, tmp_path / "shaped.h360")
     style = int(head.arrays["hair_style"])
     swap_hair(shaped, tmp_path / "recoloured.h360", style=style, colour="red")
-    assert "hair_scale" in read_head(tmp_path / "recoloured.h360").arrays
+    assert {"hair_scale", "hair_end_shift"} <= set(
+        read_head(tmp_path / "recoloured.h360").arrays)
     swap_hair(shaped, tmp_path / "restyled.h360", style=style % 29 + 1)
-    assert "hair_scale" not in read_head(tmp_path / "restyled.h360").arrays
+    assert not {"hair_scale", "hair_end_shift"} & set(
+        read_head(tmp_path / "restyled.h360").arrays)
 
 
 def test_library_swap_takes_names_numbers_and_refuses_unknown_styles(head_file, tmp_path):

@@ -136,8 +136,13 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     if placed["offset_mm"]["up"] == 0 and placed["offset_mm"]["forward"] == 0:
         assert placed["iou_placed"] == placed["iou_unplaced"]
     assert min(placed["iou_placed"], placed["iou_unplaced"]) > 0.3
+    # the ends raised where her hair ends higher, on the grid and saved with the head
+    from head360cli.fitting.hair_shape import END_SHIFTS, SCALE_RANGE
+
+    assert placed["end_shift_mm"] / 1e3 in np.round(END_SHIFTS, 6)
+    np.testing.assert_allclose(head.arrays.get("hair_end_shift", 0.0) * 1e3,
+                               placed["end_shift_mm"], atol=1e-3)
     # the thickness by direction: kept only when it gains IoU, saved with the head
-    from head360cli.fitting.hair_shape import SCALE_RANGE
 
     if "hair_scale" in head.arrays:
         assert placed["iou_scaled"] >= placed["iou_placed"] - 0.05  # less face covered

@@ -11,9 +11,11 @@ import torch
 
 from head360cli.fitting.hair_class import HAIR_AREA_CM2, classify_hair, style_silhouettes
 from head360cli.fitting.hair_shape import (
+    END_SHIFTS,
     SCALE_RANGE,
     _Scene,
     extras_support,
+    fit_hair_end,
     fit_hair_scale,
     rank_shaped,
     ray_directions,
@@ -136,3 +138,20 @@ def test_the_ranking_demotes_contradicted_extras_and_judges_shaped_styles(front)
         assert shaped.iou[style] >= guess.iou[style]
     assert np.isclose(shaped.probability.sum(), 1.0)
     assert shaped.same_as_first[shaped.ranking[0]]
+
+
+def test_a_shorter_bob_s_ends_are_found_and_long_hair_is_not_lengthened(front):
+    """The bob ending 3 cm higher is the parsed hair: the fit raises the style's ends by
+    3 cm, and the thickness fitted after it starts there. Hair longer than the style
+    gives no shift down: the shifts only raise."""
+    head, faces, c2w, k = front
+    bob = style_index("bob")
+    short = _Scene(head, head, faces, c2w, k, RES).silhouette(
+        dataclasses.replace(HAIRSTYLES[bob], end_shift=-0.03), np.zeros(3))
+    assert fit_hair_end(head, head, faces, c2w, k, bob, short) == pytest.approx(-0.03)
+    shape = fit_hair_scale(head, head, faces, c2w, k, bob, short, end_shift=-0.03)
+    assert (shape.scale == 1).all() and shape.iou_before == 1.0
+    longer = _silhouette(front, style_index("shoulder straight"))
+    assert fit_hair_end(head, head, faces, c2w, k, bob, longer) == 0.0
+    assert max(END_SHIFTS) == 0.0
+    assert fit_hair_end(head, head, faces, c2w, k, 0, short) == 0.0

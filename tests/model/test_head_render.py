@@ -104,9 +104,10 @@ def test_hair_offset_moves_every_style_and_old_files_have_none(head_file, tmp_pa
 
 
 def test_hair_scale_shapes_the_fitted_style_only(head_file, tmp_path):
-    """A head file's ``hair_scale`` (a fit's thickness by direction) warps the fitted
-    style's mesh as :func:`~head360cli.synth.hair.warp_hair` does; another style put on
-    wears its own shape, and a malformed scale is refused."""
+    """A head file's ``hair_scale`` (a fit's thickness by direction) and
+    ``hair_end_shift`` (its length) shape the fitted style's mesh as
+    :func:`~head360cli.synth.hair.fit_hair` does; another style put on wears its own
+    shape, and malformed values are refused."""
     from head360cli.fitting.pipeline import load_head_renderer
     from head360cli.io.headfile import read_head, write_head
     from head360cli.model.head_render import HeadRenderer
@@ -132,6 +133,18 @@ def test_hair_scale_shapes_the_fitted_style_only(head_file, tmp_path):
         with pytest.raises(ValueError, match=f"expected a hair scale of {WARP_BINS}"):
             HeadRenderer(shaped.gen, shaped.shape, shaped.texture[0], style,
                          shaped.hair_colour, size=64, hair_scale=bad)
+    # the ends moved up by the fit's end shift: the style's own, as the scale
+    head.arrays["hair_end_shift"] = np.array(-0.03, np.float32)
+    raised = load_head_renderer(write_head(head, tmp_path / "raised.h360"), samples=4,
+                                size=64, precision="fp32")
+    want = fit_hair(raised.neutral, style, soft=True, scale=scale, end_shift=-0.03).verts
+    np.testing.assert_allclose(raised.hair.meshes[0][0].numpy(),
+                               want + raised.hair_offset, atol=1e-6)
+    np.testing.assert_array_equal(raised.with_hair(other, raised.hair_colour).hair.meshes[0][0],
+                                  plain.with_hair(other, plain.hair_colour).hair.meshes[0][0])
+    with pytest.raises(ValueError, match="expected a hair end shift of one number"):
+        HeadRenderer(shaped.gen, shaped.shape, shaped.texture[0], style,
+                     shaped.hair_colour, size=64, hair_end_shift=[0.0, 0.1])
 
 
 def test_the_deferred_generator_wears_soft_hairlines(renderer):
