@@ -51,6 +51,12 @@ JUMP = 0.04
 """Hair that starts further than this share of the image beyond the head's edge along a
 ray is not the head's hair (a neighbour's, the backdrop's)."""
 
+SIDE_ON = 0.5
+"""A direction is measured only where it looks at least this long in the image against
+the longest: one seen end on (the head's sideways directions in a profile) shows the
+hair's outline in another direction than its own: scaled by it, Figaro's Frame00041 (a
+profile) grew flaps of hair all round."""
+
 MIN_GAIN = 0.005
 """IoU a scale must gain over none to be kept."""
 
@@ -68,10 +74,12 @@ class HairShape:
 
 
 def ray_directions(centre: np.ndarray, c2w: np.ndarray, intrinsics: np.ndarray,
-                   bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(origin (2,), directions (bins, 2))``: the image point of the warp's ``centre``
-    and the unit image direction of each warp direction (in the head's xy plane through
-    the centre) seen by the camera."""
+                   bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(origin (2,), directions (bins, 2), seen (bins,))``: the image point of the
+    warp's ``centre``, the unit image direction of each warp direction (in the head's xy
+    plane through the centre) seen by the camera, and how long each looks in the image
+    against the longest (1: seen side on; near 0: seen end on, as the head's sideways
+    directions are in a profile)."""
     from head360cli.geometry.cameras import project
 
     angle = 2 * np.pi * np.arange(bins) / bins
@@ -80,7 +88,9 @@ def ray_directions(centre: np.ndarray, c2w: np.ndarray, intrinsics: np.ndarray,
     pix = project(pts, torch.as_tensor(c2w, dtype=torch.float64)[None],
                   torch.as_tensor(intrinsics, dtype=torch.float64))[0][0].numpy()
     d = pix[1:] - pix[0]
-    return pix[0], d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    length = np.linalg.norm(d, axis=1)
+    return (pix[0], d / np.maximum(length, 1e-9)[:, None],
+            length / max(float(length.max()), 1e-9))
 
 
 def _sample(mask: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -145,7 +155,7 @@ class _Scene:
     def __init__(self, neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
                  c2w: np.ndarray, intrinsics: np.ndarray, res: int) -> None:
         from head360cli.model.render import EMPTY, screen_depth
-        from head360cli.synth.hair import head_normals
+        from head360cli.synth.hair import head_normals, warp_centre
         from head360cli.synth.sculpt import frame_from_vertices
 
         self.neutral, self.c2w, self.intrinsics, self.res = neutral, c2w, intrinsics, res
@@ -157,20 +167,38 @@ class _Scene:
         self.head = (self.depth < EMPTY).numpy()
         self.frame = frame_from_vertices(neutral)
         self.normals = head_normals(neutral)
+        self.centre = warp_centre(self.frame)
+        self._meshes: dict = {}
 
     def silhouette(self, style, shift: np.ndarray, scale: np.ndarray | None = None,
                    soft: bool = False) -> np.ndarray:
         """``(R, R)`` bool: where ``style`` (an id or a
         :class:`~head360cli.synth.hair.HairStyle`), moved by ``shift`` and scaled by
-        ``scale``, is the nearest surface."""
+        ``scale``, is the nearest surface. Each style's mesh and its shell's nearest head
+        vertices are made once (the same mesh as
+        :func:`~head360cli.synth.hair.build_hair` with ``scale``)."""
         from head360cli.model.render import EMPTY, screen_depth
-        from head360cli.synth.hair import build_hair
+        from head360cli.synth.hair import (
+            HAIRSTYLES,
+            build_hair,
+            nearest_head_vertices,
+            warp_hair,
+        )
 
-        mesh = build_hair(self.neutral, self.frame, style, self.normals, soft=soft,
-                          scale=scale)
+        style = HAIRSTYLES[int(style)] if isinstance(style, int | np.integer) else style
+        if (style, soft) not in self._meshes:
+            mesh = build_hair(self.neutral, self.frame, style, self.normals, soft=soft)
+            near = nearest_head_vertices(mesh.verts[:mesh.shell], self.neutral)
+            self._meshes[style, soft] = (mesh, near)
+        mesh, near = self._meshes[style, soft]
         if len(mesh.faces) == 0:
             return np.zeros_like(self.head)
-        d = screen_depth(torch.as_tensor(mesh.verts + shift, dtype=torch.float32)[None],
+        verts = mesh.verts
+        if scale is not None:
+            verts = verts.copy()
+            verts[:mesh.shell] = warp_hair(verts[:mesh.shell], self.neutral, scale,
+                                           self.centre, near)
+        d = screen_depth(torch.as_tensor(verts + shift, dtype=torch.float32)[None],
                          torch.as_tensor(mesh.faces, dtype=torch.long), self.cam, self.k,
                          self.res)[0]
         return ((d < EMPTY) & (d < self.depth + 1e-3)).numpy()
@@ -197,13 +225,14 @@ def _fit(scene: _Scene, style, hair: np.ndarray, valid: np.ndarray, shift: np.nd
 
     style = HAIRSTYLES[int(style)] if isinstance(style, int | np.integer) else style
     ones = np.ones(WARP_BINS)
-    origin, dirs = ray_directions(warp_centre(scene.frame) + shift, scene.c2w,
-                                  scene.intrinsics, WARP_BINS)
+    origin, dirs, seen = ray_directions(warp_centre(scene.frame) + shift, scene.c2w,
+                                        scene.intrinsics, WARP_BINS)
+    side_on = seen >= SIDE_ON
     log = np.zeros(WARP_BINS)
     sil = plain = scene.silhouette(style, shift, None, soft)
     low, high = np.log(SCALE_RANGE[0]), np.log(SCALE_RANGE[1])
     for _ in range(iterations):
-        step = _thickness_ratio(scene.head, sil, hair, valid, origin, dirs)
+        step = _thickness_ratio(scene.head, sil, hair, valid, origin, dirs) * side_on
         log = np.clip(_smooth(log + np.clip(step, -1.0, 1.0)), low, high)
         sil = scene.silhouette(style, shift, np.exp(log), soft)
     (iou_0, score_0), (iou_1, score_1) = _score(plain, hair, valid, face), \

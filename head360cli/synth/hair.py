@@ -35,6 +35,7 @@ __all__ = [
     "fit_hairs",
     "hair_length",
     "head_normals",
+    "nearest_head_vertices",
     "style_index",
     "warp_centre",
     "warp_hair",
@@ -223,11 +224,14 @@ class HairMesh:
         verts: ``(V, 3)`` positions.
         faces: ``(F, 3)`` outward-facing triangles (several closed pieces).
         uv: ``(V, 2)`` coordinates for the strand texture (u across, v along the hair).
+        shell: How many of the first vertices are the shell over the head (the rest are
+            the extra pieces).
     """
 
     verts: np.ndarray
     faces: np.ndarray
     uv: np.ndarray
+    shell: int = 0
 
 
 def _level(name: str, frame: HeadFrame, style: HairStyle) -> float:
@@ -524,8 +528,8 @@ def warp_centre(frame: HeadFrame) -> np.ndarray:
     return np.array([0.0, frame.levels["eye"], float(frame.ear_centres[:, 2].mean())])
 
 
-def warp_hair(hair: np.ndarray, head: np.ndarray, scale: np.ndarray, centre: np.ndarray
-              ) -> np.ndarray:
+def warp_hair(hair: np.ndarray, head: np.ndarray, scale: np.ndarray, centre: np.ndarray,
+              nearest: np.ndarray | None = None) -> np.ndarray:
     """Hair whose thickness over the head is scaled by direction.
 
     Each hair vertex moves along the line from its nearest head vertex, its distance from
@@ -540,16 +544,17 @@ def warp_hair(hair: np.ndarray, head: np.ndarray, scale: np.ndarray, centre: np.
         head: ``(V, 3)`` the head's vertices (neutral).
         scale: ``(WARP_BINS,)`` positive factors (ones: unchanged).
         centre: ``(3,)`` from :func:`warp_centre`.
+        nearest: ``(H,)`` each hair vertex's nearest head vertex, when already found
+            (:func:`nearest_head_vertices`).
 
     Returns:
         ``(H, 3)`` the warped vertices.
     """
-    from scipy.spatial import cKDTree
-
     log = np.log(np.asarray(scale, np.float64))
     if len(hair) == 0 or not np.any(log):
         return hair
-    _, nearest = cKDTree(head).query(hair)
+    if nearest is None:
+        nearest = nearest_head_vertices(hair, head)
     rel = hair - centre
     angle = np.arctan2(rel[:, 1], rel[:, 0])
     pos = np.mod(angle / (2 * np.pi) * len(log), len(log))
@@ -565,6 +570,14 @@ def warp_hair(hair: np.ndarray, head: np.ndarray, scale: np.ndarray, centre: np.
     beyond = np.maximum(dist - INNER_GAP, 0.0)
     return anchor + away / np.maximum(dist, 1e-12) * (dist - beyond
                                                       + factor[:, None] * beyond)
+
+
+def nearest_head_vertices(hair: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """``(H,)`` index of the nearest of the ``head (V, 3)`` vertices to each of ``hair
+    (H, 3)``."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(head).query(hair)[1]
 
 
 def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
@@ -610,7 +623,8 @@ def build_hair(verts: np.ndarray, frame: HeadFrame, style: HairStyle | int,
         all_f.append(f + offset)
         all_uv.append(uv)
         offset += len(v)
-    return HairMesh(np.concatenate(all_v), np.concatenate(all_f), np.concatenate(all_uv))
+    return HairMesh(np.concatenate(all_v), np.concatenate(all_f), np.concatenate(all_uv),
+                    len(shell[0]))
 
 
 def fit_hair(verts: np.ndarray, style: HairStyle | int, soft: bool = False,

@@ -49,15 +49,24 @@ def _silhouette(front, style: int, scale=None) -> np.ndarray:
 
 def test_the_rays_leave_the_centre_towards_the_head_s_left_first(front):
     """Direction 0 is the head's +x (its left, the image's right from the front), and
-    a quarter turn later the rays point up the image."""
+    a quarter turn later the rays point up the image; in a profile the sideways
+    directions are seen end on."""
     from head360cli.synth.sculpt import frame_from_vertices
 
     head, _, c2w, k = front
-    origin, dirs = ray_directions(warp_centre(frame_from_vertices(head)), c2w, k,
-                                  WARP_BINS)
+    origin, dirs, seen = ray_directions(warp_centre(frame_from_vertices(head)), c2w, k,
+                                        WARP_BINS)
     assert 0 < origin[0] < RES and 0 < origin[1] < RES
     np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-9)
     assert dirs[0, 0] > 0.95 and dirs[WARP_BINS // 4, 1] < -0.95
+    assert seen.max() == 1.0 and seen.min() > 0.9  # nearly frontal: all seen side on
+    # from the head's left side (a profile) its sideways directions are seen end on
+    from head360cli.geometry.cameras import RIG_DISTANCE, camera_on_sphere
+
+    side = camera_on_sphere(torch.tensor([90.0]), torch.tensor([0.0]), RIG_DISTANCE)[0]
+    _, _, seen = ray_directions(warp_centre(frame_from_vertices(head)), side.numpy(), k,
+                                WARP_BINS)
+    assert seen[0] < 0.1 and seen[WARP_BINS // 4] == pytest.approx(1.0, abs=0.05)
 
 
 def test_a_thicker_style_is_recovered_from_its_silhouette(front):
