@@ -45,6 +45,7 @@ __all__ = [
     "nearest_colour_names",
     "pick_colour_by_render",
     "place_hair",
+    "ranked_guess",
     "style_silhouettes",
 ]
 
@@ -343,13 +344,22 @@ def classify_hair(hair: np.ndarray, silhouettes: np.ndarray,
     score = iou if matched else np.array([float(not s.any()) for s in silhouettes])
     if matched:
         score = score - FACE_COVER * _face_covered(silhouettes, face)
+    return ranked_guess(score, iou, silhouettes, matched, hair_area)
+
+
+def ranked_guess(score: np.ndarray, iou: np.ndarray, silhouettes: np.ndarray,
+                 matched: bool = True, hair_area=None, shaped: tuple[int, ...] = (),
+                 contradicted: tuple[int, ...] = ()) -> HairGuess:
+    """The :class:`HairGuess` of styles' ``score (S,)`` and ``iou (S,)``: ranked by score,
+    then IoU, then least hair (``hair_area``, default none), with the softmax
+    probabilities and the styles whose ``silhouettes (S, R, R)`` are the first's."""
     z = (score - score.max()) / TEMPERATURE
     p = np.exp(z) / np.exp(z).sum()
-    area = np.zeros(len(silhouettes)) if hair_area is None else np.asarray(hair_area)
+    area = np.zeros(len(score)) if hair_area is None else np.asarray(hair_area)
     ranking = [int(i) for i in np.lexsort((area, -iou, -score))]
     first = silhouettes[ranking[0]]
     same = np.array([np.array_equal(sil, first) for sil in silhouettes])
-    return HairGuess(ranking, iou, p, same, matched, score)
+    return HairGuess(ranking, iou, p, same, matched, score, shaped, contradicted)
 
 
 COLOUR_MAP = (1.164, 0.581)

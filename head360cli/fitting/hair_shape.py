@@ -375,7 +375,7 @@ def rank_shaped(guess, silhouettes: np.ndarray, neutral: np.ndarray, posed: np.n
         A new :class:`~head360cli.fitting.hair_class.HairGuess` (``guess`` itself when
         it matched no style).
     """
-    from head360cli.fitting.hair_class import TEMPERATURE, HairGuess
+    from head360cli.fitting.hair_class import ranked_guess
 
     if not guess.matched or guess.score is None:
         return guess
@@ -397,10 +397,5 @@ def rank_shaped(guess, silhouettes: np.ndarray, neutral: np.ndarray, posed: np.n
         if support is not None and support < EXTRA_SUPPORT:
             score[style] -= 1.0
             contradicted.append(style)
-    z = (score - score.max()) / TEMPERATURE
-    p = np.exp(z) / np.exp(z).sum()
-    area = np.zeros(len(score)) if hair_area is None else np.asarray(hair_area)
-    ranking = [int(i) for i in np.lexsort((area, -iou, -score))]
-    first = silhouettes[ranking[0]]
-    same = np.array([np.array_equal(sil, first) for sil in silhouettes])
-    return HairGuess(ranking, iou, p, same, True, score, tuple(shaped), tuple(contradicted))
+    return ranked_guess(score, iou, silhouettes, True, hair_area, tuple(shaped),
+                        tuple(contradicted))
