@@ -63,18 +63,17 @@ def as_before():
     from head360cli.fitting import hair_class, hair_shape
     from head360cli.synth.hair import WARP_BINS
 
-    saved = (hair_shape.CANDIDATES, hair_shape.fit_hair_scale, hair_shape.fit_hair_end,
+    saved = (hair_shape.CANDIDATES, hair_shape.fit_hair_shape,
              hair_class.match_colour_by_render)
     hair_shape.CANDIDATES = 0
-    hair_shape.fit_hair_end = lambda *a, **k: 0.0
-    hair_shape.fit_hair_scale = lambda *a, **k: hair_shape.HairShape(
-        np.ones(WARP_BINS), 0.0, 0.0)
+    hair_shape.fit_hair_shape = lambda *a, **k: (0.0, hair_shape.HairShape(
+        np.ones(WARP_BINS), 0.0, 0.0))
     hair_class.match_colour_by_render = lambda render, photo, hair, start, rounds=0: \
         np.asarray(start, np.float32)
     try:
         yield
     finally:
-        (hair_shape.CANDIDATES, hair_shape.fit_hair_scale, hair_shape.fit_hair_end,
+        (hair_shape.CANDIDATES, hair_shape.fit_hair_shape,
          hair_class.match_colour_by_render) = saved
 
 

@@ -376,9 +376,10 @@ blonde as platinum, grey and platinum as white). A scale and exponent per channe
 exponent, which is the corpus light's colour, not the hair's."""
 
 
-def _linear_median(rgb: np.ndarray, hair: np.ndarray) -> np.ndarray:
-    """``(3,)`` per-channel median of the hair pixels, linearised from sRGB."""
-    srgb = np.median(rgb[hair].astype(np.float64) / 255.0, axis=0)
+def _linear_median(rgb: np.ndarray, hair: np.ndarray, white: float = 255.0) -> np.ndarray:
+    """``(3,)`` per-channel median of the hair pixels of ``rgb`` (sRGB, ``white`` its
+    largest value: 255 for uint8, 1 for floats), linearised."""
+    srgb = np.median(rgb[hair].astype(np.float64) / white, axis=0)
     return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
 
 
@@ -535,10 +536,6 @@ def match_colour_by_render(render_hair, photo: np.ndarray, hair: np.ndarray,
         ``(3,)`` float32 linear RGB in :data:`MATCH_RANGE` (``start`` when the rendered
         and the parsed hair overlap in fewer than :data:`MIN_COLOUR_PIXELS` pixels).
     """
-    def linear_median(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        srgb = np.median(image[mask].astype(np.float64), axis=0)
-        return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-
     colour = np.clip(np.asarray(start, np.float64), *MATCH_RANGE)
     slope = np.full(3, MATCH_SLOPE)
     last = None
@@ -547,8 +544,8 @@ def match_colour_by_render(render_hair, photo: np.ndarray, hair: np.ndarray,
         both = covered & hair
         if both.sum() < MIN_COLOUR_PIXELS:
             return np.asarray(start, np.float32)
-        seen = np.log(np.maximum(linear_median(image, both), 1e-4))
-        want = np.log(np.maximum(linear_median(photo, both), 1e-4))
+        seen = np.log(np.maximum(_linear_median(image, both, 1.0), 1e-4))
+        want = np.log(np.maximum(_linear_median(photo, both, 1.0), 1e-4))
         if last is not None:  # the response's slope in log terms, from the last two renders
             moved = np.log(colour) - last[0]
             ok = np.abs(moved) > 1e-3

@@ -29,6 +29,7 @@ __all__ = [
     "extras_support",
     "fit_hair_end",
     "fit_hair_scale",
+    "fit_hair_shape",
     "rank_shaped",
     "ray_directions",
 ]
@@ -221,12 +222,12 @@ def _fit(scene: _Scene, style, hair: np.ndarray, valid: np.ndarray, shift: np.nd
          ) -> tuple[HairShape, float, float]:
     """:func:`fit_hair_scale` on a made scene (``style`` an id or a
     :class:`~head360cli.synth.hair.HairStyle`): ``(shape, score before, score after)``."""
-    from head360cli.synth.hair import HAIRSTYLES, WARP_BINS, warp_centre
+    from head360cli.synth.hair import HAIRSTYLES, WARP_BINS
 
     style = HAIRSTYLES[int(style)] if isinstance(style, int | np.integer) else style
     ones = np.ones(WARP_BINS)
-    origin, dirs, seen = ray_directions(warp_centre(scene.frame) + shift, scene.c2w,
-                                        scene.intrinsics, WARP_BINS)
+    origin, dirs, seen = ray_directions(scene.centre + shift, scene.c2w, scene.intrinsics,
+                                        WARP_BINS)
     side_on = seen >= SIDE_ON
     log = np.zeros(WARP_BINS)
     sil = plain = scene.silhouette(style, shift, None, soft)
@@ -295,19 +296,45 @@ def fit_hair_end(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
     none; 0 for bald. Arguments as :func:`fit_hair_scale`'s; metres (negative: up).
 
     Scaling the thickness cannot shorten hair: it squeezes the ends onto the neck."""
-    from head360cli.synth.hair import HAIRSTYLES
-
     if int(style) == 0:
         return 0.0
     valid = np.ones_like(hair) if valid is None else valid
     shift = np.zeros(3) if offset is None else np.asarray(offset, np.float64)
     scene = _Scene(neutral, posed, faces, c2w, intrinsics, hair.shape[0])
-    own = HAIRSTYLES[int(style)]
+    return _fit_end(scene, int(style), hair, valid, shift, face, soft)
+
+
+def _fit_end(scene: _Scene, style: int, hair: np.ndarray, valid: np.ndarray,
+             shift: np.ndarray, face: np.ndarray | None, soft: bool) -> float:
+    """:func:`fit_hair_end` on a made scene."""
+    from head360cli.synth.hair import HAIRSTYLES
+
+    own = HAIRSTYLES[style]
     scores = [_score(scene.silhouette(dataclasses.replace(own, end_shift=e), shift,
                                       soft=soft), hair, valid, face)[1]
               for e in END_SHIFTS]
     best = int(np.argmax(scores))
     return float(END_SHIFTS[best]) if scores[best] >= scores[0] + MIN_GAIN else 0.0
+
+
+def fit_hair_shape(neutral: np.ndarray, posed: np.ndarray, faces: np.ndarray,
+                   c2w: np.ndarray, intrinsics: np.ndarray, style: int, hair: np.ndarray,
+                   valid: np.ndarray | None = None, offset: np.ndarray | None = None,
+                   face: np.ndarray | None = None, soft: bool = False
+                   ) -> tuple[float, HairShape]:
+    """:func:`fit_hair_end`, then :func:`fit_hair_scale` from the ends it found, on one
+    scene (the head's render and each style mesh made once): ``(end shift, shape)``.
+    Arguments as :func:`fit_hair_scale`'s."""
+    from head360cli.synth.hair import HAIRSTYLES, WARP_BINS
+
+    if int(style) == 0:
+        return 0.0, HairShape(np.ones(WARP_BINS), 0.0, 0.0)
+    valid = np.ones_like(hair) if valid is None else valid
+    shift = np.zeros(3) if offset is None else np.asarray(offset, np.float64)
+    scene = _Scene(neutral, posed, faces, c2w, intrinsics, hair.shape[0])
+    end = _fit_end(scene, int(style), hair, valid, shift, face, soft)
+    own = dataclasses.replace(HAIRSTYLES[int(style)], end_shift=end)
+    return end, _fit(scene, own, hair, valid, shift, face, soft, ITERATIONS)[0]
 
 
 CANDIDATES = 5

@@ -692,14 +692,14 @@ def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
         if name in arrays and tuple(np.shape(arrays[name])) != (3,):
             raise FileFormatError(f"{where}: expected {name} of 3 numbers, found shape "
                                   f"{tuple(np.shape(arrays[name]))}")
+    from head360cli.synth.hair import MAX_END_SHIFT, WARP_BINS
+
     if "hair_end_shift" in arrays:
         shift = np.asarray(arrays["hair_end_shift"])
-        if shift.shape != () or not np.isfinite(shift) or abs(float(shift)) > 0.3:
+        if shift.shape != () or not np.isfinite(shift) or abs(float(shift)) > MAX_END_SHIFT:
             raise FileFormatError(f"{where}: expected hair_end_shift of one number within "
-                                  f"0.3 m, found {shift.tolist()}")
+                                  f"{MAX_END_SHIFT} m, found {shift.tolist()}")
     if "hair_scale" in arrays:
-        from head360cli.synth.hair import WARP_BINS
-
         scale = np.asarray(arrays["hair_scale"])
         if scale.shape != (WARP_BINS,) or not (np.isfinite(scale) & (scale > 0)).all():
             raise FileFormatError(f"{where}: expected hair_scale of {WARP_BINS} positive "

@@ -149,11 +149,11 @@ class HairPlacement:
     """``(WARP_BINS,)`` the style's thickness by direction, fitted to the parsed hair's
     outline (:func:`~head360cli.fitting.hair_shape.fit_hair_scale`); ``None``: as built."""
     iou_scaled: float | None = None
+    """Silhouette IoU with the parsed hair after the scale (``None``: not scaled, as the
+    scale gained nothing)."""
     end_shift: float = 0.0
     """Metres the style's ends at the sides and back are moved down (negative: up),
     :func:`~head360cli.fitting.hair_shape.fit_hair_end`."""
-    """Silhouette IoU with the parsed hair after the scale (``None``: not scaled, as the
-    scale gained nothing)."""
 
 
 @dataclasses.dataclass
@@ -424,7 +424,7 @@ def place_hairstyle(seen: PhotoFace, shape: Shape, frame: Framing, bald: BaldTar
     fit_hair_end`), then scale its thickness by direction to the parsed hair's outline
     (:func:`~head360cli.fitting.hair_shape.fit_hair_scale`)."""
     from head360cli.fitting.hair_class import place_hair
-    from head360cli.fitting.hair_shape import fit_hair_end, fit_hair_scale
+    from head360cli.fitting.hair_shape import fit_hair_shape
 
     res = frame.crop.shape[0]
     c2w = inv.c2w.cpu().numpy()
@@ -432,11 +432,9 @@ def place_hairstyle(seen: PhotoFace, shape: Shape, frame: Framing, bald: BaldTar
     offset, placed, plain = place_hair(
         frame.neutral, frame.posed, shape.model.faces, c2w, frame.k, style,
         bald.hair, scored, face=bald.face)
-    end = fit_hair_end(frame.neutral, frame.posed, shape.model.faces, c2w, frame.k, style,
-                       bald.hair, scored, offset, bald.face, soft=soft)
-    shaped = fit_hair_scale(frame.neutral, frame.posed, shape.model.faces, c2w, frame.k,
-                            style, bald.hair, scored, offset, bald.face, soft=soft,
-                            end_shift=end)
+    end, shaped = fit_hair_shape(frame.neutral, frame.posed, shape.model.faces, c2w,
+                                 frame.k, style, bald.hair, scored, offset, bald.face,
+                                 soft=soft)
     if (shaped.scale == 1).all():  # kept only where it gains (fit_hair_scale)
         return HairPlacement(offset, placed, plain, end_shift=end)
     return HairPlacement(offset, placed, plain, shaped.scale, shaped.iou_after, end)

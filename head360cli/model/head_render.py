@@ -166,7 +166,7 @@ class HeadRenderer:
                              f"{np.asarray(hair_offset).tolist()}")
         """``(3,)`` metres every hairstyle this head wears is moved by (its fit's
         placement, :func:`head360cli.fitting.hair_class.place_hair`)."""
-        from head360cli.synth.hair import WARP_BINS
+        from head360cli.synth.hair import MAX_END_SHIFT, WARP_BINS
 
         self.hair_scale = None
         """``(WARP_BINS,)`` the thickness by direction of the style worn, or ``None``."""
@@ -177,9 +177,9 @@ class HeadRenderer:
                                  f"numbers, found shape {scale.shape}")
             self.hair_scale = scale
         shift = 0.0 if hair_end_shift is None else np.asarray(hair_end_shift, np.float64)
-        if np.shape(shift) != () or not np.isfinite(shift) or abs(float(shift)) > 0.3:
-            raise ValueError("expected a hair end shift of one number within 0.3 m, found "
-                             f"{np.asarray(hair_end_shift).tolist()}")
+        if np.shape(shift) != () or not np.isfinite(shift) or abs(float(shift)) > MAX_END_SHIFT:
+            raise ValueError(f"expected a hair end shift of one number within {MAX_END_SHIFT} "
+                             f"m, found {np.asarray(hair_end_shift).tolist()}")
         self.hair_end_shift = float(shift)
         """Metres the fitted style's ends are moved down (negative: up)."""
         self._scaled_style = int(hair_style)

@@ -26,6 +26,7 @@ __all__ = [
     "HAIRSTYLES",
     "HAIR_COLOURS",
     "LONG_EXTRAS",
+    "MAX_END_SHIFT",
     "WARP_BINS",
     "HairMesh",
     "HairStyle",
@@ -101,7 +102,8 @@ class HairStyle:
     ``braid``, ``twin_tails``."""
     end_shift: float = 0.0
     """Metres the hair's ends at the sides and the back are moved down (negative: up): a
-    fit's length for one person, 0 in every style of the catalogue."""
+    fit's length for one person, 0 in every style of the catalogue, at most
+    :data:`MAX_END_SHIFT` either way."""
 
 
 HAIRSTYLES: tuple[HairStyle, ...] = (
@@ -511,6 +513,10 @@ def _extras(style: HairStyle, frame: HeadFrame, head_top: float, back_z: float
     return pieces
 
 
+MAX_END_SHIFT = 0.3
+"""Largest :attr:`HairStyle.end_shift` a head may carry, metres either way (a head file's
+``hair_end_shift`` beyond it is refused: no hair ends 30 cm from its style's end)."""
+
 WARP_BINS = 32
 """Directions around the head's forward axis (every 11.25 degrees, the first towards the
 head's left, +x, counter-clockwise seen from the front) at which a fit scales the hair's
@@ -534,10 +540,10 @@ def warp_hair(hair: np.ndarray, head: np.ndarray, scale: np.ndarray, centre: np.
 
     Each hair vertex moves along the line from its nearest head vertex, its distance from
     that vertex beyond :data:`INNER_GAP` multiplied by ``scale`` at the vertex's
-    direction around the head's
-    forward (z) axis seen from ``centre`` (interpolated between the bins, in log space).
-    So a scale of 2 towards the temples doubles the hair's volume there, all the way
-    round to the back, and a scale below 1 towards the shoulders shortens long hair.
+    direction around the head's forward (z) axis seen from ``centre`` (interpolated
+    between the bins, in log space). So a scale of 2 towards the temples doubles the
+    hair's volume there, all the way round to the back; below 1 the hair lies flatter
+    (it does not end higher: that is :attr:`HairStyle.end_shift`).
 
     Args:
         hair: ``(H, 3)`` hair vertices fitted to ``head``.
@@ -643,15 +649,14 @@ def fit_hair(verts: np.ndarray, style: HairStyle | int, soft: bool = False,
     return build_hair(verts, frame_from_vertices(verts), style, soft=soft, scale=scale)
 
 
-def fit_hairs(verts: np.ndarray, styles: list[int], soft: bool = False
-              ) -> dict[int, HairMesh]:
+def fit_hairs(verts: np.ndarray, styles: list[int]) -> dict[int, HairMesh]:
     """:func:`fit_hair` for several styles on one head, its frame and normals made once:
     ``{style: mesh}``, the same meshes."""
     from head360cli.synth.sculpt import frame_from_vertices
 
     frame = frame_from_vertices(verts)
     normals = head_normals(verts)
-    return {s: build_hair(verts, frame, s, normals, soft=soft) for s in dict.fromkeys(styles)}
+    return {s: build_hair(verts, frame, s, normals) for s in dict.fromkeys(styles)}
 
 
 def hair_texture(colour: tuple[float, float, float], size: int = 256, seed: int = 0

@@ -17,6 +17,7 @@ from head360cli.fitting.hair_shape import (
     extras_support,
     fit_hair_end,
     fit_hair_scale,
+    fit_hair_shape,
     rank_shaped,
     ray_directions,
 )
@@ -160,6 +161,8 @@ def test_a_shorter_bob_s_ends_are_found_and_long_hair_is_not_lengthened(front):
     assert fit_hair_end(head, head, faces, c2w, k, bob, short) == pytest.approx(-0.03)
     shape = fit_hair_scale(head, head, faces, c2w, k, bob, short, end_shift=-0.03)
     assert (shape.scale == 1).all() and shape.iou_before == 1.0
+    end, both = fit_hair_shape(head, head, faces, c2w, k, bob, short)  # the two on one scene
+    assert end == pytest.approx(-0.03) and (both.scale == 1).all() and both.iou_after == 1.0
     longer = _silhouette(front, style_index("shoulder straight"))
     assert fit_hair_end(head, head, faces, c2w, k, bob, longer) == 0.0
     assert max(END_SHIFTS) == 0.0
