@@ -2,8 +2,9 @@
 
 With the deferred generator each texel of the UV layout is located on the mesh (by
 rasterizing the mesh in UV space) and shaded as a view that faces it would shade it,
-straight from the neural texture; the hair's vertices likewise from the hair texture.
-With a hex-plane generator, whose colour lives in a neural field, the bald head is
+straight from the neural texture; the hair likewise from the hair texture (a GLB's
+hair as a texture on its strand coordinates, an OBJ's as vertex colours). With a
+hex-plane generator, whose colour lives in a neural field, the bald head is
 rendered from :data:`BAKE_VIEWS` and every texel takes the colour of the views that see
 it, weighted towards views that face it; the hair's vertices the same way from renders
 with hair. Texels no view sees, and the gutter between UV islands, are filled from their
@@ -19,7 +20,7 @@ import numpy as np
 
 from head360cli.errors import BadInputError
 
-__all__ = ["BAKE_VIEWS", "bake_head", "export_head", "grow_fill",
+__all__ = ["BAKE_VIEWS", "bake_hair_texture", "bake_head", "export_head", "grow_fill",
            "write_mesh_sequence"]
 
 BAKE_VIEWS: tuple[tuple[float, float], ...] = (
@@ -35,7 +36,7 @@ VISIBLE_TOLERANCE = 0.004
 
 TEXTURED_PART = "head"
 """The exported part that carries the baked texture (an OBJ writes it as
-``<stem>_head.png``; the hair part has vertex colours)."""
+``<stem>_head.png``; an OBJ's hair part has vertex colours, a GLB's its own texture)."""
 
 
 def grow_fill(colour: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -249,6 +250,50 @@ def _bake_deferred(renderer, size: int, progress: Any):
     return texture, hair_colours
 
 
+def bake_hair_texture(renderer, size: int | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The hair's texture for an export (a deferred generator's head with hair):
+    ``(uv (2H, 2), faces_uv (G, 3), texture (size, size, 3) uint8)``, each texel its
+    hair texture shaded as a view that faces it would shade it, with the normal of the
+    hair's vertices around it (the shell, its walls and any tails share the texture);
+    ``uv`` runs past 1 across the shell's seam (:func:`~head360cli.geometry.mesh_ops.
+    seam_uv`), so the texture repeats in u. ``size``: the hair texture's own side by
+    default (a fit's detail: 256). ``None`` for a bald head."""
+    import cv2
+    import torch
+
+    from head360cli.geometry.mesh_ops import seam_uv
+
+    if renderer.hair is None or renderer.gen.kind != "deferred":
+        return None
+    planes = renderer.hair.planes[0].detach().cpu().float()
+    size = planes.shape[-1] if size is None else size
+    hv, hf, huv = (t.cpu() for t in renderer.hair.meshes[0])
+    normals = _normals(hv.numpy(), hf.numpy())
+    uv = huv.numpy().astype(np.float64)
+    tx = np.clip((uv[:, 0] % 1.0 * size).astype(np.int64), 0, size - 1)
+    ty = np.clip((uv[:, 1] * size).astype(np.int64), 0, size - 1)
+    flat = ty * size + tx
+    # the shell's inner layer shares the outer's coordinates and faces inwards: only
+    # normals that face away from the hair's middle count
+    out = np.einsum("ij,ij->i", normals, hv.numpy() - hv.numpy().mean(0)) > 0
+    grid = np.stack([np.bincount(flat, normals[:, c] * out, size * size)
+                     for c in range(3)], -1)
+    count = np.bincount(flat, out.astype(np.float64), size * size)
+    grid = grid.reshape(size, size, 3) / np.maximum(count, 1).reshape(size, size, 1)
+    grid = grow_fill(grid, (count > 0).reshape(size, size).astype(np.float64))
+    pad = 8  # u wraps round: blur across the seam
+    grid = np.pad(grid.astype(np.float32), ((0, 0), (pad, pad), (0, 0)), mode="wrap")
+    grid = cv2.GaussianBlur(grid, (0, 0), 2.0)[:, pad:-pad]
+    grid = grid / np.maximum(np.linalg.norm(grid, axis=-1, keepdims=True), 1e-6)
+    centres = (torch.arange(size, dtype=torch.float32) + 0.5) / size
+    at = torch.stack(torch.meshgrid(centres, centres, indexing="xy"), -1).reshape(-1, 2)
+    colour = _shaded(renderer, planes, at, torch.as_tensor(grid.reshape(-1, 3)), True)
+    texture = np.clip(colour.numpy().reshape(size, size, 3) * 255 + 0.5, 0, 255)
+    wrapped, faces_uv = seam_uv(hf, huv)
+    return wrapped.numpy(), faces_uv.numpy(), texture.astype(np.uint8)
+
+
 def _normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     from head360cli.io.mesh import vertex_normals
 
@@ -256,7 +301,7 @@ def _normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _parts(renderer, texture: np.ndarray | None, hair_colours: np.ndarray | None,
-           expression: np.ndarray, targets: bool):
+           expression: np.ndarray, targets: bool, hair_texture=None):
     from head360cli.io.mesh import MeshPart
     from head360cli.mesh.arkit52 import ARKIT52
 
@@ -266,7 +311,12 @@ def _parts(renderer, texture: np.ndarray | None, hair_colours: np.ndarray | None
                       gen.faces_uv.cpu().numpy(), texture,
                       targets=renderer.driven_deltas() if targets else None,
                       target_names=list(ARKIT52) if targets else None)]
-    if renderer.hair is not None and hair_colours is not None:
+    if renderer.hair is not None and hair_texture is not None:
+        hv, hf, _ = (t.cpu().numpy() for t in renderer.hair.meshes[0])
+        uv, faces_uv, image = hair_texture
+        parts.append(MeshPart("hair", hv.astype(np.float64), hf, uv, faces_uv, image,
+                              wrap_u=True))
+    elif renderer.hair is not None and hair_colours is not None:
         hv, hf, _ = (t.cpu().numpy() for t in renderer.hair.meshes[0])
         parts.append(MeshPart("hair", hv.astype(np.float64), hf, colours=hair_colours))
     return parts
@@ -295,7 +345,10 @@ def export_head(renderer, out: str | Path, texture_size: int = 512, hair: bool =
     texture, hair_colours = bake_head(renderer, texture_size, progress=progress)
     if not hair:
         hair_colours = None
-    parts = _parts(renderer, texture, hair_colours, np.zeros(52), targets=kind == ".glb")
+    # a GLB's hair carries its strands as a texture; an OBJ's keeps vertex colours
+    hair_texture = bake_hair_texture(renderer) if hair and kind == ".glb" else None
+    parts = _parts(renderer, texture, hair_colours, np.zeros(52), targets=kind == ".glb",
+                   hair_texture=hair_texture)
     if kind == ".glb":
         from head360cli.version import __version__
 

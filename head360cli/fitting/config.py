@@ -53,6 +53,9 @@ class FitConfig:
     parses by colour and landmarks alone."""
     hair_placement: bool = True
     """Shift the hairstyle's mesh to match the parsed hair from the fitted camera."""
+    hair_texture: bool = True
+    """Make the hair's texture from the photo's hair (``hair_detail`` in the head file,
+    :mod:`~head360cli.fitting.hair_texture`); off: the generator's smooth strands."""
     closed_lids: bool = True
     """Fit the texture change that closed eyes show as a lid (stored in the head file);
     ``False`` leaves the inversion's eyelids, which blink as a dark smudge."""

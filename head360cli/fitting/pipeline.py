@@ -563,8 +563,16 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                         hair_scale=placement.scale, hair_end_shift=placement.end_shift,
                         lid_change=None if lids is None else lids.change,
                         colour_gain=inv.gain)
-    preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
     timings["preview"] = time.perf_counter() - t0
+    detail = None
+    if head.hair is not None and gen.kind == "deferred" and cfg.hair_texture:
+        t0 = time.perf_counter()
+        detail = stages.texture_hair(gen, head, frame, bald, inv)
+        head.set_hair_detail(detail)
+        timings["hair_placement"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
+    timings["preview"] += time.perf_counter() - t0
     checks = stages.check_fit(shape.fit.expression, preview.psnr_face)
     warnings += checks.warnings(preview.psnr_face)
 
@@ -583,6 +591,7 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                    {"hair_scale": placement.scale.astype(np.float32)}),
                 **({} if not placement.end_shift else
                    {"hair_end_shift": np.array(placement.end_shift, np.float32)}),
+                **({} if detail is None else {"hair_detail": detail.astype(np.float16)}),
                 "vertices": frame.neutral.astype(np.float32),
                 **({} if lids is None else lid_change_arrays(lids.change.cpu().numpy())),
                 **({} if inv.gain is None else
@@ -704,6 +713,13 @@ def check_head_sizes(arrays: dict[str, np.ndarray], cfg, where: str) -> None:
         if scale.shape != (WARP_BINS,) or not (np.isfinite(scale) & (scale > 0)).all():
             raise FileFormatError(f"{where}: expected hair_scale of {WARP_BINS} positive "
                                   f"numbers, found shape {scale.shape}")
+    if "hair_detail" in arrays:
+        detail = np.asarray(arrays["hair_detail"])
+        if detail.ndim != 3 or detail.shape[2] != 3 or detail.shape[0] != detail.shape[1] \
+                or not 16 <= detail.shape[0] <= 1024 \
+                or not (np.isfinite(detail) & (detail >= 0)).all():
+            raise FileFormatError(f"{where}: expected hair_detail of (A, A, 3) numbers >= 0 "
+                                  f"with A from 16 to 1024, found shape {detail.shape}")
     if "colour_gain" in arrays and not (np.asarray(arrays["colour_gain"]) > 0).all():
         raise FileFormatError(f"{where}: expected a colour_gain above 0 in every channel, "
                               f"found {np.asarray(arrays['colour_gain']).tolist()}")
@@ -735,6 +751,7 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
                         reuse=REUSE_TOL if isinstance(reuse, str) else reuse,
                         hair_offset=a.get("hair_offset"), hair_scale=a.get("hair_scale"),
                         hair_end_shift=a.get("hair_end_shift"),
+                        hair_detail=a.get("hair_detail"),
                         lid_change=lid_change_of(a),
                         colour_gain=a.get("colour_gain"))
 

@@ -440,6 +440,22 @@ def place_hairstyle(seen: PhotoFace, shape: Shape, frame: Framing, bald: BaldTar
     return HairPlacement(offset, placed, plain, shaped.scale, shaped.iou_after, end)
 
 
+def texture_hair(gen, head, frame: Framing, bald: BaldTarget, inv) -> np.ndarray:
+    """``(A, A, 3)`` the fitted hair's detail texture from the photo
+    (:func:`~head360cli.fitting.hair_texture.hair_detail`): the ``head`` (a
+    :class:`~head360cli.model.head_render.HeadRenderer` wearing the placed style) seen
+    from the refined camera, the photo's light taken out."""
+    import torch
+
+    from head360cli.fitting.hair_texture import hair_detail
+
+    dev = inv.c2w.device
+    gain = None if inv.gain is None else inv.gain.cpu().numpy()
+    return hair_detail(gen, torch.tensor(frame.posed, dtype=torch.float32, device=dev),
+                       inv.c2w, torch.tensor(frame.k, device=dev), head.hair, frame.crop,
+                       bald.hair, gain)
+
+
 def render_preview(head, frame: Framing, bald: BaldTarget, inv, grey: bool) -> Preview:
     """Render the fitted ``head`` (a :class:`~head360cli.model.head_render.HeadRenderer`)
     from the refined photo camera and :data:`PREVIEW_YAWS`, and measure the input view

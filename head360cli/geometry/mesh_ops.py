@@ -1,10 +1,11 @@
-"""Pure batched mesh functions: face and vertex normals."""
+"""Pure batched mesh functions: face and vertex normals, texture coordinates across a
+wrap-around seam."""
 
 from __future__ import annotations
 
 import torch
 
-__all__ = ["face_normals", "vertex_normals"]
+__all__ = ["face_normals", "seam_uv", "vertex_normals"]
 
 
 def face_normals(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
@@ -57,3 +58,25 @@ def vertex_normals(verts: torch.Tensor, faces: torch.Tensor,
     fallback = torch.zeros_like(acc)
     fallback[..., 2] = 1.0
     return torch.where(length > 1e-20, acc / length.clamp_min(1e-20), fallback)
+
+
+def seam_uv(faces: torch.Tensor, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Texture coordinates for a mesh whose u wraps round (a hair shell: u from 0 to 1
+    around the head): a face that spans more than half of u crosses the seam, and its
+    corners below 0.5 read u + 1 instead, so the face interpolates across the seam
+    rather than back over the whole texture (read u modulo 1 afterwards).
+
+    Args:
+        faces: ``(F, 3)`` vertex indices, which index ``uv`` too.
+        uv: ``(V, 2)``.
+
+    Returns:
+        ``uv (2V, 2)`` (the original, then each shifted by one in u) and ``faces_uv
+        (F, 3)`` into it; shapes depend on nothing but the input's, for export.
+    """
+    fu = uv[faces, 0]
+    crosses = (fu.amax(1, keepdim=True) - fu.amin(1, keepdim=True)) > 0.5
+    shifted = crosses & (fu < 0.5)
+    one = torch.zeros_like(uv)
+    one[:, 0] = 1.0
+    return torch.cat([uv, uv + one]), faces + shifted.to(faces.dtype) * uv.shape[0]

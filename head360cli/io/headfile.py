@@ -71,6 +71,7 @@ KNOWN_ARRAYS: dict[str, tuple[int, str]] = {
     "hair_offset": (1, "f"),  # (3,) metres the hair is moved by (optional; default 0)
     "hair_scale": (1, "f"),  # (32,) hair thickness by direction (optional; default 1)
     "hair_end_shift": (0, "f"),  # () metres the hair's ends move down (optional; 0)
+    "hair_detail": (3, "f"),  # (A, A, 3) hair albedo over its colour (optional; none)
     "vertices": (2, "f"),  # (V, 3) fitted neutral mesh
     "lid_index": (1, "i"),  # (N,) flat texel indices of the lid change (optional)
     "lid_change": (2, "f"),  # (C, N) the texture's change there, eyes closed (optional)

@@ -44,6 +44,9 @@ class MeshPart:
     """``(H, W, 3)`` uint8 colour texture."""
     colours: np.ndarray | None = None
     """``(V, 3)`` uint8 per-vertex colours (used when there is no texture)."""
+    wrap_u: bool = False
+    """The texture repeats in u (a hair shell's u runs round the head and its seam faces
+    read just past 1); otherwise it is clamped at its edges."""
     targets: np.ndarray | None = None
     """``(K, V, 3)`` morph target displacements."""
     target_names: list[str] | None = None
@@ -210,7 +213,7 @@ def write_glb(path: str | os.PathLike[str], parts: list[MeshPart],
     from head360cli.io.atomic import atomic_path
 
     buf = _Bin()
-    meshes, nodes, materials, textures, images = [], [], [], [], []
+    meshes, nodes, materials, textures, images, samplers = [], [], [], [], [], []
     for part in parts:
         faces = np.asarray(part.faces, np.int64)
         if part.uv is not None:
@@ -232,7 +235,11 @@ def write_glb(path: str | os.PathLike[str], parts: list[MeshPart],
         if part.texture is not None and uv_idx is not None:
             images.append({"bufferView": buf.view(_png(part.texture)),
                            "mimeType": "image/png", "name": part.name})
-            textures.append({"source": len(images) - 1, "sampler": 0})
+            sampler = {"magFilter": 9729, "minFilter": 9987,
+                       "wrapS": 10497 if part.wrap_u else 33071, "wrapT": 33071}
+            if sampler not in samplers:
+                samplers.append(sampler)
+            textures.append({"source": len(images) - 1, "sampler": samplers.index(sampler)})
             material["pbrMetallicRoughness"]["baseColorTexture"] = {
                 "index": len(textures) - 1}
         elif part.colours is not None:
@@ -261,9 +268,7 @@ def write_glb(path: str | os.PathLike[str], parts: list[MeshPart],
         "buffers": [{"byteLength": len(buf.data)}],
     }
     if images:
-        gltf.update(images=images, textures=textures,
-                    samplers=[{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071,
-                               "wrapT": 33071}])
+        gltf.update(images=images, textures=textures, samplers=samplers)
     text = json.dumps(gltf, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     data = bytes(buf.data) + b"\0" * (-len(buf.data) % 4)

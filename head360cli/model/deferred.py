@@ -29,6 +29,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from head360cli.geometry.mesh_ops import seam_uv
 from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
 from head360cli.model.gbuffer import GBuffer, MeshPart, gbuffer
@@ -41,7 +42,7 @@ from head360cli.model.networks import (
     TextureGenerator,
 )
 
-__all__ = ["DeferredGenerator", "read_texels"]
+__all__ = ["DeferredGenerator", "read_texels", "with_hair_detail"]
 
 
 def exact_hair_colour(texture: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
@@ -55,6 +56,21 @@ def exact_hair_colour(texture: torch.Tensor, colour: torch.Tensor) -> torch.Tens
     shade = bright / bright.mean((-2, -1), keepdim=True).clamp_min(1e-4)
     albedo = (target[..., None, None] * shade).clamp(0.0, 1.0)
     return torch.cat([albedo, texture[:, 3:]], 1)
+
+
+def with_hair_detail(texture: torch.Tensor, detail: torch.Tensor, colour: torch.Tensor
+                     ) -> torch.Tensor:
+    """A hair texture ``(1, C, r, r)`` at the side ``A`` of a fit's hair ``detail (3, A,
+    A)`` (its albedo over the colour), its albedo channels ``detail x colour (3,)``
+    (clipped to [0, 1]) and its other channels the network's, bilinearly enlarged: the
+    photo's strands at about a texel a pixel, where the network's 64 texels a side
+    drew a smooth shell."""
+    side = detail.shape[-1]
+    feats = texture[:, 3:]
+    if feats.shape[-1] != side:
+        feats = F.interpolate(feats, size=(side, side), mode="bilinear", align_corners=False)
+    albedo = (detail.to(texture.dtype) * colour.to(texture.dtype)[:, None, None]).clamp(0, 1)
+    return torch.cat([albedo[None], feats], 1)
 
 
 def read_texels(table: torch.Tensor, base: torch.Tensor, res: torch.Tensor,
@@ -174,7 +190,8 @@ class DeferredGenerator(GeneratorBase):
 
     def prepare_hair(self, hair: Hair) -> Hair:
         """The same hair with its textures made now (kept in ``Hair.planes``), so that
-        renders of many frames or views reuse them."""
+        renders of many frames or views reuse them; an item with a ``Hair.detail``
+        takes its albedo from it (:func:`with_hair_detail`)."""
         items = [i for i, m in enumerate(hair.meshes) if m is not None]
         textures: list[torch.Tensor | None] = [None] * len(hair.meshes)
         if items:
@@ -184,6 +201,10 @@ class DeferredGenerator(GeneratorBase):
                 tex = exact_hair_colour(tex, hair.colour[idx])
             made: dict[int, torch.Tensor] = {}
             for j, i in enumerate(items):  # one texture per mesh object (views of a head)
+                detail = None if hair.detail is None else hair.detail[i]
+                if id(hair.meshes[i]) not in made and detail is not None:
+                    made[id(hair.meshes[i])] = with_hair_detail(tex[j:j + 1], detail,
+                                                                hair.colour[i])
                 textures[i] = made.setdefault(id(hair.meshes[i]), tex[j:j + 1])
         return dataclasses.replace(hair, planes=textures)
 
@@ -198,7 +219,8 @@ class DeferredGenerator(GeneratorBase):
             items = [i for i, m in enumerate(hair.meshes) if m is not None]
             for g in _hair_groups(hair, items):
                 hv, hf, huv = hair.meshes[g[0]]
-                parts.append((MeshPart(hv[None], hf, huv, hf),
+                wrapped, faces_uv = seam_uv(hf, huv)
+                parts.append((MeshPart(hv[None], hf, wrapped, faces_uv),
                               torch.tensor(g, device=verts.device)))
         still = None if cache is None else cache.get("still_faces")
         return gbuffer(head, c2w, intrinsics, self.cfg.image_res, self.cfg.pixel_samples,
@@ -231,9 +253,11 @@ class DeferredGenerator(GeneratorBase):
                 wearer[g] = True
                 sel = torch.nonzero(is_hair & wearer[view_of]).squeeze(1)
                 side = tex.shape[-1]
+                at = uv.index_select(0, sel)  # u wraps round the head (seam_uv)
+                at = torch.stack([torch.remainder(at[:, 0], 1.0), at[:, 1]], 1)
                 feats = feats.index_copy(0, sel, read_texels(
                     tex.permute(1, 2, 0).reshape(-1, c), torch.zeros_like(sel),
-                    torch.full_like(sel, side), uv.index_select(0, sel)))
+                    torch.full_like(sel, side), at))
         values, residual = self._net(self.shader, feats, buf.normal, buf.view,
                                      is_hair[:, None].to(feats.dtype))
         out = values.new_zeros(r * h * w, values.shape[1]).index_copy(0, index, values)

@@ -80,23 +80,31 @@ class Hair:
         planes: Per item hair planes ``(1, P, C + 2, res, res)`` made once by
             :meth:`Generator.prepare_hair` (``None`` for a bald item), or ``None``: the
             generator makes them on every call (training, where the hair branch learns).
+        detail: Per item ``(3, A, A)`` the hair's albedo over its colour in strand
+            coordinates (a fit's, :mod:`~head360cli.fitting.hair_texture`), or ``None``
+            (the generator's own strands); ``None`` for all: none has one.
     """
 
     meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]
     style: torch.Tensor
     colour: torch.Tensor
     planes: list[torch.Tensor | None] | None = None
+    detail: list[torch.Tensor | None] | None = None
 
     def to(self, device: torch.device | str) -> Hair:
+        def moved(items):
+            return None if items is None else [None if p is None else p.to(device)
+                                               for p in items]
+
         return Hair([None if m is None else tuple(t.to(device) for t in m)
                      for m in self.meshes], self.style.to(device), self.colour.to(device),
-                    None if self.planes is None else
-                    [None if p is None else p.to(device) for p in self.planes])
+                    moved(self.planes), moved(self.detail))
 
     def repeat(self, n: int) -> Hair:
         """The hair of a one-item batch for ``n`` items (views or frames of one head)."""
         return Hair(self.meshes * n, self.style.expand(n), self.colour.expand(n, 3),
-                    None if self.planes is None else self.planes * n)
+                    None if self.planes is None else self.planes * n,
+                    None if self.detail is None else self.detail * n)
 
 
 def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,

@@ -11,6 +11,7 @@ build on it.
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections.abc import Iterator
 from typing import Any
 
@@ -95,6 +96,11 @@ class HeadRenderer:
         hair_end_shift: Metres the fitted style's ends at the sides and back are moved
             down (negative: up; a head file's ``hair_end_shift``, default 0); the fitted
             style's, as ``hair_scale``.
+        hair_detail: ``(A, A, 3)`` the hair's albedo over its colour in strand
+            coordinates (a head file's ``hair_detail``,
+            :mod:`~head360cli.fitting.hair_texture`): the photo's strands, worn by every
+            style, recoloured by the hair colour; default none (the generator's own
+            strand texture).
         lid_change: ``(C, R, R)`` the texture's change with both eyes closed
             (:func:`~head360cli.fitting.lids.close_lids`); a frame's texture adds the part
             on each eye's lid texels as far as that eye closes beyond the head's own
@@ -114,6 +120,7 @@ class HeadRenderer:
                  hair_offset: np.ndarray | None = None,
                  hair_scale: np.ndarray | None = None,
                  hair_end_shift: float | np.ndarray | None = None,
+                 hair_detail: np.ndarray | None = None,
                  lid_change: torch.Tensor | np.ndarray | None = None,
                  colour_gain: np.ndarray | torch.Tensor | None = None) -> None:
         from head360cli.devices import fast_bfloat16
@@ -183,6 +190,10 @@ class HeadRenderer:
         self.hair_end_shift = float(shift)
         """Metres the fitted style's ends are moved down (negative: up)."""
         self._scaled_style = int(hair_style)
+        self.hair_detail = None
+        """``(3, A, A)`` tensor, the hair's albedo over its colour, or ``None``."""
+        if hair_detail is not None:
+            self.hair_detail = self._detail(hair_detail)
         self.colour_gain = None
         """``(1, 3, 1, 1)`` the photo's light on the head's pixels, or ``None``."""
         if colour_gain is not None:
@@ -248,6 +259,20 @@ class HeadRenderer:
             raise FileFormatError(NO_ALPHA)
         self.runner = runner
 
+    def _detail(self, hair_detail: np.ndarray) -> torch.Tensor:
+        detail = np.asarray(hair_detail, np.float32)
+        if detail.ndim != 3 or detail.shape[2] != 3 or detail.shape[0] != detail.shape[1] \
+                or not (np.isfinite(detail) & (detail >= 0)).all():
+            raise ValueError("expected a hair detail of (A, A, 3) finite numbers >= 0, "
+                             f"found shape {detail.shape}")
+        return torch.tensor(detail.transpose(2, 0, 1).copy(), device=self.device)
+
+    def set_hair_detail(self, hair_detail: np.ndarray | None) -> None:
+        """Wear the hair detail ``(A, A, 3)`` (see the class's ``hair_detail``), or
+        ``None``: the generator's own strands."""
+        self.hair_detail = None if hair_detail is None else self._detail(hair_detail)
+        self.set_hair(self.hair_style, self.hair_colour)
+
     def set_hair(self, hair_style: int, hair_colour: np.ndarray) -> None:
         """Put on another hairstyle and colour (its planes are made once, here); the
         fitted style keeps its fitted thickness, another style wears its own."""
@@ -263,6 +288,8 @@ class HeadRenderer:
                             self.hair_offset[None], soft=self.gen.soft_hairlines,
                             scales=None if scale is None else scale[None],
                             end_shifts=[self.hair_end_shift if own else 0.0])
+            if self.hair_detail is not None:
+                hair = dataclasses.replace(hair, detail=[self.hair_detail])
             if hair.meshes[0] is not None:
                 with torch.no_grad():
                     self.hair = self.gen.prepare_hair(hair.to(self.device))

@@ -61,21 +61,25 @@ def test_swap_rewrites_only_the_hair(head_file, tmp_path):
 
 def test_swap_drops_the_fitted_style_s_shape_with_the_style(head_file, tmp_path):
     """The thickness by direction fitted to a style is that style's: another style
-    leaves it behind, a colour alone keeps it."""
+    leaves it behind, a colour alone keeps it; the hair's detail texture goes with
+    every style."""
     from head360cli.io.headfile import read_head, write_head
     from head360cli.synth.hair import WARP_BINS
 
     head = read_head(head_file)
     head.arrays["hair_scale"] = np.full(WARP_BINS, 1.5, np.float32)
     head.arrays["hair_end_shift"] = np.array(-0.02, np.float32)
+    head.arrays["hair_detail"] = np.full((32, 32, 3), 0.8, np.float16)
     shaped = write_head(head, tmp_path / "shaped.h360")
     style = int(head.arrays["hair_style"])
     swap_hair(shaped, tmp_path / "recoloured.h360", style=style, colour="red")
     assert {"hair_scale", "hair_end_shift"} <= set(
         read_head(tmp_path / "recoloured.h360").arrays)
     swap_hair(shaped, tmp_path / "restyled.h360", style=style % 29 + 1)
-    assert not {"hair_scale", "hair_end_shift"} & set(
-        read_head(tmp_path / "restyled.h360").arrays)
+    restyled = read_head(tmp_path / "restyled.h360").arrays
+    assert not {"hair_scale", "hair_end_shift"} & set(restyled)
+    # the photo's strands are the person's hair, whatever its style and colour
+    np.testing.assert_array_equal(restyled["hair_detail"], head.arrays["hair_detail"])
 
 
 def test_library_swap_takes_names_numbers_and_refuses_unknown_styles(head_file, tmp_path):

@@ -151,6 +151,14 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
         np.testing.assert_allclose(placed["scale_range"], [lo, hi], atol=1e-3)
     else:  # a scale that gains less than MIN_GAIN is not kept
         assert placed["iou_scaled"] is None and placed["scale_range"] is None
+    # the hair's texture from her photo: its strands and spread of colour, median near
+    # her hair's own, in the head file at DETAIL_RES
+    from head360cli.fitting.hair_texture import DETAIL_RES, MAX_DETAIL
+
+    detail = head.arrays["hair_detail"].astype(np.float32)
+    assert detail.shape == (DETAIL_RES, DETAIL_RES, 3)
+    assert 0.6 < float(np.median(detail)) < 1.5 and detail.max() <= MAX_DETAIL
+    assert np.quantile(detail, 0.9) > 1.2 * np.quantile(detail, 0.1)
     preview = Image.open(tmp_path / "me_preview.png")
     assert preview.size == (6 * 256, 256)
 

@@ -274,7 +274,9 @@ def test_renderers_refuse_a_head_whose_arrays_do_not_fit_the_model(run_cli, head
     ("colour_gain", [1.0, -1.0, 1.0], "expected a colour_gain above 0 in every channel"),
     ("hair_offset", [0.0, 0.01], "expected hair_offset of 3 numbers"),
     ("hair_scale", [1.0] * 5, "expected hair_scale of 32 positive numbers"),
-    ("hair_end_shift", 0.5, "expected hair_end_shift of one number within 0.3 m")])
+    ("hair_end_shift", 0.5, "expected hair_end_shift of one number within 0.3 m"),
+    ("hair_detail", np.ones((32, 16, 3)), "expected hair_detail of (A, A, 3) numbers"),
+    ("hair_detail", -np.ones((32, 32, 3)), "expected hair_detail of (A, A, 3) numbers")])
 def test_renderers_refuse_a_malformed_light_or_hair_offset_as_a_bad_file(run_cli, head_file,
                                                                          tmp_path, name,
                                                                          value, says):

@@ -155,7 +155,22 @@ def test_exported_head_has_the_52_arkit_targets(head_file, tmp_path, run_cli):
     assert 0.005 < np.abs(span).max() < 0.1
     tex = np.asarray(head.visual.material.baseColorTexture)
     assert tex.shape[:2] == (128, 128) and 60 < tex.mean() < 250  # skin, not black
-    assert "hair" in scene.geometry
+    # the hair carries its strands as a texture that repeats round the head in u (its
+    # seam's faces read just past 1), the head's is clamped
+    hair_mesh = next(m for m in g["meshes"] if m["name"] == "hair")
+    attributes = hair_mesh["primitives"][0]["attributes"]
+    assert "TEXCOORD_0" in attributes and "COLOR_0" not in attributes
+    u_max = g["accessors"][attributes["TEXCOORD_0"]].get("max")
+    hair_material = g["materials"][hair_mesh["primitives"][0]["material"]]
+    sampler = g["samplers"][g["textures"][hair_material["pbrMetallicRoughness"][
+        "baseColorTexture"]["index"]]["sampler"]]
+    assert sampler["wrapS"] == 10497 and sampler["wrapT"] == 33071
+    head_material = g["materials"][prim["material"]]
+    assert g["samplers"][g["textures"][head_material["pbrMetallicRoughness"][
+        "baseColorTexture"]["index"]]["sampler"]]["wrapS"] == 33071
+    hair_tex = np.asarray(scene.geometry["hair"].visual.material.baseColorTexture)
+    assert hair_tex.std() > 1 and 5 < hair_tex.mean() < 250  # coloured, not blank
+    assert u_max is None or u_max[0] <= 1.1
     r = run_cli("export-mesh", head_file, "-o", tmp_path / "head.stl")
     assert r.code == 3 and "glb or .obj" in r.err
 
