@@ -411,6 +411,22 @@ def head_inputs(renderer) -> dict[str, np.ndarray]:
     return out
 
 
+def _planes_for(sess, planes: np.ndarray) -> np.ndarray:
+    """A deferred generator's hair texture ``(1, C, r, r)`` at the side the graph was
+    exported with (a fit's hair detail makes it 256, the network's own is 64), bilinearly
+    resized where they differ, so one graph renders every head."""
+    import cv2
+
+    shape = next((i.shape for i in sess.get_inputs() if i.name == "hair_planes"), None)
+    side = shape[-1] if shape is not None and len(shape) == 4 else None
+    if not isinstance(side, int) or planes.ndim != 4 or planes.shape[-1] == side:
+        return planes
+    inter = cv2.INTER_AREA if side < planes.shape[-1] else cv2.INTER_LINEAR
+    moved = cv2.resize(np.ascontiguousarray(planes[0].transpose(1, 2, 0), np.float32),
+                       (side, side), interpolation=inter)
+    return moved.reshape(side, side, -1).transpose(2, 0, 1)[None]
+
+
 class OnnxFrameRunner:
     """Render frames with an exported generator in onnxruntime (no torch needed).
 
@@ -493,6 +509,8 @@ class OnnxFrameRunner:
             if hair_uv is not None:
                 feeds["hair_uv"] = pad_hair_uv(hair_uv)
         sess = self.sessions[hair]
+        if hair and hair_planes is not None:
+            feeds["hair_planes"] = _planes_for(sess, hair_planes)
         wanted = {i.name for i in sess.get_inputs()}
         feeds = {k: np.ascontiguousarray(v, np.int64 if k == "hair_faces" else np.float32)
                  for k, v in feeds.items() if k in wanted}

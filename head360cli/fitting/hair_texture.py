@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from head360cli.model.deferred import HAIR_TEXTURE_SIDE
+
 __all__ = ["DETAIL_RES", "MAX_DETAIL", "hair_detail", "hair_ratio", "project_hair",
            "quilt_hair"]
 
-DETAIL_RES = 256
-"""Side of the hair detail texture, texels: about one texel a pixel around a head
-rendered at 256 px (u spans the whole way round it)."""
+DETAIL_RES = HAIR_TEXTURE_SIDE
+"""Side of the hair detail texture, texels (the side renders read the hair texture at):
+about one texel a pixel around a head rendered at 256 px (u spans the whole way round
+it)."""
 MAX_DETAIL = 4.0
 """The largest ratio kept (a highlight four times the hair's median); the photo's
 clipped whites and stray background pixels go no further."""

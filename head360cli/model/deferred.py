@@ -42,7 +42,8 @@ from head360cli.model.networks import (
     TextureGenerator,
 )
 
-__all__ = ["DeferredGenerator", "read_texels", "with_hair_detail"]
+__all__ = ["HAIR_TEXTURE_SIDE", "DeferredGenerator", "enlarged", "read_texels",
+           "with_hair_detail"]
 
 
 def exact_hair_colour(texture: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
@@ -58,17 +59,26 @@ def exact_hair_colour(texture: torch.Tensor, colour: torch.Tensor) -> torch.Tens
     return torch.cat([albedo, texture[:, 3:]], 1)
 
 
+HAIR_TEXTURE_SIDE = 256
+"""Side of the hair texture renders read: the network's (64 texels a side) enlarged, so
+that a fit's hair detail (made at this side) shows its strands at about a texel a
+pixel, and every head's texture has one shape (one exported graph renders them all)."""
+
+
+def enlarged(texture: torch.Tensor, side: int = HAIR_TEXTURE_SIDE) -> torch.Tensor:
+    """A hair texture ``(B, C, r, r)`` bilinearly resized to ``side``."""
+    if texture.shape[-1] == side:
+        return texture
+    return F.interpolate(texture, size=(side, side), mode="bilinear", align_corners=False)
+
+
 def with_hair_detail(texture: torch.Tensor, detail: torch.Tensor, colour: torch.Tensor
                      ) -> torch.Tensor:
     """A hair texture ``(1, C, r, r)`` at the side ``A`` of a fit's hair ``detail (3, A,
     A)`` (its albedo over the colour), its albedo channels ``detail x colour (3,)``
-    (clipped to [0, 1]) and its other channels the network's, bilinearly enlarged: the
-    photo's strands at about a texel a pixel, where the network's 64 texels a side
-    drew a smooth shell."""
-    side = detail.shape[-1]
-    feats = texture[:, 3:]
-    if feats.shape[-1] != side:
-        feats = F.interpolate(feats, size=(side, side), mode="bilinear", align_corners=False)
+    (clipped to [0, 1]) and its other channels the network's, enlarged: the photo's
+    strands, where the network's 64 texels a side drew a smooth shell."""
+    feats = enlarged(texture[:, 3:], detail.shape[-1])
     albedo = (detail.to(texture.dtype) * colour.to(texture.dtype)[:, None, None]).clamp(0, 1)
     return torch.cat([albedo[None], feats], 1)
 
@@ -190,7 +200,8 @@ class DeferredGenerator(GeneratorBase):
 
     def prepare_hair(self, hair: Hair) -> Hair:
         """The same hair with its textures made now (kept in ``Hair.planes``), so that
-        renders of many frames or views reuse them; an item with a ``Hair.detail``
+        renders of many frames or views reuse them; outside training they are
+        :data:`HAIR_TEXTURE_SIDE` texels a side, and an item with a ``Hair.detail``
         takes its albedo from it (:func:`with_hair_detail`)."""
         items = [i for i, m in enumerate(hair.meshes) if m is not None]
         textures: list[torch.Tensor | None] = [None] * len(hair.meshes)
@@ -198,7 +209,7 @@ class DeferredGenerator(GeneratorBase):
             idx = torch.tensor(items, device=hair.style.device)
             tex = self.hair_texture_generator(hair.style[idx], hair.colour[idx])
             if not self.training:
-                tex = exact_hair_colour(tex, hair.colour[idx])
+                tex = enlarged(exact_hair_colour(tex, hair.colour[idx]))
             made: dict[int, torch.Tensor] = {}
             for j, i in enumerate(items):  # one texture per mesh object (views of a head)
                 detail = None if hair.detail is None else hair.detail[i]

@@ -99,6 +99,17 @@ def test_onnx_matches_torch_with_and_without_hair(exported):
     assert np.abs(ref - r.render(cam, k, w).numpy()).max() > 1e-2  # the eyes moved
     got = runner.render(head_inputs(fitted), w, cam.numpy(), k.numpy())
     assert np.abs(got - ref).max() <= 1e-3
+    # a head with a hair detail of its own (a fit's): the same graph draws its strands
+    from head360cli.model.deferred import HAIR_TEXTURE_SIDE
+
+    side = HAIR_TEXTURE_SIDE
+    strands = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour,
+                           samples=1, size=48, precision="fp32",
+                           hair_detail=rng.uniform(0.3, 2.0, (side, side, 3)))
+    ref = strands.render(cam, k, w).numpy()
+    assert np.abs(ref - r.render(cam, k, w).numpy()).max() > 1e-2  # the strands show
+    got = runner.render(head_inputs(strands), w, cam.numpy(), k.numpy())
+    assert np.abs(got - ref).max() <= 1e-3
     # a head with a light of its own (a fit's colour_gain): drawn from the graph's alpha,
     # by the torch-free runner and through HeadRenderer.use_runner alike
     lit = HeadRenderer(r.gen, r.shape, r.texture[0], r.hair_style, r.hair_colour,
@@ -490,3 +501,23 @@ def test_inspect_tells_what_an_exported_graph_takes(run_cli, exported):
     assert j["export"] == {**runner.meta, "hair": True}
     assert list(j["inputs"]) == [i.name for i in runner.sessions[True].get_inputs()]
     assert j["export"]["size"] == 48
+
+
+def test_a_graph_exported_with_another_hair_texture_side_gets_it_resized():
+    """Graphs exported before renders read the hair texture at HAIR_TEXTURE_SIDE took
+    the network's 64 texels a side: the runner resizes a head's texture to the side the
+    graph asks for, and leaves it as it is where they agree."""
+    from types import SimpleNamespace
+
+    from head360cli.export.onnx import _planes_for
+
+    def session(side):
+        return SimpleNamespace(get_inputs=lambda: [SimpleNamespace(
+            name="hair_planes", shape=[1, 16, side, side])])
+
+    planes = np.random.default_rng(0).uniform(0, 1, (1, 16, 256, 256)).astype(np.float32)
+    small = _planes_for(session(64), planes)
+    assert small.shape == (1, 16, 64, 64)
+    np.testing.assert_allclose(small[0, :, 0, 0], planes[0, :, :4, :4].mean((1, 2)),
+                               atol=1e-5)  # area-averaged
+    assert _planes_for(session(256), planes) is planes

@@ -137,14 +137,19 @@ def test_hair_is_drawn_and_items_sharing_it_render_as_one_by_one(parts):
     assert both["alpha"].sum() > bald["alpha"].sum()
     for i in range(2):
         assert torch.allclose(both["rgb"][i], one[i]["rgb"][0], atol=1e-6)
-    assert both["hair_texture"].shape == (2, 16, 8, 8)
+    # the network's 8 texels a side (this tiny config's), enlarged for renders
+    from head360cli.model.deferred import HAIR_TEXTURE_SIDE
+
+    side = HAIR_TEXTURE_SIDE
+    assert gen.cfg.hair_texture_res == 8 and both["hair_texture"].shape == (2, 16, side, side)
 
 
 def test_hair_takes_any_colour_asked_for_in_renders_and_learns_in_training(parts):
     """Rendering (eval mode), the hair's albedo channels are the colour of the corpus's
     strand texture of the colour asked for (any colour, green too) times the network's
-    strand shading; the other channels are the network's. Training leaves all to it."""
-    from head360cli.model.deferred import exact_hair_colour
+    strand shading; the other channels are the network's, all enlarged to the side
+    renders read. Training leaves all to it."""
+    from head360cli.model.deferred import enlarged, exact_hair_colour
 
     model, _, _, _ = parts
     neutral = model.vertices(np.zeros(model.rank), np.zeros(52))
@@ -155,8 +160,8 @@ def test_hair_takes_any_colour_asked_for_in_renders_and_learns_in_training(parts
         gen.train()
         learnt = gen.prepare_hair(hair).planes[0]
         gen.eval()
-    torch.testing.assert_close(made, exact_hair_colour(learnt, hair.colour))
-    assert not torch.equal(made[:, :3], learnt[:, :3])
+    torch.testing.assert_close(made, enlarged(exact_hair_colour(learnt, hair.colour)))
+    assert not torch.equal(made[:, :3], enlarged(learnt)[:, :3])
     # the function itself, on a texture whose strands are known
     torch.manual_seed(0)
     tex = torch.rand(2, 6, 8, 8)
