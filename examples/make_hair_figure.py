@@ -1,8 +1,9 @@
 """Regenerate examples/figures/hair_before_after.png: fitted heads from the front, both
 sides and behind, with the hair as 0.5.2 fitted it (the silhouettes' first style as
-built, the nearest of ten named colours) and as it is fitted since 0.5.3 (the first
-styles ranked with their shapes fitted, contradicted tails and buns demoted, the ends
-raised and the thickness fitted by direction, the colour matched by render).
+built, the nearest of ten named colours, the generator's smooth strands) and as it is
+fitted now (since 0.5.3 the first styles ranked with their shapes fitted, contradicted
+tails and buns demoted, the ends raised and the thickness fitted by direction, the
+colour matched by render; since 0.5.4 the photo's hair in the hair's texture).
 
 The photos: scikit-image's astronaut (public domain, NASA) and, where ``../shared/data``
 holds them, Tom Cruise's portrait, the frontal photo of Pointing'04 person 4 (curly hair;
@@ -97,16 +98,18 @@ def views(head_file: Path) -> np.ndarray:
 
 def main() -> None:
     from head360cli.drive.views import grid_image
+    from head360cli.fitting.config import FitConfig
     from head360cli.fitting.pipeline import fit_photo
 
     images, labels = [], []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name, photo in photos(work):
-            for kind in ("0.5.2", "0.5.3"):
+            for kind in ("0.5.2", "0.5.4"):
                 head = work / f"{len(images)}.h360"
+                config = FitConfig(preset="fast", hair_texture=kind != "0.5.2")
                 with as_before() if kind == "0.5.2" else contextlib.nullcontext():
-                    summary = fit_photo(photo, head, preset="fast")
+                    summary = fit_photo(photo, head, config)
                 images.extend(views(head))
                 style = summary["hair_style"]["name"]
                 labels += [f"{name}, {kind}"] + [f"{style} {yaw:+.0f}" for yaw in YAWS]

@@ -41,6 +41,9 @@ divided out of the patches: the renderer lights the hair again, and whole patche
 a lit crown beside ones of a shadowed side showed as blotches (at 0.5 too)."""
 LIGHT_SIGMA = 8.0
 """Pixels of the blur that finds the photo's broad light on its hair."""
+EDGE_PX = 2
+"""Pixels of the parsed hair's edge not projected: there the photo mixes the hair with
+the forehead and the backdrop (a skin-coloured band showed along the hairline)."""
 SEEN_SIGMA = 1.5
 """Texels of the blur that fills the gaps between projected pixels."""
 SEEN_DENSITY = 0.5
@@ -69,10 +72,10 @@ def quilt_hair(ratio: np.ndarray, hair: np.ndarray, size: int = DETAIL_RES, seed
                ) -> np.ndarray:
     """``(size, size, 3)`` float32: square patches of ``ratio (H, W, 3)`` that lie
     inside ``hair (H, W)`` (the largest of :data:`PATCH_SIZES` with enough places),
-    placed on a grid with a quarter's overlap and feathered into each other (and
-    round the seam in u), the photo's broad light taken out (:data:`LOCAL_LIGHT`);
-    the patches keep
-    their orientation, so strands that run down the photo run along v. All ones where
+    placed in rows with a quarter's overlap, every other row shifted by half a patch,
+    feathered into each other (and round the seam in u), the photo's broad light taken
+    out (:data:`LOCAL_LIGHT`); the patches keep their orientation, so strands that run
+    down the photo run along v. All ones where
     no patch fits (a few hair pixels)."""
     import cv2
 
@@ -83,6 +86,7 @@ def quilt_hair(ratio: np.ndarray, hair: np.ndarray, size: int = DETAIL_RES, seed
     light = light / np.maximum(weight, 1e-3)
     flat = ratio / np.maximum(light, 1e-3) ** LOCAL_LIGHT
     flat = flat * (float(ratio[hair].mean()) / max(float(flat[hair].mean()), 1e-6))
+    flat = np.clip(flat, 0.0, MAX_DETAIL)  # a bright strand beside a dark hollow
     h, w = hair.shape
     found = None
     for patch in PATCH_SIZES:
@@ -102,17 +106,18 @@ def quilt_hair(ratio: np.ndarray, hair: np.ndarray, size: int = DETAIL_RES, seed
     ramp = np.minimum(1.0, np.minimum(np.arange(patch) + 1, patch - np.arange(patch))
                       / overlap).astype(np.float32)
     feather = (ramp[:, None] * ramp[None, :])[..., None]
-    span = size + patch
-    total = np.zeros((span, span, 3), np.float32)
-    weights = np.zeros((span, span, 1), np.float32)
-    for y in range(0, size, step):
-        for x in range(0, size, step):
+    total = np.zeros((size + patch, size + 2 * patch, 3), np.float32)
+    weights = np.zeros((size + patch, size + 2 * patch, 1), np.float32)
+    for row, y in enumerate(range(0, size, step)):
+        # every other row shifted by half a patch, as bricks, so no seam runs down v
+        for x in range((row % 2) * step // 2, size + (row % 2) * step // 2, step):
             i = rng.integers(len(ys))
             total[y:y + patch, x:x + patch] += feather * flat[ys[i]:ys[i] + patch,
                                                               xs[i]:xs[i] + patch]
             weights[y:y + patch, x:x + patch] += feather
-    total[:, :patch] += total[:, size:]  # u wraps round the head: so do the patches
-    weights[:, :patch] += weights[:, size:]
+    over = total.shape[1] - size  # u wraps round the head: so do the patches
+    total[:, :over] += total[:, size:]
+    weights[:, :over] += weights[:, size:]
     return (total / np.maximum(weights, 1e-6))[:size, :size]
 
 
@@ -168,6 +173,7 @@ def hair_detail(gen, verts, c2w, k, hair, crop: np.ndarray, parsed: np.ndarray,
         parsed: ``(R, R)`` bool the parsed hair in it.
         gain: ``(3,)`` the photo's light, taken out of its colours, or ``None``.
     """
+    import cv2
     import torch
 
     if np.count_nonzero(parsed) < 50:
@@ -182,7 +188,9 @@ def hair_detail(gen, verts, c2w, k, hair, crop: np.ndarray, parsed: np.ndarray,
     facing = (buf.normal[sel] * buf.view[sel]).sum(-1).cpu().numpy()
     uv = buf.uv[sel].cpu().numpy()
     uv[:, 0] %= 1.0  # across the seam (seam_uv)
-    seen, share = project_hair(ratio, parsed, uv, pixels, facing, size)
+    # the parse's edge pixels mix in the forehead's and the backdrop's colours
+    inner = cv2.erode(parsed.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=EDGE_PX)
+    seen, share = project_hair(ratio, inner > 0, uv, pixels, facing, size)
     quilt = quilt_hair(ratio, parsed, size, seed)
     share = share[..., None]
-    return (share * seen + (1.0 - share) * quilt).astype(np.float32)
+    return np.clip(share * seen + (1.0 - share) * quilt, 0.0, MAX_DETAIL).astype(np.float32)

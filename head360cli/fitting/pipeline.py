@@ -567,8 +567,11 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
     detail = None
     if head.hair is not None and gen.kind == "deferred" and cfg.hair_texture:
         t0 = time.perf_counter()
-        detail = stages.texture_hair(gen, head, frame, bald, inv)
-        head.set_hair_detail(detail)
+        from head360cli.fitting.hair_class import nearest_colour_name
+
+        detail, colour = stages.texture_hair(gen, head, frame, bald, inv)
+        hair = dataclasses.replace(hair, colour=colour,
+                                   colour_name=nearest_colour_name(colour))
         timings["hair_placement"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
