@@ -518,7 +518,8 @@ white hair is not brighter than white."""
 
 
 def match_colour_by_render(render_hair, photo: np.ndarray, hair: np.ndarray,
-                           start: np.ndarray, rounds: int = MATCH_ROUNDS) -> np.ndarray:
+                           start: np.ndarray, rounds: int = MATCH_ROUNDS,
+                           bounds: tuple[float, float] = MATCH_RANGE) -> np.ndarray:
     """The hair albedo whose render has the photo's hair colour: from ``start`` (linear
     RGB), each round renders it and multiplies each channel by the photo's median hair
     pixel over the render's (both linearised, on the pixels where both show hair) raised
@@ -531,12 +532,14 @@ def match_colour_by_render(render_hair, photo: np.ndarray, hair: np.ndarray,
         render_hair, photo, hair: As :func:`pick_colour_by_render`.
         start: ``(3,)`` linear RGB to start from.
         rounds: Renders.
+        bounds: Limits per channel of what is matched (a hair texture's gain matches in
+            its own limits).
 
     Returns:
-        ``(3,)`` float32 linear RGB in :data:`MATCH_RANGE` (``start`` when the rendered
+        ``(3,)`` float32 linear RGB in ``bounds`` (``start`` when the rendered
         and the parsed hair overlap in fewer than :data:`MIN_COLOUR_PIXELS` pixels).
     """
-    colour = np.clip(np.asarray(start, np.float64), *MATCH_RANGE)
+    colour = np.clip(np.asarray(start, np.float64), *bounds)
     slope = np.full(3, MATCH_SLOPE)
     last = None
     for _ in range(rounds):
@@ -551,7 +554,7 @@ def match_colour_by_render(render_hair, photo: np.ndarray, hair: np.ndarray,
             ok = np.abs(moved) > 1e-3
             slope[ok] = np.clip((seen - last[1])[ok] / moved[ok], *MATCH_SLOPES)
         last = (np.log(colour), seen)
-        colour = np.clip(colour * np.exp((want - seen) / slope), *MATCH_RANGE)
+        colour = np.clip(colour * np.exp((want - seen) / slope), *bounds)
     return colour.astype(np.float32)
 
 

@@ -567,11 +567,7 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
     detail = None
     if head.hair is not None and gen.kind == "deferred" and cfg.hair_texture:
         t0 = time.perf_counter()
-        from head360cli.fitting.hair_class import nearest_colour_name
-
-        detail, colour = stages.texture_hair(gen, head, frame, bald, inv)
-        hair = dataclasses.replace(hair, colour=colour,
-                                   colour_name=nearest_colour_name(colour))
+        detail = stages.texture_hair(gen, head, frame, bald, inv)
         timings["hair_placement"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)

@@ -441,42 +441,44 @@ def place_hairstyle(seen: PhotoFace, shape: Shape, frame: Framing, bald: BaldTar
 
 
 DETAIL_MATCH_ROUNDS = 2
-"""Renders that match the hair colour again once the hair wears the photo's texture."""
+"""Renders that match the hair's brightness again once it wears the photo's texture."""
+DETAIL_GAIN = (0.5, 2.0)
+"""Limits per channel of that match's gain on the texture."""
 
 
-def texture_hair(gen, head, frame: Framing, bald: BaldTarget, inv
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def texture_hair(gen, head, frame: Framing, bald: BaldTarget, inv) -> np.ndarray:
     """The fitted hair's detail texture from the photo
-    (:func:`~head360cli.fitting.hair_texture.hair_detail`) and the hair colour that,
-    worn with it, renders as the photo's hair: ``(detail (A, A, 3), colour (3,))``.
-    The ``head`` (a :class:`~head360cli.model.head_render.HeadRenderer` wearing the
-    placed style) is seen from the refined camera, the photo's light taken out; the
-    colour is matched again by render (:func:`~head360cli.fitting.hair_class.
-    match_colour_by_render`, :data:`DETAIL_MATCH_ROUNDS` renders): the photo's patches
-    are its hair's inside, brighter than its median, and its spread of light and dark
-    renders otherwise than the network's even strands (the astronaut's hair rendered
-    9.4 CIEDE2000 from her photo's before this match, 3.4 with the network's strands)."""
+    (:func:`~head360cli.fitting.hair_texture.hair_detail`), ``(A, A, 3)``, scaled per
+    channel until the ``head`` (a :class:`~head360cli.model.head_render.HeadRenderer`
+    wearing the placed style) renders its hair as the photo's from the refined camera
+    (:func:`~head360cli.fitting.hair_class.match_colour_by_render` on the texture's
+    gain, :data:`DETAIL_MATCH_ROUNDS` renders): the photo's patches are its hair's
+    inside, brighter than its median, and its spread of light and dark renders otherwise
+    than the network's even strands (the astronaut's hair rendered 9.4 CIEDE2000 from
+    her photo's unscaled, 3.4 with the network's strands). The hair colour stays the
+    one matched with the network's strands: matched again it left the colours the
+    network learnt (a blonde went to (1.0, 0.98, 0.70) and rendered green)."""
     import torch
 
     from head360cli.fitting.hair_class import match_colour_by_render
-    from head360cli.fitting.hair_texture import hair_detail
+    from head360cli.fitting.hair_texture import MAX_DETAIL, hair_detail
 
     dev = inv.c2w.device
     k = torch.tensor(frame.k, device=dev)
     gain = None if inv.gain is None else inv.gain.cpu().numpy()
     detail = hair_detail(gen, torch.tensor(frame.posed, dtype=torch.float32, device=dev),
                          inv.c2w, k, head.hair, frame.crop, bald.hair, gain)
-    head.set_hair_detail(detail)
 
-    def render(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        head.set_hair(head.hair_style, rgb)
+    def render(scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        head.set_hair_detail(np.clip(detail * scale, 0.0, MAX_DETAIL))
         image, _, covered = head.render(inv.c2w[None], k, alpha=True, hair_alpha=True)
         return (image[0].permute(1, 2, 0).cpu().numpy(), covered[0, 0].cpu().numpy() > 0.5)
 
-    colour = match_colour_by_render(render, frame.crop / 255.0, bald.hair, head.hair_colour,
-                                    rounds=DETAIL_MATCH_ROUNDS)
-    head.set_hair(head.hair_style, colour)
-    return detail, colour
+    scale = match_colour_by_render(render, frame.crop / 255.0, bald.hair, np.ones(3),
+                                   rounds=DETAIL_MATCH_ROUNDS, bounds=DETAIL_GAIN)
+    detail = np.clip(detail * scale, 0.0, MAX_DETAIL).astype(np.float32)
+    head.set_hair_detail(detail)
+    return detail
 
 
 def render_preview(head, frame: Framing, bald: BaldTarget, inv, grey: bool) -> Preview:

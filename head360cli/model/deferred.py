@@ -76,10 +76,14 @@ def with_hair_detail(texture: torch.Tensor, detail: torch.Tensor, colour: torch.
                      ) -> torch.Tensor:
     """A hair texture ``(1, C, r, r)`` at the side ``A`` of a fit's hair ``detail (3, A,
     A)`` (its albedo over the colour), its albedo channels ``detail x colour (3,)``
-    (clipped to [0, 1]) and its other channels the network's, enlarged: the photo's
+    (a texel brighter than white scaled down to it) and its other channels the
+    network's, enlarged: the photo's
     strands, where the network's 64 texels a side drew a smooth shell."""
     feats = enlarged(texture[:, 3:], detail.shape[-1])
-    albedo = (detail.to(texture.dtype) * colour.to(texture.dtype)[:, None, None]).clamp(0, 1)
+    albedo = (detail.to(texture.dtype) * colour.to(texture.dtype)[:, None, None]).clamp_min(0)
+    # above white, scaled down whole: clipped channel by channel, a blonde's highlights
+    # lost their red first and rendered cyan
+    albedo = albedo / albedo.amax(0, keepdim=True).clamp_min(1.0)
     return torch.cat([albedo[None], feats], 1)
 
 

@@ -159,8 +159,8 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     assert detail.shape == (DETAIL_RES, DETAIL_RES, 3)
     assert 0.6 < float(np.median(detail)) < 1.5 and detail.max() <= MAX_DETAIL
     assert np.quantile(detail, 0.9) > 1.2 * np.quantile(detail, 0.1)
-    # worn with its colour matched again, her hair renders as her photo's at its view
-    # (CIEDE2000 of the medians 1.1 on D; 9.4 before the second match)
+    # with the texture's brightness matched by render, her hair renders as her photo's at
+    # its view (CIEDE2000 of the medians 1.3 on D; 9.4 unmatched)
     import torch
     from skimage import data
 
