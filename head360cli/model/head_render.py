@@ -271,7 +271,13 @@ class HeadRenderer:
         """Wear the hair detail ``(A, A, 3)`` (see the class's ``hair_detail``), or
         ``None``: the generator's own strands."""
         self.hair_detail = None if hair_detail is None else self._detail(hair_detail)
-        self.set_hair(self.hair_style, self.hair_colour)
+        if self.hair is None:
+            return
+        # the same mesh, its texture made again (building the mesh took 30 ms)
+        with torch.no_grad():
+            self.hair = self.gen.prepare_hair(dataclasses.replace(
+                self.hair, planes=None,
+                detail=None if self.hair_detail is None else [self.hair_detail]))
 
     def set_hair(self, hair_style: int, hair_colour: np.ndarray) -> None:
         """Put on another hairstyle and colour (its planes are made once, here); the
