@@ -193,4 +193,5 @@ def hair_detail(gen, verts, c2w, k, hair, crop: np.ndarray, parsed: np.ndarray,
     seen, share = project_hair(ratio, inner > 0, uv, pixels, facing, size)
     quilt = quilt_hair(ratio, parsed, size, seed)
     share = share[..., None]
-    return np.clip(share * seen + (1.0 - share) * quilt, 0.0, MAX_DETAIL).astype(np.float32)
+    detail = share * seen + (1.0 - share) * quilt
+    return np.clip(detail, 0.0, MAX_DETAIL).astype(np.float32)

@@ -76,11 +76,22 @@ def with_hair_detail(texture: torch.Tensor, detail: torch.Tensor, colour: torch.
                      ) -> torch.Tensor:
     """A hair texture ``(1, C, r, r)`` at the side ``A`` of a fit's hair ``detail (3, A,
     A)`` (its albedo over the colour), its albedo channels ``detail x colour (3,)``
-    (a texel brighter than white scaled down to it) and its other channels the
-    network's, enlarged: the photo's
+    (the detail's range narrowed where that would pass white, and a texel brighter than
+    white scaled down to it) and its other channels the network's, enlarged: the photo's
     strands, where the network's 64 texels a side drew a smooth shell."""
     feats = enlarged(texture[:, 3:], detail.shape[-1])
-    albedo = (detail.to(texture.dtype) * colour.to(texture.dtype)[:, None, None]).clamp_min(0)
+    detail = detail.to(texture.dtype).clamp_min(0)
+    colour = colour.to(texture.dtype)
+    # light hair has little room above it before white: the detail's range is narrowed
+    # (a power below 1) until its 90th percentile, in the colour, reaches white at most;
+    # capped there instead, a blonde's warm highlights went white and her cool shadows
+    # stayed, and her hair rendered blue-grey
+    room = 1.0 / colour.max().clamp_min(1e-3)
+    high = torch.quantile(detail.amax(0).flatten(), 0.9).clamp_min(1e-3)
+    if bool(high > room):
+        power = (torch.log(room.clamp_min(1.0)) / torch.log(high)).clamp(0.0, 1.0)
+        detail = detail.clamp_min(1e-3) ** power
+    albedo = detail * colour[:, None, None]
     # above white, scaled down whole: clipped channel by channel, a blonde's highlights
     # lost their red first and rendered cyan
     albedo = albedo / albedo.amax(0, keepdim=True).clamp_min(1.0)
