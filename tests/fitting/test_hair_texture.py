@@ -150,6 +150,8 @@ def test_the_fitted_detail_shows_the_photo_where_it_sees_the_hair(worn):
     detail = np.full((128, 128, 3), 1.6, np.float32)
     detail[:, ::4] = 0.4
     detail[:, 1::4] = 0.4
+    own = worn.hair_colour
+    worn.set_hair(worn.hair_style, np.array([0.1, 0.06, 0.04]))  # dark: room for 1.6
     worn.set_hair_detail(detail)
     try:
         cams = view_cameras([0.0], 0.0)
@@ -163,6 +165,7 @@ def test_the_fitted_detail_shows_the_photo_where_it_sees_the_hair(worn):
                              size=128)
     finally:
         worn.set_hair_detail(None)
+        worn.set_hair(worn.hair_style, own)
     assert fitted.shape == (128, 128, 3)
     assert 0.5 < float(fitted.mean()) < 2.0 and fitted.max() <= MAX_DETAIL
     assert np.quantile(fitted, 0.9) > 2 * np.quantile(fitted, 0.1)  # the stripes' contrast
@@ -171,3 +174,22 @@ def test_the_fitted_detail_shows_the_photo_where_it_sees_the_hair(worn):
     rows = slice(10, 60)
     front = fitted[rows, 48:80, 1].mean(0)
     assert np.abs(np.diff(front)).mean() > 0.15
+
+
+def test_light_hair_keeps_its_hue_where_the_detail_would_pass_white():
+    """In a near-white colour a detail's highlights pass white: its range is narrowed
+    (the hue stays the colour's, warm), and in a dark colour it is left as it is."""
+    from head360cli.model.deferred import with_hair_detail
+
+    rng = np.random.default_rng(0)
+    detail = torch.as_tensor(rng.lognormal(0.3, 0.4, (3, 64, 64)).astype(np.float32))
+    texture = torch.zeros(1, 16, 64, 64)
+    light = torch.tensor([0.98, 0.95, 0.85])
+    albedo = with_hair_detail(texture, detail, light)[0, :3]
+    assert albedo.max() <= 1.0
+    assert torch.quantile(albedo.amax(0).flatten(), 0.9) < 0.999  # narrowed, not capped
+    mean = albedo.mean((1, 2))
+    assert mean[0] > mean[1] > mean[2]  # warm, as the colour
+    dark = torch.tensor([0.1, 0.06, 0.04])
+    torch.testing.assert_close(with_hair_detail(texture, detail, dark)[0, :3],
+                               (detail * dark[:, None, None]).clamp(max=1.0))
