@@ -272,9 +272,12 @@ def test_inspect_meshes_glb_and_obj(run_cli, head_file, tmp_path):
         assert meshes[name]["triangles"] == len(geometry.faces)
     assert meshes["head"]["morph_targets"] == 52 and meshes["hair"]["morph_targets"] == 0
     assert meshes["head"]["morph_target_names"][0] == "eyeBlinkLeft"
-    # the head's at --texture-size, the hair's at its own texture's side (a sampled
-    # head's network texture: 64; a fit's detail: 256)
-    assert j["textures"] == [{"mime": "image/png", "size": [64, 64]}] * 2
+    # the head's at --texture-size, the hair's at the side renders read it at
+    from head360cli.model.deferred import HAIR_TEXTURE_SIDE
+
+    side = HAIR_TEXTURE_SIDE
+    assert j["textures"] == [{"mime": "image/png", "size": [64, 64]},
+                             {"mime": "image/png", "size": [side, side]}]
     assert "52 morph targets (eyeBlinkLeft ... tongueOut)" in run_cli("inspect", glb).out
     obj = tmp_path / "quad.obj"
     obj.write_text("mtllib quad.mtl\no quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"

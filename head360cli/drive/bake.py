@@ -258,7 +258,8 @@ def bake_hair_texture(renderer, size: int | None = None
     hair's vertices around it (the shell, its walls and any tails share the texture);
     ``uv`` runs past 1 across the shell's seam (:func:`~head360cli.geometry.mesh_ops.
     seam_uv`), so the texture repeats in u. ``size``: the hair texture's own side by
-    default (a fit's detail: 256). ``None`` for a bald head."""
+    default (:data:`~head360cli.model.deferred.HAIR_TEXTURE_SIDE`). ``None`` for a bald
+    head."""
     import cv2
     import torch
 

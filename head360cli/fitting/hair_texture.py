@@ -1,8 +1,8 @@
 """The hair's own texture from the photo: its strands, not a smooth shell of one colour.
 
-A head's ``hair_detail (A, A, 3)`` is its hair's albedo over the hair colour (median
-about 1), in the hair mesh's strand coordinates (u across the style, v along its
-length). It is made in two parts:
+A head's ``hair_detail (A, A, 3)`` is its hair's albedo over the hair colour (about 1
+where the photo's hair is at its median), in the hair mesh's strand coordinates (u
+round the head, v along the hair). It is made in two parts:
 
 - **Seen**: the photo's hair pixels that the fitted hair covers at the photo's view are
   written into the texels they show (:func:`project_hair`), weighted by how squarely the
@@ -11,8 +11,10 @@ length). It is made in two parts:
   feathered overlaps (:func:`quilt_hair`), so that the sides and back have the photo's
   strands, curls and spread of colour rather than a flat colour.
 
-The renderer multiplies it by the hair colour (:func:`~head360cli.model.deferred.
-with_hair_detail`), so ``swap-hair --color`` recolours the same strands.
+The fit then scales it per channel until the hair renders as the photo's
+(:func:`~head360cli.fitting.stages.texture_hair`). The renderer multiplies it by the
+hair colour (:func:`~head360cli.model.deferred.with_hair_detail`), so ``swap-hair
+--color`` recolours the same strands.
 """
 
 from __future__ import annotations
