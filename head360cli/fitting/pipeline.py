@@ -565,10 +565,10 @@ def fit_photo(photo: str | Path, out: str | Path, config: FitConfig | None = Non
                         colour_gain=inv.gain)
     timings["preview"] = time.perf_counter() - t0
     detail = None
+    t0 = time.perf_counter()
     if head.hair is not None and gen.kind == "deferred" and cfg.hair_texture:
-        t0 = time.perf_counter()
         detail = stages.texture_hair(gen, head, frame, bald, inv)
-        timings["hair_placement"] += time.perf_counter() - t0
+    timings["hair_texture"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     preview = stages.render_preview(head, frame, bald, inv, invert_cfg.grey)
     timings["preview"] += time.perf_counter() - t0

@@ -84,7 +84,8 @@ def test_full_fit_writes_head_preview_and_summary(fitted_astronaut):
     assert fitted_astronaut.code == 0, fitted_astronaut.err
     s = fitted_astronaut.summary
     assert set(s["timings"]) >= {"detect", "shape", "parse", "classify", "bald_target",
-                                 "invert", "preview", "write", "total"}
+                                 "invert", "hair_placement", "hair_texture", "preview",
+                                 "write", "total"}
     assert s["files"] == {"head": str(out), "preview": str(tmp_path / "me_preview.png"),
                           "summary": str(tmp_path / "me.json")}
     assert json.loads((tmp_path / "me.json").read_text()) == s
