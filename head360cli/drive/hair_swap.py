@@ -55,7 +55,9 @@ def parse_colour(text) -> tuple[str, np.ndarray]:
         except ValueError:
             srgb = None
         if srgb is not None:
-            rgb = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+            from head360cli.io.colour import srgb_to_linear
+
+            rgb = srgb_to_linear(srgb)
     elif t.count(",") == 2:
         try:
             rgb = np.array([float(v) for v in t.split(",")])

@@ -379,8 +379,9 @@ exponent, which is the corpus light's colour, not the hair's."""
 def _linear_median(rgb: np.ndarray, hair: np.ndarray, white: float = 255.0) -> np.ndarray:
     """``(3,)`` per-channel median of the hair pixels of ``rgb`` (sRGB, ``white`` its
     largest value: 255 for uint8, 1 for floats), linearised."""
-    srgb = np.median(rgb[hair].astype(np.float64) / white, axis=0)
-    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    from head360cli.io.colour import srgb_to_linear
+
+    return srgb_to_linear(np.median(rgb[hair].astype(np.float64) / white, axis=0))
 
 
 def hair_colour(rgb: np.ndarray, hair: np.ndarray,

@@ -53,17 +53,14 @@ SEEN_DENSITY = 0.5
 alone; less is blended with the patches."""
 
 
-def _linear(rgb: np.ndarray) -> np.ndarray:
-    v = rgb.astype(np.float32) / 255.0
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
 def hair_ratio(crop: np.ndarray, hair: np.ndarray, gain: np.ndarray | None = None
                ) -> np.ndarray:
     """``(H, W, 3)`` float32: the crop ``(H, W, 3)`` uint8 in linear RGB, without the
     light's ``gain (3,)`` if given, over the median of its ``hair (H, W)`` pixels,
     clipped to [0, :data:`MAX_DETAIL`]."""
-    lin = _linear(crop)
+    from head360cli.io.colour import srgb_to_linear
+
+    lin = srgb_to_linear(crop.astype(np.float32) / 255.0).astype(np.float32)
     if gain is not None:
         lin = lin / np.asarray(gain, np.float32)
     median = np.maximum(np.median(lin[hair], axis=0), 1e-3)

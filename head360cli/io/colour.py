@@ -1,5 +1,5 @@
-"""Colour spaces of photos: ICC display profiles made from primaries, for images that
-describe their colours without one.
+"""Colour spaces of photos: the sRGB transfer curve (:func:`srgb_to_linear`), and ICC
+display profiles made from primaries, for images that describe their colours without one.
 
 A HEIF or AVIF photo may say its colour space as ``nclx`` code points (ITU-T H.273: the
 primaries, the transfer curve) instead of an embedded ICC profile; ``pillow-heif`` hands
@@ -15,10 +15,17 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SRGB_TRC", "matrix_profile", "nclx_profile"]
+__all__ = ["SRGB_TRC", "matrix_profile", "nclx_profile", "srgb_to_linear"]
 
 SRGB_TRC = "srgb"
 """The sRGB transfer curve (a linear toe, then a 2.4 power), for :func:`matrix_profile`."""
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """Linear light of sRGB values ``v`` in [0, 1] (any shape; the sRGB transfer curve:
+    a linear toe, then a 2.4 power)."""
+    v = np.asarray(v)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
 
 _D50 = np.array([0.9642, 1.0, 0.8249])
 """The ICC profile connection space's white (D50), XYZ."""
@@ -126,7 +133,7 @@ def _curve_tag(trc: float | str) -> bytes:
     """A ``curv`` tag: one u8Fixed8 exponent, or 1024 samples of the sRGB curve."""
     if trc == SRGB_TRC:
         v = np.linspace(0.0, 1.0, 1024)
-        linear = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+        linear = srgb_to_linear(v)
         samples = np.round(linear * 65535).astype(">u2").tobytes()
         return b"curv" + bytes(4) + struct.pack(">I", 1024) + samples
     return b"curv" + bytes(4) + struct.pack(">IH", 1, round(float(trc) * 256))
