@@ -1,11 +1,11 @@
 """Pure batched mesh functions: face and vertex normals, texture coordinates across a
-wrap-around seam."""
+wrap-around seam, distances to a shell's open edge."""
 
 from __future__ import annotations
 
 import torch
 
-__all__ = ["face_normals", "seam_uv", "vertex_normals"]
+__all__ = ["edge_distance", "face_normals", "seam_uv", "vertex_normals"]
 
 
 def face_normals(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
@@ -80,3 +80,62 @@ def seam_uv(faces: torch.Tensor, uv: torch.Tensor) -> tuple[torch.Tensor, torch.
     one = torch.zeros_like(uv)
     one[:, 0] = 1.0
     return torch.cat([uv, uv + one]), faces + shifted.to(faces.dtype) * uv.shape[0]
+
+
+def edge_distance(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
+                  reach: float, rounds: int = 12) -> torch.Tensor:
+    """Each vertex's distance along its strand to the strand's end in a hair shell
+    (its tip, or its root at a hairline), capped at ``reach``.
+
+    The shell is a grid whose columns (one u each) are strands running in v. It is
+    closed by walls joining its outer layer to the inner one, which shares the outer's
+    texture coordinates: a face with two distinct corners at the same coordinates is a
+    wall, and the twins of a wall across a column (its corners at one v) end the strands
+    there where such twins run on along the row on both sides (a staircase, such as the side of
+    the face's opening cut from the grid, is where strands pass by). The ring round the
+    crown (v = 0) ends none; pieces without walls (tails, buns) are
+    ``reach`` everywhere. Distances run along the columns only, so the side of a
+    parting or of the face's opening, where strands run alongside the edge, stays
+    dense.
+
+    Args:
+        verts: ``(V, 3)``.
+        faces: ``(F, 3)``, which index ``uv`` too.
+        uv: ``(V, 2)``.
+        reach: Largest distance kept (metres).
+        rounds: Relaxation rounds (a strand of more edges than this is not followed).
+
+    Returns:
+        ``(V,)`` distances in [0, reach]; shapes depend on the input's only (export).
+    """
+    t = uv[faces]  # (F, 3, 2)
+    v = t[..., 1]
+    across = ((v.amax(1) - v.amin(1)) < 1e-9) & (v.amax(1) > 0)
+    end = torch.zeros(verts.shape[0], dtype=verts.dtype, device=verts.device)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        # two distinct corners at one texture point (a padded face repeats one corner):
+        # both are on a wall across a column
+        twin = (((t[:, i] - t[:, j]).abs().sum(-1) < 1e-9) & (faces[:, i] != faces[:, j])
+                & across).to(verts.dtype)
+        for k in (i, j):
+            end = end.scatter_reduce(0, faces[:, k], twin, reduce="amax")
+    a = torch.cat([faces[:, 0], faces[:, 1], faces[:, 2]])
+    b = torch.cat([faces[:, 1], faces[:, 2], faces[:, 0]])
+    a, b = torch.cat([a, b]), torch.cat([b, a])
+    # an end counts where the ends run on along the row on both sides: a staircase
+    # (the side of the face's opening, cut from the grid) is where strands pass by
+    du = uv[b, 0] - uv[a, 0]
+    du = du - torch.round(du)  # across the seam in u
+    row = (end[a] * end[b] > 0) & ((uv[b, 1] - uv[a, 1]).abs() < 1e-9)
+    zeros = torch.zeros_like(end)
+    left = zeros.scatter_reduce(0, a, (row & (du < 0)).to(end.dtype), reduce="amax")
+    right = zeros.scatter_reduce(0, a, (row & (du > 0)).to(end.dtype), reduce="amax")
+    end = end * left * right
+    dist = float(reach) * (1.0 - end)
+    # along a column only: elsewhere the step is at least reach, so it changes nothing
+    along = (uv[a, 0] - uv[b, 0]).abs() < 1e-9
+    length = (verts[a] - verts[b]).norm(dim=-1)
+    length = torch.where(along, length, torch.full_like(length, float(reach)))
+    for _ in range(rounds):
+        dist = dist.scatter_reduce(0, b, dist[a] + length, reduce="amin")
+    return dist.clamp(max=reach)

@@ -29,10 +29,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from head360cli.geometry.mesh_ops import seam_uv
+from head360cli.geometry.mesh_ops import edge_distance, seam_uv
 from head360cli.geometry.rasterize import exporting
 from head360cli.model.config import GeneratorConfig
-from head360cli.model.gbuffer import GBuffer, MeshPart, gbuffer
+from head360cli.model.gbuffer import FADE, GBuffer, MeshPart, gbuffer
 from head360cli.model.generator import Hair, _hair_groups
 from head360cli.model.networks import (
     GeneratorBase,
@@ -140,6 +140,9 @@ class DeferredGenerator(GeneratorBase):
         faces_uv: ``(F, 3)`` indices into ``uv``.
         normal_groups: ``(G, K)`` vertices welded for normals (the template's), or
             ``None``.
+        under_hair: ``(F,)`` bool, the triangles hair is drawn over when it is close
+            behind them (the ears; :data:`~head360cli.model.gbuffer.EAR_DEPTH`), or
+            ``None``.
     """
 
     kind = "deferred"
@@ -150,7 +153,8 @@ class DeferredGenerator(GeneratorBase):
     and the learnt texture stays (measured: docs/decisions.md)."""
 
     def __init__(self, cfg: GeneratorConfig, faces: np.ndarray, uv: np.ndarray,
-                 faces_uv: np.ndarray, normal_groups: np.ndarray | None = None) -> None:
+                 faces_uv: np.ndarray, normal_groups: np.ndarray | None = None,
+                 under_hair: np.ndarray | None = None) -> None:
         if cfg.pixel_samples not in (1, 2, 4):
             raise ValueError(f"expected pixel_samples 1, 2 or 4, found {cfg.pixel_samples}")
         super().__init__(cfg)
@@ -160,6 +164,8 @@ class DeferredGenerator(GeneratorBase):
                              torch.as_tensor(np.asarray(faces_uv), dtype=torch.long))
         self.normal_groups = (None if normal_groups is None else
                               torch.as_tensor(np.asarray(normal_groups), dtype=torch.long))
+        self.register_buffer("under_hair", None if under_hair is None else torch.as_tensor(
+            np.asarray(under_hair), dtype=torch.bool), persistent=False)
         self.cull_rays = self.hair_rays_only = True  # hex-plane settings; nothing here
         self.texture_generator = TextureGenerator.from_config(cfg)
         self.shader = PixelShader(cfg.texture_channels, cfg.hidden, cfg.shader_extra)
@@ -238,15 +244,20 @@ class DeferredGenerator(GeneratorBase):
                 hair: Hair | None = None, cache: dict | None = None) -> GBuffer:
         """The G-buffer of posed heads ``verts (B, V, 3)`` (and their hair) from cameras
         ``c2w (B, 4, 4)`` with ``intrinsics (B, 3, 3)`` at the current image size;
-        ``cache``: see :meth:`forward`'s ``reuse``."""
-        head = MeshPart(verts, self.faces, self.uv, self.faces_uv, self.normal_groups)
+        ``cache``: see :meth:`forward`'s ``reuse``. Outside training the hair is
+        see-through near its open edge and drawn over the ears
+        (:mod:`~head360cli.model.gbuffer`); training keeps the corpus's opaque hair."""
+        soft = not self.training
+        head = MeshPart(verts, self.faces, self.uv, self.faces_uv, self.normal_groups,
+                        under_hair=self.under_hair if soft else None)
         parts = []
         if hair is not None:
             items = [i for i, m in enumerate(hair.meshes) if m is not None]
             for g in _hair_groups(hair, items):
                 hv, hf, huv = hair.meshes[g[0]]
                 wrapped, faces_uv = seam_uv(hf, huv)
-                parts.append((MeshPart(hv[None], hf, wrapped, faces_uv),
+                edge = edge_distance(hv, hf, huv, FADE) if soft else None
+                parts.append((MeshPart(hv[None], hf, wrapped, faces_uv, edge=edge),
                               torch.tensor(g, device=verts.device)))
         still = None if cache is None else cache.get("still_faces")
         return gbuffer(head, c2w, intrinsics, self.cfg.image_res, self.cfg.pixel_samples,
@@ -286,6 +297,17 @@ class DeferredGenerator(GeneratorBase):
                     torch.full_like(sel, side), at))
         values, residual = self._net(self.shader, feats, buf.normal, buf.view,
                                      is_hair[:, None].to(feats.dtype))
+        if buf.alpha is not None:
+            # see-through hair over the head's own surface behind it
+            alpha = buf.alpha.to(values.dtype)[:, None]
+            values = values * alpha
+            under = buf.under
+            below = read_texels(table, view_of.index_select(0, under) * (res * res),
+                                torch.full_like(under, res), buf.under_uv)
+            shaded, _ = self._net(self.shader, below, buf.under_normal,
+                                  buf.view.index_select(0, under),
+                                  below.new_zeros(len(under), 1))
+            values = values.index_add(0, under, shaded * (1 - alpha.index_select(0, under)))
         out = values.new_zeros(r * h * w, values.shape[1]).index_copy(0, index, values)
         return buf.mean(out.view(r, h, w, -1).permute(0, 3, 1, 2)), residual.abs().mean()
 
@@ -350,8 +372,7 @@ class DeferredGenerator(GeneratorBase):
             if view_rays is not None:
                 view_rays["gbuffer"] = buf
         image, residual = self.shade(buf, texture, hair)
-        coverage = buf.mean(buf.mask[:, None].to(image.dtype))
-        hair_alpha = buf.mean(buf.hair_mask[:, None].to(image.dtype))
+        coverage, hair_alpha = buf.coverage(image.dtype)
         if self.refine is not None:
             rgb, alpha = self._net(self.refine, image, coverage)
         else:

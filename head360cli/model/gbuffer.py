@@ -5,19 +5,26 @@ networks that turn a G-buffer into colour are in :mod:`head360cli.model.networks
 
 The subpixel offsets are the corpus renderer's (:mod:`head360cli.synth.render`), so a
 G-buffer of 2 samples averages to the same coverage as the corpus's antialiased views.
+
+A hair mesh given its distances to its open edge is see-through there
+(:func:`strand_opacity`: strands ending at staggered lengths), and where it is, the head
+surface behind it is kept too, so that the shader can blend the two: hair with soft
+edges instead of a cut-out shell.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import torch
 
 from head360cli.geometry.cameras import project
 from head360cli.geometry.mesh_ops import vertex_normals
 from head360cli.geometry.rasterize import rasterize
 
-__all__ = ["OFFSETS", "GBuffer", "MeshPart", "gbuffer"]
+__all__ = ["EAR_DEPTH", "FADE", "GRAZE", "OFFSETS", "STRANDS", "GBuffer", "MeshPart", "gbuffer",
+           "strand_opacity"]
 
 OFFSETS: dict[int, tuple[tuple[float, float], ...]] = {
     1: ((0.0, 0.0),),
@@ -26,18 +33,67 @@ OFFSETS: dict[int, tuple[tuple[float, float], ...]] = {
 }
 """Subpixel sample offsets (pixels) for 1, 2 and 4 samples per pixel."""
 
+FADE = 0.025
+"""How far in from its open edge (metres along the surface) hair becomes opaque."""
+
+STRANDS = 180
+"""Strand bundles round the head (in the hair's u) whose ends are staggered over
+:data:`FADE`: about 3 pixels each at 256 pixels, so the edge reads as strand tips."""
+
+STAGGER = 0.5
+"""Share of :data:`FADE` over which the bundles' ends are spread."""
+
+_STAGGERS = torch.tensor(np.random.default_rng(0).uniform(0.0, 1.0, STRANDS),
+                         dtype=torch.float32)
+"""Where each bundle's end lies within the stagger (a table, not a hash of floats, so
+torch and an exported graph draw the same strands)."""
+
+GRAZE = 0.5
+"""Facing (cosine of the view to the surface's normal) under which see-through hair
+grows denser."""
+
+EAR_DEPTH = 0.02
+"""Hair up to this far (metres) behind an ear is drawn over it: an ear stands out of
+the skull further than a thin shell of hair over it, and pierced the hair."""
+
+
+def strand_opacity(dist: torch.Tensor, u: torch.Tensor, facing: torch.Tensor
+                   ) -> torch.Tensor:
+    """Opacity in [0, 1] of hair points at ``dist`` (metres, any shape) from the hair's
+    open edge, ``u`` round the head and ``facing`` (the cosine between the surface's
+    normal and the view; same shape). Seen squarely it is 0 at the edge and 1 from
+    :data:`FADE` in, each of :data:`STRANDS` bundles reaching 1 at its own distance (a
+    fixed draw per bundle, interpolated between bundles, so it is smooth in u). Seen
+    obliquely, strands overlap: the transparency falls with ``facing`` under
+    :data:`GRAZE`, to none edge-on (the side of a curtain of hair seen from the front
+    is dense, where only its nearest layer is drawn)."""
+    x = torch.remainder(u, 1.0) * STRANDS
+    i0 = torch.floor(x)
+    w = x - i0
+    table = _STAGGERS.to(device=u.device, dtype=u.dtype)
+    first = i0.long().clamp(0, STRANDS - 1)
+    jitter = table[first] * (1 - w) + table[(first + 1) % STRANDS] * w
+    t = (dist / FADE).clamp(0.0, 1.0)
+    square = ((t - STAGGER * jitter) / (1.0 - STAGGER)).clamp(0.0, 1.0)
+    return 1.0 - (1.0 - square) * (facing.abs() / GRAZE).clamp(max=1.0)
+
 
 @dataclasses.dataclass
 class MeshPart:
     """One mesh drawn into a G-buffer: ``verts (B, V, 3)`` in head coordinates,
     ``faces (F, 3)``, texture coordinates ``uv (T, 2)`` indexed by ``faces_uv (F, 3)``,
-    and optional ``normal_groups (G, K)`` (vertices welded for normals)."""
+    and optional ``normal_groups (G, K)`` (vertices welded for normals); a hair mesh's
+    ``edge (V,)``, each vertex's distance to its open edge (metres; it is see-through
+    there), and a head's ``under_hair (F,)`` bool, its triangles that hair covers
+    (ears: :data:`EAR_DEPTH`)."""
 
     verts: torch.Tensor
     faces: torch.Tensor
     uv: torch.Tensor
     faces_uv: torch.Tensor
     normal_groups: torch.Tensor | None = None
+    edge: torch.Tensor | None = None
+    under_hair: torch.Tensor | None = None
 
 
 @dataclasses.dataclass
@@ -57,6 +113,11 @@ class GBuffer:
         mask: ``(R, H, W)`` bool: a surface covers the sample point.
         hair_mask: ``(R, H, W)`` bool: that surface is the hair mesh.
         depth: ``(R, H, W)`` camera depth of the visible surface (0 where none).
+        alpha: ``(n,)`` the opacity of each point's surface (1 but near the hair's
+            edge), or ``None``: all opaque.
+        under: ``(k,)`` the points (indices into the ``n``) that are not opaque and have
+            the head's surface behind them; ``under_uv (k, 2)`` and ``under_normal
+            (k, 3)`` are that surface's.
     """
 
     samples: int
@@ -68,6 +129,10 @@ class GBuffer:
     mask: torch.Tensor
     hair_mask: torch.Tensor
     depth: torch.Tensor
+    alpha: torch.Tensor | None = None
+    under: torch.Tensor | None = None
+    under_uv: torch.Tensor | None = None
+    under_normal: torch.Tensor | None = None
 
     @property
     def views(self) -> int:
@@ -78,6 +143,25 @@ class GBuffer:
         """Per-sample images ``(R, C, H, W)`` -> ``(B, C, H, W)``, averaged over the
         samples."""
         return images.view(self.samples, self.views, *images.shape[1:]).mean(0)
+
+    def points_image(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-point ``values (n,)`` -> ``(B, 1, H, W)``, zero where no surface is,
+        averaged over the samples."""
+        r, h, w = self.mask.shape
+        flat = values.new_zeros(r * h * w).index_copy(0, self.index, values)
+        return self.mean(flat.view(r, 1, h, w))
+
+    def coverage(self, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(B, 1, H, W)`` images of the share of each pixel covered by any surface, and
+        by the hair (its opacity counted)."""
+        if self.alpha is None:
+            return (self.mean(self.mask[:, None].to(dtype)),
+                    self.mean(self.hair_mask[:, None].to(dtype)))
+        cover = self.alpha.to(dtype)
+        if self.under is not None:
+            cover = cover.index_add(0, self.under, 1.0 - cover.index_select(0, self.under))
+        return self.points_image(cover), self.points_image(
+            self.alpha.to(dtype) * self.hair.to(dtype))
 
 
 def _sample_cameras(c2w: torch.Tensor, intrinsics: torch.Tensor, samples: int
@@ -113,10 +197,11 @@ def _fragments(part: MeshPart, cams: torch.Tensor, k: torch.Tensor, size: int,
 
 
 def _attributes(part: MeshPart, frags, at: torch.Tensor, rows: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Texture coordinates ``(m, 2)`` and normals ``(m, 3)`` (not yet of unit length) of
-    one mesh's fragments at flat sample points ``at (m,)``, whose view of ``part.verts``
-    is ``rows (m,)``."""
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Texture coordinates ``(m, 2)``, normals ``(m, 3)`` (not yet of unit length) and
+    distances to the open edge ``(m,)`` (``None`` without ``part.edge``) of one mesh's
+    fragments at flat sample points ``at (m,)``, whose view of ``part.verts`` is
+    ``rows (m,)``."""
     fid = frags.face_id.reshape(-1).index_select(0, at)
     bary = frags.bary.reshape(-1, 3).index_select(0, at)[..., None]
     uv = (part.uv[part.faces_uv.index_select(0, fid)] * bary).sum(1)
@@ -124,7 +209,8 @@ def _attributes(part: MeshPart, frags, at: torch.Tensor, rows: torch.Tensor
     corners = part.faces.index_select(0, fid)  # (m, 3)
     flat = rows[:, None] * normals.shape[1] + corners
     normal = (normals.reshape(-1, 3)[flat.reshape(-1)].view(-1, 3, 3) * bary).sum(1)
-    return uv, normal
+    edge = None if part.edge is None else (part.edge[corners] * bary[..., 0]).sum(1)
+    return uv, normal, edge
 
 
 def _view_directions(cams: torch.Tensor, k: torch.Tensor, h: int, w: int) -> torch.Tensor:
@@ -165,8 +251,13 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
     b = c2w.shape[0]
     cams, k = _sample_cameras(c2w, intrinsics, samples)
     frags = _fragments(head, cams, k, size, still, cache)
-    mask = frags.face_id >= 0
+    mask = head_mask = frags.face_id >= 0
     depth = frags.depth
+    slack = None  # how far behind the head's surface hair still wins (ears)
+    if head.under_hair is not None and hairs:
+        slack = head.under_hair.index_select(0, frags.face_id.clamp(min=0).reshape(-1)
+                                             ).view_as(mask) & mask
+        slack = slack.to(depth.dtype) * EAR_DEPTH
     hair_mask = torch.zeros_like(mask)
     drawn = []  # per hair mesh: (mesh, its rows, its fragments)
     for hair, items in hairs:
@@ -182,7 +273,8 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
                                 size)
             if cache is not None:
                 cache[hkey] = hfrags
-        nearer = (hfrags.face_id >= 0) & (~mask[rows] | (hfrags.depth < depth[rows]))
+        limit = depth[rows] if slack is None else depth[rows] + slack[rows]
+        nearer = (hfrags.face_id >= 0) & (~mask[rows] | (hfrags.depth < limit))
         hair_mask = hair_mask.index_copy(0, rows, nearer)
         depth = depth.index_copy(0, rows, torch.where(nearer, hfrags.depth, depth[rows]))
         mask = mask.index_copy(0, rows, mask[rows] | nearer)
@@ -197,6 +289,9 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
     at = index.index_select(0, own)
     got = _attributes(head, frags, at, row.index_select(0, own) % b)
     uv, normal = uv.index_copy(0, own, got[0]), normal.index_copy(0, own, got[1])
+    edge = None  # distances to the hair's open edge (the head's points: FADE)
+    if any(hair.edge is not None for hair, _, _ in drawn):
+        edge = torch.zeros_like(index, dtype=c2w.dtype) + FADE
     for hair, rows, hfrags in drawn:
         # the hair's fragments are stored for its own rows: map each point's row there
         slot = torch.full((cams.shape[0],), -1, dtype=torch.long, device=c2w.device)
@@ -206,6 +301,8 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
             h * w)
         got = _attributes(hair, hfrags, local, torch.zeros_like(mine))
         uv, normal = uv.index_copy(0, mine, got[0]), normal.index_copy(0, mine, got[1])
+        if got[2] is not None:
+            edge = edge.index_copy(0, mine, got[2])
     normal = torch.nn.functional.normalize(normal, dim=-1)
     if cache is None:
         view = _view_directions(cams, k, h, w)
@@ -214,4 +311,14 @@ def gbuffer(head: MeshPart, c2w: torch.Tensor, intrinsics: torch.Tensor, size: i
         if view is None:
             view = cache["view"] = _view_directions(cams, k, h, w)
     view = view.reshape(-1, 3).index_select(0, index)
-    return GBuffer(samples, index, uv, normal, view, is_hair, mask, hair_mask, depth)
+    alpha = under = under_uv = under_normal = None
+    if edge is not None:
+        alpha = strand_opacity(edge, uv[:, 0], (normal * view).sum(-1))
+        # where the hair is see-through, the head's own surface behind it is kept too
+        under = torch.nonzero((alpha < 1) & head_mask.reshape(-1).index_select(0, index)
+                              ).squeeze(1)
+        got = _attributes(head, frags, index.index_select(0, under),
+                          row.index_select(0, under) % b)
+        under_uv, under_normal = got[0], torch.nn.functional.normalize(got[1], dim=-1)
+    return GBuffer(samples, index, uv, normal, view, is_hair, mask, hair_mask, depth,
+                   alpha, under, under_uv, under_normal)

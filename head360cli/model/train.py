@@ -169,8 +169,9 @@ def build_generator(cfg: GeneratorConfig) -> nn.Module:
     if cfg.renderer == "deferred":
         from head360cli.model.deferred import DeferredGenerator
 
+        ears = [topo.part_names.index(n) for n in ("ear_l", "ear_r")]
         return DeferredGenerator(cfg, topo.faces, topo.uv, topo.faces_uv,
-                                 topo.normal_groups)
+                                 topo.normal_groups, np.isin(topo.face_parts, ears))
     if cfg.renderer != "hexplane":
         raise ValueError(f"expected renderer deferred or hexplane, found {cfg.renderer!r}")
     return Generator(cfg, topo.faces, topo.uv, topo.faces_uv)

@@ -230,3 +230,61 @@ def test_frames_of_a_still_camera_draw_what_no_frame_moves_once(parts, monkeypat
     assert (reused - fresh).abs().max() < 1e-5
     # one still pass, one hair pass, then the moving triangles once a frame
     assert calls == 2 + 4 and sum(d is not None for d in drawn[:calls]) == 5
+
+
+def test_hair_ends_are_see_through_over_the_head_and_ears_stay_under_it(parts):
+    """Outside training the hair's strand ends blend over what is behind them (the
+    head's own surface, shaded, or the backdrop), its hair alpha fractional there, and
+    hair close behind an ear is drawn over it; training keeps the corpus's opaque hair
+    with the ears drawn by depth alone."""
+    model, verts, c2w, k = parts
+    gen = _gen()
+    neutral = model.vertices(np.zeros(model.rank), np.zeros(52))
+    hair = hair_for(neutral, [3], np.array([[0.3, 0.2, 0.1]])).repeat(2)  # a bob
+    tex = torch.rand(2, 16, 32, 32)
+    with torch.no_grad():
+        made = gen.prepare_hair(hair)
+        buf = gen.gbuffer(verts, c2w, k, made)
+        out = gen(verts, c2w, k, texture=tex, hair=hair)
+        gen.train()
+        opaque_buf = gen.gbuffer(verts, c2w, k, made)
+        opaque = gen(verts, c2w, k, texture=tex, hair=hair)
+        gen.eval()
+    assert opaque_buf.alpha is None and buf.alpha is not None
+    thin = buf.alpha[buf.hair] < 1
+    assert 0 < int(thin.sum()) < 0.5 * int(buf.hair.sum())
+    assert bool((buf.alpha[~buf.hair] == 1).all())
+    # the head's surface is kept behind see-through hair points only
+    assert len(buf.under) > 0 and bool((buf.alpha[buf.under] < 1).all())
+    assert bool(buf.hair[buf.under].all()) and len(buf.under_uv) == len(buf.under)
+    soft = (out["hair_alpha"] > 0.02) & (out["hair_alpha"] < 0.98)
+    hard = (opaque["hair_alpha"] > 0.02) & (opaque["hair_alpha"] < 0.98)
+    assert int(soft.sum()) > 1.5 * int(hard.sum())
+    # the ears: drawn over by hair in the side view only where the hair is close behind
+    ear_faces = gen.under_hair
+    assert ear_faces is not None and 0 < int(ear_faces.sum()) < len(ear_faces) // 10
+    with torch.no_grad():
+        gen.under_hair = None
+        pierced = gen.gbuffer(verts, c2w, k, made)
+        gen.under_hair = ear_faces
+    assert int(buf.hair_mask.sum()) > int(pierced.hair_mask.sum())
+    assert bool((buf.hair_mask | ~pierced.hair_mask).all())  # hair only gains pixels
+
+
+def test_strand_opacity_rises_from_the_end_and_is_dense_edge_on():
+    from head360cli.model.gbuffer import FADE, STRANDS, strand_opacity
+
+    u = torch.rand(500, generator=torch.Generator().manual_seed(0))
+    square = torch.ones(500)
+    assert bool((strand_opacity(torch.zeros(500), u, square) == 0).all())
+    assert bool((strand_opacity(torch.full((500,), FADE), u, square) == 1).all())
+    mid = strand_opacity(torch.full((500,), 0.6 * FADE), u, square)
+    assert 0.1 < float(mid.mean()) < 0.9 and float(mid.std()) > 0.1  # staggered ends
+    steps = torch.linspace(0, FADE, 20)[:, None].expand(20, 500)
+    rising = strand_opacity(steps, u.expand(20, 500), torch.ones(20, 500))
+    assert bool((rising.diff(dim=0) >= 0).all())
+    assert bool((strand_opacity(torch.zeros(500), u, torch.zeros(500)) == 1).all())
+    # u wraps round the head: the same strands at u and u + 1
+    assert torch.allclose(strand_opacity(steps[5], u, square),
+                          strand_opacity(steps[5], u + 1, square), atol=1e-4)
+    assert STRANDS >= 100
