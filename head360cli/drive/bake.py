@@ -251,19 +251,23 @@ def _bake_deferred(renderer, size: int, progress: Any):
 
 
 def bake_hair_texture(renderer, size: int | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """The hair's texture for an export (a deferred generator's head with hair):
-    ``(uv (2H, 2), faces_uv (G, 3), texture (size, size, 3) uint8)``, each texel its
-    hair texture shaded as a view that faces it would shade it, with the normal of the
-    hair's vertices around it (the shell, its walls and any tails share the texture);
-    ``uv`` runs past 1 across the shell's seam (:func:`~head360cli.geometry.mesh_ops.
-    seam_uv`), so the texture repeats in u. ``size``: the hair texture's own side by
-    default (:data:`~head360cli.model.deferred.HAIR_TEXTURE_SIDE`). ``None`` for a bald
-    head."""
+    ``(uv (2H, 2), faces_uv (G, 3), texture (size, size, 4) uint8, shell (G,) bool)``.
+    Each texel's colour is its hair texture shaded as a view that faces it would shade
+    it, with the normal of the hair's vertices around it; its alpha is the shell's
+    opacity there seen squarely (:func:`~head360cli.model.gbuffer.strand_opacity`, from
+    the distances of the shell's vertices to their strands' ends). ``shell`` marks the
+    faces of the pieces with strand ends (the shell); the others (tails, buns) share the
+    texture's colour but not its alpha. ``uv`` runs past 1 across the shell's seam
+    (:func:`~head360cli.geometry.mesh_ops.seam_uv`), so the texture repeats in u.
+    ``size``: the hair texture's own side by default
+    (:data:`~head360cli.model.deferred.HAIR_TEXTURE_SIDE`). ``None`` for a bald head."""
     import cv2
     import torch
 
-    from head360cli.geometry.mesh_ops import seam_uv
+    from head360cli.geometry.mesh_ops import edge_distance, seam_uv
+    from head360cli.model.gbuffer import FADE, strand_opacity
 
     if renderer.hair is None or renderer.gen.kind != "deferred":
         return None
@@ -271,6 +275,8 @@ def bake_hair_texture(renderer, size: int | None = None
     size = planes.shape[-1] if size is None else size
     hv, hf, huv = (t.cpu() for t in renderer.hair.meshes[0])
     normals = _normals(hv.numpy(), hf.numpy())
+    edge = edge_distance(hv.float(), hf, huv.float(), FADE).double().numpy()
+    shell = _with_ends(hf.numpy(), len(hv), edge < FADE)
     uv = huv.numpy().astype(np.float64)
     tx = np.clip((uv[:, 0] % 1.0 * size).astype(np.int64), 0, size - 1)
     ty = np.clip((uv[:, 1] * size).astype(np.int64), 0, size - 1)
@@ -290,9 +296,39 @@ def bake_hair_texture(renderer, size: int | None = None
     centres = (torch.arange(size, dtype=torch.float32) + 0.5) / size
     at = torch.stack(torch.meshgrid(centres, centres, indexing="xy"), -1).reshape(-1, 2)
     colour = _shaded(renderer, planes, at, torch.as_tensor(grid.reshape(-1, 3)), True)
-    texture = np.clip(colour.numpy().reshape(size, size, 3) * 255 + 0.5, 0, 255)
+    # the distances to the strands' ends, texel by texel, from the shell's vertices
+    # (interpolated between its grid's rows by a vertical blur)
+    on = np.zeros(len(hv), bool)
+    on[hf.numpy()[shell].reshape(-1)] = True
+    dist = np.bincount(flat, edge * on, size * size)
+    seen = np.bincount(flat, on.astype(np.float64), size * size)
+    dist = (dist / np.maximum(seen, 1)).reshape(size, size)
+    dist = grow_fill(dist[..., None], (seen > 0).reshape(size, size).astype(np.float64))
+    dist = dist[..., 0].astype(np.float32)
+    dist = np.pad(dist, ((0, 0), (pad, pad)), mode="wrap")
+    dist = cv2.GaussianBlur(dist, (0, 0), 1.0)[:, pad:-pad]
+    alpha = strand_opacity(torch.as_tensor(dist.reshape(-1)), at[:, 0],
+                           torch.ones(size * size)).numpy()
+    rgba = np.concatenate([colour.numpy().reshape(size, size, 3),
+                           alpha.reshape(size, size, 1)], -1)
+    texture = np.clip(rgba * 255 + 0.5, 0, 255)
     wrapped, faces_uv = seam_uv(hf, huv)
-    return wrapped.numpy(), faces_uv.numpy(), texture.astype(np.uint8)
+    return wrapped.numpy(), faces_uv.numpy(), texture.astype(np.uint8), shell
+
+
+def _with_ends(faces: np.ndarray, count: int, ends: np.ndarray) -> np.ndarray:
+    """``(F,)`` bool: the faces of the connected pieces of a mesh (``count`` vertices)
+    that hold a vertex of ``ends (V,)``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a = np.concatenate([faces[:, 0], faces[:, 1]])
+    b = np.concatenate([faces[:, 1], faces[:, 2]])
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(count, count))
+    _, label = connected_components(graph, directed=False)
+    held = np.zeros(label.max() + 1, bool)
+    held[label[ends]] = True
+    return held[label[faces[:, 0]]]
 
 
 def _normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -313,10 +349,14 @@ def _parts(renderer, texture: np.ndarray | None, hair_colours: np.ndarray | None
                       targets=renderer.driven_deltas() if targets else None,
                       target_names=list(ARKIT52) if targets else None)]
     if renderer.hair is not None and hair_texture is not None:
+        # the shell blends its alpha; tails and buns share its colours, opaque
         hv, hf, _ = (t.cpu().numpy() for t in renderer.hair.meshes[0])
-        uv, faces_uv, image = hair_texture
-        parts.append(MeshPart("hair", hv.astype(np.float64), hf, uv, faces_uv, image,
-                              wrap_u=True))
+        uv, faces_uv, image, shell = hair_texture
+        for name, mine, img in (("hair", shell, image), ("hair_pieces", ~shell,
+                                                         image[..., :3])):
+            if mine.any():
+                parts.append(MeshPart(name, hv.astype(np.float64), hf[mine], uv,
+                                      faces_uv[mine], img, wrap_u=True))
     elif renderer.hair is not None and hair_colours is not None:
         hv, hf, _ = (t.cpu().numpy() for t in renderer.hair.meshes[0])
         parts.append(MeshPart("hair", hv.astype(np.float64), hf, colours=hair_colours))

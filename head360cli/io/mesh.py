@@ -41,7 +41,8 @@ class MeshPart:
     faces_uv: np.ndarray | None = None
     """``(F, 3)`` indices into ``uv`` (default: ``faces``)."""
     texture: np.ndarray | None = None
-    """``(H, W, 3)`` uint8 colour texture."""
+    """``(H, W, 3)`` uint8 colour texture, or ``(H, W, 4)`` with alpha (a GLB blends
+    it: ``alphaMode`` ``BLEND``)."""
     colours: np.ndarray | None = None
     """``(V, 3)`` uint8 per-vertex colours (used when there is no texture)."""
     wrap_u: bool = False
@@ -242,6 +243,8 @@ def write_glb(path: str | os.PathLike[str], parts: list[MeshPart],
             textures.append({"source": len(images) - 1, "sampler": samplers.index(sampler)})
             material["pbrMetallicRoughness"]["baseColorTexture"] = {
                 "index": len(textures) - 1}
+            if np.asarray(part.texture).shape[-1] == 4:
+                material["alphaMode"] = "BLEND"
         elif part.colours is not None:
             c = (np.asarray(part.colours, np.float64)[pos_idx] / 255.0) ** 2.2  # linear
             attributes["COLOR_0"] = buf.accessor(c, "VEC3", _ARRAY_BUFFER)

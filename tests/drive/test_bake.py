@@ -155,3 +155,16 @@ def test_texels_of_triangles_without_area_are_filled_not_baked(head_file):
     in_flat = flat[:, 1:] & flat[:, :-1]
     rest = ~flat[:, 1:] & ~flat[:, :-1] & frags.mask[0].numpy()[:, 1:]
     assert np.percentile(step[in_flat], 99) <= np.percentile(step[rest], 99)
+
+
+def test_the_glb_blends_the_pieces_with_strand_ends_and_keeps_the_others_opaque():
+    """The faces of connected pieces holding a strand end (the shell) are told apart
+    from the rest (tails, buns), which share the texture's colour but not its alpha."""
+    from head360cli.drive.bake import _with_ends
+
+    faces = np.array([[0, 1, 2], [1, 3, 2], [4, 5, 6], [7, 8, 9]])
+    ends = np.zeros(10, bool)
+    ends[3] = True
+    assert _with_ends(faces, 10, ends).tolist() == [True, True, False, False]
+    ends[9] = True
+    assert _with_ends(faces, 10, ends).tolist() == [True, True, False, True]

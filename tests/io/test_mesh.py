@@ -169,8 +169,13 @@ def test_exported_head_has_the_52_arkit_targets(head_file, tmp_path, run_cli):
     assert g["samplers"][g["textures"][head_material["pbrMetallicRoughness"][
         "baseColorTexture"]["index"]]["sampler"]]["wrapS"] == 33071
     hair_tex = np.asarray(scene.geometry["hair"].visual.material.baseColorTexture)
-    assert hair_tex.std() > 1 and 5 < hair_tex.mean() < 250  # coloured, not blank
+    assert hair_tex.std() > 1 and 5 < hair_tex[..., :3].mean() < 250  # coloured
     assert u_max is None or u_max[0] <= 1.1
+    # its strands' ends blend: an alpha channel, clear at the ends and opaque elsewhere
+    assert hair_material["alphaMode"] == "BLEND" and "alphaMode" not in head_material
+    assert hair_tex.shape[-1] == 4
+    alpha = hair_tex[..., 3]
+    assert alpha.min() == 0 and np.median(alpha) == 255 and (alpha < 255).mean() < 0.3
     r = run_cli("export-mesh", head_file, "-o", tmp_path / "head.stl")
     assert r.code == 3 and "glb or .obj" in r.err
 
