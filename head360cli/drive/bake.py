@@ -263,7 +263,6 @@ def bake_hair_texture(renderer, size: int | None = None
     (:func:`~head360cli.geometry.mesh_ops.seam_uv`), so the texture repeats in u.
     ``size``: the hair texture's own side by default
     (:data:`~head360cli.model.deferred.HAIR_TEXTURE_SIDE`). ``None`` for a bald head."""
-    import cv2
     import torch
 
     from head360cli.geometry.mesh_ops import edge_distance, seam_uv
@@ -275,7 +274,9 @@ def bake_hair_texture(renderer, size: int | None = None
     size = planes.shape[-1] if size is None else size
     hv, hf, huv = (t.cpu() for t in renderer.hair.meshes[0])
     normals = _normals(hv.numpy(), hf.numpy())
-    edge = edge_distance(hv.float(), hf, huv.float(), FADE).double().numpy()
+    edges = renderer.hair.edges  # made with the hair's textures (prepare_hair)
+    edge = (edges[0] if edges is not None else edge_distance(hv, hf, huv, FADE))
+    edge = edge.detach().cpu().double().numpy()
     shell = _with_ends(hf.numpy(), len(hv), edge < FADE)
     uv = huv.numpy().astype(np.float64)
     tx = np.clip((uv[:, 0] % 1.0 * size).astype(np.int64), 0, size - 1)
@@ -284,29 +285,15 @@ def bake_hair_texture(renderer, size: int | None = None
     # the shell's inner layer shares the outer's coordinates and faces inwards: only
     # normals that face away from the hair's middle count
     out = np.einsum("ij,ij->i", normals, hv.numpy() - hv.numpy().mean(0)) > 0
-    grid = np.stack([np.bincount(flat, normals[:, c] * out, size * size)
-                     for c in range(3)], -1)
-    count = np.bincount(flat, out.astype(np.float64), size * size)
-    grid = grid.reshape(size, size, 3) / np.maximum(count, 1).reshape(size, size, 1)
-    grid = grow_fill(grid, (count > 0).reshape(size, size).astype(np.float64))
-    pad = 8  # u wraps round: blur across the seam
-    grid = np.pad(grid.astype(np.float32), ((0, 0), (pad, pad), (0, 0)), mode="wrap")
-    grid = cv2.GaussianBlur(grid, (0, 0), 2.0)[:, pad:-pad]
+    grid = _texel_field(normals, out, flat, size, 2.0)
     grid = grid / np.maximum(np.linalg.norm(grid, axis=-1, keepdims=True), 1e-6)
     centres = (torch.arange(size, dtype=torch.float32) + 0.5) / size
     at = torch.stack(torch.meshgrid(centres, centres, indexing="xy"), -1).reshape(-1, 2)
     colour = _shaded(renderer, planes, at, torch.as_tensor(grid.reshape(-1, 3)), True)
     # the distances to the strands' ends, texel by texel, from the shell's vertices
-    # (interpolated between its grid's rows by a vertical blur)
     on = np.zeros(len(hv), bool)
     on[hf.numpy()[shell].reshape(-1)] = True
-    dist = np.bincount(flat, edge * on, size * size)
-    seen = np.bincount(flat, on.astype(np.float64), size * size)
-    dist = (dist / np.maximum(seen, 1)).reshape(size, size)
-    dist = grow_fill(dist[..., None], (seen > 0).reshape(size, size).astype(np.float64))
-    dist = dist[..., 0].astype(np.float32)
-    dist = np.pad(dist, ((0, 0), (pad, pad)), mode="wrap")
-    dist = cv2.GaussianBlur(dist, (0, 0), 1.0)[:, pad:-pad]
+    dist = _texel_field(edge[:, None], on, flat, size, 1.0)[..., 0]
     alpha = strand_opacity(torch.as_tensor(dist.reshape(-1)), at[:, 0],
                            torch.ones(size * size)).numpy()
     rgba = np.concatenate([colour.numpy().reshape(size, size, 3),
@@ -314,6 +301,24 @@ def bake_hair_texture(renderer, size: int | None = None
     texture = np.clip(rgba * 255 + 0.5, 0, 255)
     wrapped, faces_uv = seam_uv(hf, huv)
     return wrapped.numpy(), faces_uv.numpy(), texture.astype(np.uint8), shell
+
+
+def _texel_field(values: np.ndarray, use: np.ndarray, flat: np.ndarray, size: int,
+                 sigma: float) -> np.ndarray:
+    """``(size, size, C)`` float32: the mean of the vertices' ``values (V, C)`` that
+    ``use (V,)`` marks in each texel ``flat (V,)`` (row by row) lies in, grown into the
+    empty texels and blurred by ``sigma`` texels, wrapping round in u."""
+    import cv2
+
+    count = np.bincount(flat, use.astype(np.float64), size * size)
+    grid = np.stack([np.bincount(flat, values[:, c] * use, size * size)
+                     for c in range(values.shape[1])], -1)
+    grid = grid.reshape(size, size, -1) / np.maximum(count, 1).reshape(size, size, 1)
+    grid = grow_fill(grid, (count > 0).reshape(size, size).astype(np.float64))
+    pad = 8
+    grid = np.pad(grid.astype(np.float32), ((0, 0), (pad, pad), (0, 0)), mode="wrap")
+    blurred = cv2.GaussianBlur(grid, (0, 0), sigma)
+    return blurred.reshape(size, size + 2 * pad, -1)[:, pad:-pad]
 
 
 def _with_ends(faces: np.ndarray, count: int, ends: np.ndarray) -> np.ndarray:

@@ -89,14 +89,13 @@ def edge_distance(verts: torch.Tensor, faces: torch.Tensor, uv: torch.Tensor,
 
     The shell is a grid whose columns (one u each) are strands running in v. It is
     closed by walls joining its outer layer to the inner one, which shares the outer's
-    texture coordinates: a face with two distinct corners at the same coordinates is a
-    wall, and the twins of a wall across a column (its corners at one v) end the strands
-    there where such twins run on along the row on both sides (a staircase, such as the side of
-    the face's opening cut from the grid, is where strands pass by). The ring round the
-    crown (v = 0) ends none; pieces without walls (tails, buns) are
-    ``reach`` everywhere. Distances run along the columns only, so the side of a
-    parting or of the face's opening, where strands run alongside the edge, stays
-    dense.
+    texture coordinates: two distinct corners of a face at one texture point are twins
+    on a wall. Twins on a wall across a column (the face's corners at one v) end their
+    strands there, where twins run on along the row on both sides: a staircase (the
+    side of the face's opening, cut from the grid) is where strands pass by. The ring
+    round the crown (v = 0) ends none; pieces without walls (tails, buns) are ``reach``
+    everywhere. Distances run along the columns only, so the side of a parting or of
+    the face's opening, where strands run alongside the edge, stays dense.
 
     Args:
         verts: ``(V, 3)``.

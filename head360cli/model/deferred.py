@@ -223,7 +223,8 @@ class DeferredGenerator(GeneratorBase):
         """The same hair with its textures made now (kept in ``Hair.planes``), so that
         renders of many frames or views reuse them; outside training they are
         :data:`HAIR_TEXTURE_SIDE` texels a side, and an item with a ``Hair.detail``
-        takes its albedo from it (:func:`with_hair_detail`)."""
+        takes its albedo from it (:func:`with_hair_detail`); its ``Hair.edges`` too
+        (renders make the strand ends see-through from them)."""
         items = [i for i, m in enumerate(hair.meshes) if m is not None]
         textures: list[torch.Tensor | None] = [None] * len(hair.meshes)
         if items:
@@ -238,7 +239,15 @@ class DeferredGenerator(GeneratorBase):
                     made[id(hair.meshes[i])] = with_hair_detail(tex[j:j + 1], detail,
                                                                 hair.colour[i])
                 textures[i] = made.setdefault(id(hair.meshes[i]), tex[j:j + 1])
-        return dataclasses.replace(hair, planes=textures)
+        edges = None  # training draws the corpus's opaque hair
+        if not self.training:
+            edges, done = [None] * len(hair.meshes), {}
+            for i in items:
+                key = id(hair.meshes[i])
+                if key not in done:
+                    done[key] = edge_distance(*hair.meshes[i], FADE)
+                edges[i] = done[key]
+        return dataclasses.replace(hair, planes=textures, edges=edges)
 
     def gbuffer(self, verts: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor,
                 hair: Hair | None = None, cache: dict | None = None) -> GBuffer:
@@ -256,7 +265,10 @@ class DeferredGenerator(GeneratorBase):
             for g in _hair_groups(hair, items):
                 hv, hf, huv = hair.meshes[g[0]]
                 wrapped, faces_uv = seam_uv(hf, huv)
-                edge = edge_distance(hv, hf, huv, FADE) if soft else None
+                edge = None
+                if soft:  # made once by prepare_hair, or here (an exported graph)
+                    edge = (hair.edges[g[0]] if hair.edges is not None
+                            else edge_distance(hv, hf, huv, FADE))
                 parts.append((MeshPart(hv[None], hf, wrapped, faces_uv, edge=edge),
                               torch.tensor(g, device=verts.device)))
         still = None if cache is None else cache.get("still_faces")

@@ -83,6 +83,10 @@ class Hair:
         detail: Per item ``(3, A, A)`` the hair's albedo over its colour in strand
             coordinates (a fit's, :mod:`~head360cli.fitting.hair_texture`), or ``None``
             (the generator's own strands); ``None`` for all: none has one.
+        edges: Per item ``(H,)`` its vertices' distances along their strands to the
+            strands' ends (:func:`~head360cli.geometry.mesh_ops.edge_distance`), made
+            once by the deferred generator's ``prepare_hair``, or ``None``: made on
+            every render that needs them.
     """
 
     meshes: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]
@@ -90,6 +94,7 @@ class Hair:
     colour: torch.Tensor
     planes: list[torch.Tensor | None] | None = None
     detail: list[torch.Tensor | None] | None = None
+    edges: list[torch.Tensor | None] | None = None
 
     def to(self, device: torch.device | str) -> Hair:
         def moved(items):
@@ -98,13 +103,14 @@ class Hair:
 
         return Hair([None if m is None else tuple(t.to(device) for t in m)
                      for m in self.meshes], self.style.to(device), self.colour.to(device),
-                    moved(self.planes), moved(self.detail))
+                    moved(self.planes), moved(self.detail), moved(self.edges))
 
     def repeat(self, n: int) -> Hair:
         """The hair of a one-item batch for ``n`` items (views or frames of one head)."""
         return Hair(self.meshes * n, self.style.expand(n), self.colour.expand(n, 3),
                     None if self.planes is None else self.planes * n,
-                    None if self.detail is None else self.detail * n)
+                    None if self.detail is None else self.detail * n,
+                    None if self.edges is None else self.edges * n)
 
 
 def hair_for(neutral: np.ndarray, styles: list[int], colours: np.ndarray,
