@@ -96,6 +96,39 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
                    f"views in the index, {summary['seconds']:.1f} s -> {summary['index']}")
 
 
+@cli.command("build-expressions")
+@click.argument("ict", type=InputPath(exists=True))
+@click.option("-o", "--out", default=None, type=OutputPath(dir_okay=False),
+              help="Output file (default: expressions.npz in the models folder).")
+@common_options
+def build_expressions_cmd(ict: str, out: str | None) -> None:
+    """Carry ICT-FaceKit's scanned ARKit expressions onto the head template: the
+    displacement fields SynHead-P's heads (and so the bilinear model built from them)
+    move their skin, lips and jaw by.
+
+    ICT is ICT-FaceKit's folder or its light npz. Rebuild the model afterwards
+    (head360 build-model) and its landmark map (head360 build-landmark-map).
+
+    \b
+    Example:
+      head360 build-expressions ../shared/data/ict-facekit
+    """
+    from head360cli.paths import models_dir
+    from head360cli.synth.expressions import save_fields
+    from head360cli.synth.ict import build_expressions
+
+    target = Path(out) if out else models_dir() / "expressions.npz"
+    if target.suffix.lower() != ".npz":
+        raise BadInputError(f"expected an output ending in .npz, found {str(target)!r}")
+    fields = build_expressions(ict)
+    sha = save_fields(fields, target)
+    meta = fields["meta"]
+    emit({"out": str(target), "sha256": sha, "bytes": target.stat().st_size, **meta},
+         f"wrote {target} ({target.stat().st_size / 1e3:.0f} kB, sha256 {sha[:16]}); "
+         f"landmarks {meta['landmark_error_mm_before_warp']} mm apart before the warp, "
+         f"jaw turns {meta['jaw_rotation_degrees']['jawOpen']} degrees")
+
+
 @cli.command("build-model")
 @click.option("--corpus", type=click.Choice(["synthead-p", "ict", "synthead100"]),
               default="synthead-p", show_default=True, help="Where the meshes come from.")

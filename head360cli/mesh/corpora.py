@@ -14,13 +14,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from head360cli.errors import BadInputError, FileFormatError
-from head360cli.mesh.arkit52 import ARKIT52, INDEX, canonical_name, split_part
+from head360cli.mesh.arkit52 import ARKIT52, INDEX, canonical_name
 
-__all__ = ["ict_facekit", "synthead100", "synthead_p"]
+__all__ = ["ict_facekit", "read_ict", "synthead100", "synthead_p"]
 
 
 def synthead_p(count: int = 100, seed: int = 0, split: str = "train"
@@ -47,34 +48,53 @@ def synthead_p(count: int = 100, seed: int = 0, split: str = "train"
     return gen(), topo
 
 
-def ict_facekit(path: str | Path) -> tuple[Iterator[tuple[np.ndarray, np.ndarray]], dict]:
-    """ICT-FaceKit identities from ``ict_facekit_light_f16.npz`` (or its folder)."""
+def read_ict(path: str | Path) -> dict[str, Any]:
+    """ICT-FaceKit's light npz (or its folder) in metres: ``neutral (V, 3)``, ``deltas
+    (52, V, 3)`` in ARKit order (halves summed, ``tongueOut`` zero), ``identity_deltas
+    (100, V, 3)``, ``landmarks (68,)``, ``faces (F, 3)`` and the file's ``sha256``."""
+    import hashlib
+
     path = Path(path)
     if path.is_dir():
         path = path / "derived" / "ict_facekit_light_f16.npz"
     if not path.is_file():
-        raise BadInputError(f"no ICT-FaceKit npz at {str(path)!r}")
-    data = np.load(path, allow_pickle=False)
+        raise BadInputError(f"expected ICT-FaceKit's ict_facekit_light_f16.npz at "
+                            f"{str(path)!r}, found nothing")
+    try:
+        data = np.load(path, allow_pickle=False)
+        arrays = {k: data[k] for k in ("neutral", "expression_names", "expression_deltas",
+                                       "identity_deltas", "landmarks68", "tris", "quads")}
+    except (KeyError, ValueError, OSError) as exc:
+        raise FileFormatError(f"{path}: not ICT-FaceKit's light npz ({exc})") from None
     cm = 0.01  # ICT-FaceKit's unit is the centimetre
-    neutral = data["neutral"].astype(np.float64) * cm
+    neutral = arrays["neutral"].astype(np.float64) * cm
     deltas = np.zeros((52, *neutral.shape))
-    for name, delta in zip(data["expression_names"], data["expression_deltas"], strict=True):
+    for name, delta in zip(arrays["expression_names"], arrays["expression_deltas"],
+                           strict=True):
         canon = canonical_name(str(name))
         if canon is None:
             continue
-        if split_part(str(name)):  # a half moves half the face: the whole is their sum
-            deltas[INDEX[canon]] += delta.astype(np.float64) * cm
-        else:
-            deltas[INDEX[canon]] = delta.astype(np.float64) * cm
-    faces = np.concatenate([data["tris"], data["quads"][:, [0, 1, 2]],
-                            data["quads"][:, [0, 2, 3]]]).astype(np.int64)
-    mirror = _mirror_by_position(neutral)
+        # a half moves half the face: the whole is their sum
+        deltas[INDEX[canon]] += delta.astype(np.float64) * cm
+    faces = np.concatenate([arrays["tris"], arrays["quads"][:, [0, 1, 2]],
+                            arrays["quads"][:, [0, 2, 3]]]).astype(np.int64)
+    return {"neutral": neutral, "deltas": deltas,
+            "identity_deltas": arrays["identity_deltas"].astype(np.float64) * cm,
+            "landmarks": arrays["landmarks68"].astype(np.int64), "faces": faces,
+            "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+
+
+def ict_facekit(path: str | Path) -> tuple[Iterator[tuple[np.ndarray, np.ndarray]], dict]:
+    """ICT-FaceKit identities from ``ict_facekit_light_f16.npz`` (or its folder)."""
+    ict = read_ict(path)
+    neutral, deltas = ict["neutral"], ict["deltas"]
 
     def gen():
-        for d in data["identity_deltas"]:
-            yield neutral + d.astype(np.float64) * cm, deltas
+        for d in ict["identity_deltas"]:
+            yield neutral + d, deltas
 
-    return gen(), {"faces": faces, "landmarks": data["landmarks68"], "vertex_mirror": mirror}
+    return gen(), {"faces": ict["faces"], "landmarks": ict["landmarks"],
+                   "vertex_mirror": _mirror_by_position(neutral)}
 
 
 def _mirror_by_position(verts: np.ndarray) -> np.ndarray:

@@ -1,18 +1,23 @@
-"""The 52 ARKit blendshapes of a synthetic identity, computed on its own geometry.
+"""The 52 ARKit blendshapes of a synthetic identity.
 
-Each shape is a displacement field anchored at the identity's own features (its jaw pivot,
-eye centres and lid margins, mouth corners, brows), so identity and expression interact as
-in a real rig. Shapes of the left side (+x, the subject's left) are built once and mirrored
-for the right. Amplitudes follow what the ARKit reference poses show: ``jawOpen`` turns the
-jaw by 17 degrees (about 3 cm at the lips), a smile lifts the corners by about 6 mm, eyes
-turn by up to 22 degrees.
+Skin, lips and jaw move as ICT-FaceKit's scanned expressions do (:mod:`head360cli.synth.ict`
+carries them onto the template once; ``models/expressions.npz``), scaled to each head.
+The template makes the rest on each head's own geometry: the eyeballs' turns (added to
+ICT's lids that follow the gaze), the blinks (the upper lid laid over each head's own
+eyeball down to its lower lid) and ``tongueOut``. Its older procedural fields for every
+shape (:func:`procedural_deltas`) remain the cues the transfer matches lips and lids by.
 
 A face with weights ``w`` is ``neutral + sum_k w_k * delta_k``.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,9 +25,18 @@ from head360cli.mesh.arkit52 import ARKIT52, INDEX
 from head360cli.synth.fields import gauss2d, smoothstep
 from head360cli.synth.sculpt import EYE_RADIUS, HeadFrame, topology
 
-__all__ = ["JAW_OPEN_RAD", "blendshape_deltas"]
+__all__ = ["FIELDS_FORMAT", "FROM_TEMPLATE", "JAW_OPEN_RAD", "blendshape_deltas",
+           "expression_fields", "load_fields", "procedural_deltas", "save_fields"]
 
 JAW_OPEN_RAD = math.radians(17.0)
+"""The procedural jaw's turn (its cue for the transfer; ICT's own jaw turns 25 degrees)."""
+FROM_TEMPLATE = ("eyeBlinkLeft", "eyeBlinkRight", "tongueOut")
+"""Shapes the template makes itself: each head's lids must meet exactly; ICT has no
+tongueOut."""
+EYE_TURNS = ("eyeLookUpLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft",
+             "eyeLookUpRight", "eyeLookDownRight", "eyeLookInRight", "eyeLookOutRight")
+"""Shapes whose eyeball turn the template adds to ICT's lids."""
+FIELDS_FORMAT = 1
 
 
 def _bump(v: np.ndarray, cx: float, cy: float, sx: float, sy: float) -> np.ndarray:
@@ -228,8 +242,92 @@ def _eye_shapes(m: _Masks, side: int) -> dict[str, np.ndarray]:
     return out
 
 
+def save_fields(fields: dict[str, Any], out: str | Path) -> str:
+    """Write expression fields ``{"deltas": (52, V, 3), "meta": {...}}`` sparsely (vertex
+    ids and float16 displacements per shape); returns the file's SHA-256."""
+    from head360cli.io.atomic import atomic_path
+
+    d = fields["deltas"]
+    shape_ids, vert_ids = np.nonzero(np.linalg.norm(d, axis=2) > 0)
+    with atomic_path(out) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, shape=shape_ids.astype(np.int16),
+                            vertex=vert_ids.astype(np.int32),
+                            delta=d[shape_ids, vert_ids].astype(np.float16),
+                            vertices=np.int64(d.shape[1]),
+                            meta=np.array(json.dumps(fields["meta"], sort_keys=True)))
+    return hashlib.sha256(Path(out).read_bytes()).hexdigest()
+
+
+def load_fields(path: str | Path) -> dict[str, Any]:
+    """Read a file written by :func:`save_fields`: ``deltas (52, V, 3)`` float64, meta."""
+    from head360cli.errors import FileFormatError
+
+    try:
+        data = np.load(path, allow_pickle=False)
+        deltas = np.zeros((len(ARKIT52), int(data["vertices"]), 3))
+        deltas[data["shape"].astype(np.int64), data["vertex"].astype(np.int64)] = \
+            data["delta"].astype(np.float64)
+        meta = json.loads(str(data["meta"]))
+    except (KeyError, ValueError, OSError) as exc:
+        raise FileFormatError(f"{path}: not a head360 expressions file ({exc})") from None
+    if meta.get("format") != FIELDS_FORMAT:
+        raise FileFormatError(f"{path}: expected expressions format {FIELDS_FORMAT}, found "
+                              f"{meta.get('format')}")
+    return {"deltas": deltas, "meta": meta}
+
+
+@functools.lru_cache(maxsize=1)
+def expression_fields() -> np.ndarray:
+    """The shipped fields (``models/expressions.npz``): ``(52, V, 3)`` metres on the mean
+    head, read once."""
+    from head360cli.errors import ModelNotFoundError
+    from head360cli.paths import models_dir
+
+    path = models_dir() / "expressions.npz"
+    if not path.is_file():
+        raise ModelNotFoundError(f"expression fields not found at {str(path)!r}; make them "
+                                 "with 'head360 build-expressions ../shared/data/ict-facekit'")
+    return load_fields(path)["deltas"]
+
+
+def _eye_span(frame: HeadFrame) -> float:
+    """Distance between the eye centres: the size the fields are scaled by."""
+    return float(np.linalg.norm(frame.eye_centres[0] - frame.eye_centres[1]))
+
+
+@functools.lru_cache(maxsize=1)
+def _mean_eye_span() -> float:
+    from head360cli.synth.identity import mean_identity
+    from head360cli.synth.sculpt import build_head
+
+    return _eye_span(build_head(mean_identity())[1])
+
+
 def blendshape_deltas(verts: np.ndarray, frame: HeadFrame) -> np.ndarray:
-    """The 52 ARKit displacement fields of one identity.
+    """The 52 ARKit displacement fields of one identity: the shipped fields scaled by
+    its eye span, with the eyeballs' turns, the blinks and ``tongueOut`` of its own.
+
+    Args:
+        verts: ``(V, 3)`` neutral vertices from :func:`~head360cli.synth.sculpt.build_head`.
+        frame: The identity's feature frame from the same call.
+
+    Returns:
+        ``(52, V, 3)`` float64 deltas in :data:`~head360cli.mesh.arkit52.ARKIT52` order.
+    """
+    own = procedural_deltas(verts, frame)
+    deltas = expression_fields() * (_eye_span(frame) / _mean_eye_span())
+    for name in FROM_TEMPLATE:
+        deltas[INDEX[name]] = own[INDEX[name]]
+    for name in EYE_TURNS:
+        deltas[INDEX[name]] += own[INDEX[name]]
+    return deltas
+
+
+def procedural_deltas(verts: np.ndarray, frame: HeadFrame) -> np.ndarray:
+    """The template's own 52 displacement fields of one identity, anchored at its features
+    (jaw pivot, eye centres and lid margins, mouth corners, brows); the left side's shapes
+    are mirrored for the right. ``jawOpen`` turns the jaw by 17 degrees, eyes turn by up to
+    22 degrees.
 
     Args:
         verts: ``(V, 3)`` neutral vertices from :func:`~head360cli.synth.sculpt.build_head`.
