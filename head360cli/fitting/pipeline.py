@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from head360cli.errors import BadInputError
+from head360cli.errors import BadInputError, ModelMismatchError
 from head360cli.fitting.config import FitConfig
 from head360cli.io.atomic import check_folder_name
 from head360cli.io.jsontext import dumps
@@ -732,15 +732,23 @@ def load_head_renderer(path: str | Path, device: str = "cpu", samples: int | Non
     ``precision`` and ``reuse`` as the renderer's, ``"default"``: its default).
 
     Raises:
-        ModelMismatchError: The file was made with another generator.
+        ModelMismatchError: The file was made with another generator, or with another
+            parametric head (its identity code would shape another face).
     """
     import torch
 
     from head360cli.io.headfile import HEAD_ARRAYS, lid_change_of, read_head
+    from head360cli.mesh.bilinear import load_bilinear
     from head360cli.model.head_render import REUSE_TOL, HeadRenderer
     from head360cli.model.train import load_generator
 
     head = read_head(path, expected_model_hash=generator_hash(), required=HEAD_ARRAYS)
+    made_with, installed = head.info.get("bilinear_model"), load_bilinear().meta["sha256"]
+    if made_with is not None and made_with != installed:
+        raise ModelMismatchError(
+            f"head file {str(path)!r} was made with parametric head {str(made_with)[:12]}, "
+            f"but the installed one is {installed[:12]}; fit the photo again (head360 fit "
+            "PHOTO)")
     gen, _ = load_generator(device=device)
     a = head.arrays
     check_head_sizes(a, gen.cfg, f"head file {str(path)!r}")
