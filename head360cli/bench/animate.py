@@ -500,6 +500,15 @@ def _fidelity(head: Path, data: Path | None, stream, capture: Path | None, strid
     if london is not None and london.is_dir():
         say("the tracker on the London set's neutral and smiling portraits")
         out["tracker_smile"] = smile_separation(london)
+    unread: list[str] = []
+    if data is not None:
+        from head360cli.bench.expressions import real_reading
+
+        say("the tracker on the shared real photos: which blendshapes it reads at all")
+        real = real_reading(data)
+        if real is not None:
+            out["tracker_real"] = {k: real[k] for k in ("photos", "faces", "not_read")}
+            unread = real["not_read"]
     takes = [(capture.name if capture else "synthetic", stream)]
     if data is not None:
         from head360cli.io.arkit import read_arkit_csv
@@ -510,10 +519,10 @@ def _fidelity(head: Path, data: Path | None, stream, capture: Path | None, strid
     out["fidelity"] = []
     for name, take in takes:
         say(f"expression fidelity: {name} through the head, tracked")
-        fid = head_fidelity(head, take, stride, size, device)
+        fid = head_fidelity(head, take, stride, size, device, unread)
         say(f"expression fidelity: {name} through {FIDELITY_REFERENCE} SynHead-P heads "
             "(corpus renderer), tracked")
-        ref = corpus_fidelity(take, stride, FIDELITY_REFERENCE, fid["size"])
+        ref = corpus_fidelity(take, stride, FIDELITY_REFERENCE, fid["size"], unread)
         out["fidelity"].append({"take": name, "head": fid, "reference": ref})
     if plot is not None and out["fidelity"]:
         from head360cli.viz import plot_fidelity
@@ -562,9 +571,18 @@ def _fidelity_markdown(r: dict[str, Any]) -> list[str]:
         lines.append(f"| mean over the {TOP_ACTIVE} most active | "
                      f"{'-' if mean is None else format(mean, '.3f')} |"
                      + "".join(f" {x['mean_r_top_active']:.3f} |" for x in refs))
+        if h.get("mean_r_top_active_read") is not None:
+            lines.append(f"| mean over the {TOP_ACTIVE} most active the tracker reads on "
+                         f"real faces | {h['mean_r_top_active_read']:.3f} |"
+                         + "".join(f" {x['mean_r_top_active_read']:.3f} |" for x in refs))
         lines += ["", "All 52 for the head: " + ", ".join(
             f"{n} {'-' if v is None else format(v, '.2f')}" for n, v in h["r"].items())
             + " ('-': constant in the capture or in the tracked frames).", ""]
+    real = r.get("tracker_real")
+    if real:
+        lines += [f"Blendshapes the tracker never scores above 0.2 on the {real['faces']} "
+                  f"faces of the shared real photos (not read): "
+                  f"{', '.join(real['not_read']) or 'none'}.", ""]
     if r.get("plot"):
         lines += [f"Plot: {r['plot']}", ""]
     return lines

@@ -43,12 +43,14 @@ def track_frames_weights(frames: Iterable[np.ndarray]) -> tuple[np.ndarray, np.n
     return np.asarray(found, int), np.asarray(weights, np.float32).reshape(-1, 52)
 
 
-def fidelity_table(driving: np.ndarray, found: np.ndarray, tracked: np.ndarray
-                   ) -> dict[str, Any]:
+def fidelity_table(driving: np.ndarray, found: np.ndarray, tracked: np.ndarray,
+                   unread: Iterable[str] = ()) -> dict[str, Any]:
     """Pearson r between driving weights ``(N, 52)`` (at the frames ``found``) and the
     tracked ones ``(F, 52)``: per blendshape (``None`` where either is constant), for
     :data:`NAMED`, and the mean over the :data:`TOP_ACTIVE` blendshapes the driving
-    weights move most (a constant tracked score counts as r = 0 there)."""
+    weights move most (a constant tracked score counts as r = 0 there); with ``unread``
+    (blendshapes the tracker does not read on real faces), also the mean over the
+    :data:`TOP_ACTIVE` most active of the others."""
     from head360cli.mesh.arkit52 import ARKIT52, INDEX
 
     d = driving[found].astype(np.float64)
@@ -59,7 +61,13 @@ def fidelity_table(driving: np.ndarray, found: np.ndarray, tracked: np.ndarray
         r[name] = round(float(np.corrcoef(d[:, j], t[:, j])[0, 1]), 4) if ok else None
     spread = driving.std(0)
     active = [ARKIT52[j] for j in np.argsort(-spread)[:TOP_ACTIVE] if spread[j] > 1e-6]
-    return {"frames": len(driving), "faces_found": len(found), "r": r,
+    unread = set(unread)
+    readable = [ARKIT52[j] for j in np.argsort(-spread) if spread[j] > 1e-6
+                and ARKIT52[j] not in unread][:TOP_ACTIVE]
+    extra = {"top_active_read": readable,
+             "mean_r_top_active_read": round(float(np.mean([r[n] or 0.0 for n in readable])),
+                                             4) if readable else None} if unread else {}
+    return extra | {"frames": len(driving), "faces_found": len(found), "r": r,
             "named": {n: r[n] for n in NAMED},
             "top_active": active,
             "mean_r_top_active": round(float(np.mean([r[n] or 0.0 for n in active])), 4)
@@ -158,7 +166,7 @@ def tracking_speed(frames: int = 300, size: tuple[int, int] = (640, 480)) -> dic
 
 
 def head_fidelity(head: str | Path, stream, stride: int = 3, size: int | None = None,
-                  device: str = "cpu") -> dict[str, Any]:
+                  device: str = "cpu", unread: Iterable[str] = ()) -> dict[str, Any]:
     """A head file driven by every ``stride``-th frame of ``stream`` (seen from the
     front, with its hair), its frames tracked: :func:`fidelity_table`, plus the driving
     and tracked series of the most active blendshapes (for a plot)."""
@@ -172,14 +180,14 @@ def head_fidelity(head: str | Path, stream, stride: int = 3, size: int | None = 
     cams = view_cameras(0.0, 0.0, head_framing(r, True))[0][None].expand(len(w), 4, 4)
     found, tracked = track_frames_weights(
         f for batch in r.frames(cams, w, view_intrinsics(r.size)) for f in batch)
-    table = fidelity_table(w, found, tracked)
+    table = fidelity_table(w, found, tracked, unread)
     table |= {"size": r.size, "stride": stride,
               "series": _series(w, found, tracked, stream.fps / stride, table)}
     return table
 
 
-def corpus_fidelity(stream, stride: int = 3, heads: int = 2, size: int = 256
-                    ) -> list[dict[str, Any]]:
+def corpus_fidelity(stream, stride: int = 3, heads: int = 2, size: int = 256,
+                    unread: Iterable[str] = ()) -> list[dict[str, Any]]:
     """Held-out SynHead-P heads (test split, bald) rendered by the corpus renderer with
     every ``stride``-th frame of ``stream`` as their true weights, tracked: what the
     tracker reads off faces that are exactly right."""
@@ -197,7 +205,7 @@ def corpus_fidelity(stream, stride: int = 3, heads: int = 2, size: int = 256
             to_uint8(render_head(head, wj, cam, k, size, with_hair=False).rgb)[0]
             for wj in w)
         out.append({"head": f"SynHead-P test {i}", "size": size, "stride": stride,
-                    **fidelity_table(w, found, tracked)})
+                    **fidelity_table(w, found, tracked, unread)})
     return out
 
 

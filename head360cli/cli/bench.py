@@ -340,6 +340,45 @@ def bench_animate_cmd(frames: int, stride: int, fidelity_size: int | None,
     _save_and_emit(result, md, out_dir, "animate")
 
 
+@bench_group.command("expressions")
+@click.option("--head", "head_path", type=InputPath(exists=True, dir_okay=False),
+              default=None, help="Measure this head file instead of fitting the astronaut "
+                                 "photo.")
+@click.option("--size", type=int, default=None,
+              help="Image size of the frames (default: the generator's).")
+@click.option("--no-corpus", is_flag=True,
+              help="Skip the corpus renderer's head (the corpus's own expressions).")
+@click.option("--no-real", is_flag=True,
+              help="Skip reading the shared real photos (which blendshapes the tracker "
+                   "reads on real faces; about a minute).")
+@BENCH_OUT
+@common_options
+def bench_expressions_cmd(head_path: str | None, size: int | None, no_corpus: bool,
+                          no_real: bool, out_dir: str) -> None:
+    """Each ARKit blendshape alone at 0.25, 0.5, 0.75 and 1 on a fitted head, read back
+    by the face tracker: which rise with their weight. Beside it, a SynHead-P head drawn
+    by the corpus renderer, and the tracker's highest score for each on the real photos
+    in ../shared/data (a blendshape never above 0.2 there is one it does not read).
+
+    \b
+    Examples:
+      head360 bench expressions
+      head360 bench expressions --head me.h360 --size 512 --no-corpus
+    """
+    from head360cli.bench.expressions import bench_expressions
+    from head360cli.devices import resolve_device
+
+    if size is not None and not 64 <= size <= 1024:
+        raise BadInputError(f"expected --size between 64 and 1024, found {size}")
+    device = str(resolve_device(current_settings().device))
+    result, md = bench_expressions(head_path, size, corpus=not no_corpus, real=not no_real,
+                                   device=device,
+                                   progress=None if current_settings().quiet else
+                                   (lambda t: click.echo(f"bench expressions: {t}",
+                                                         err=True)))
+    _save_and_emit(result, md, out_dir, "expressions")
+
+
 @bench_group.command("onnx")
 @click.option("--heads", default=100, show_default=True,
               help="Random heads, expressions and cameras for parity.")

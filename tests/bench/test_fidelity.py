@@ -71,3 +71,18 @@ def test_a_head_s_frames_are_tracked_and_follow_jaw_and_blinks(head_file, jaw_an
     header = next(line for line in md.splitlines() if line.startswith("| blendshape |"))
     assert jaw.count("|") == header.count("|") == 4
     assert "mean over the 20 most active" in md
+
+
+def test_fidelity_table_also_averages_over_the_shapes_the_tracker_reads():
+    rng = np.random.default_rng(1)
+    d = np.zeros((40, 52), np.float32)
+    d[:, INDEX["jawOpen"]] = rng.uniform(0, 1, 40)
+    d[:, INDEX["cheekPuff"]] = rng.uniform(0, 0.8, 40)  # the tracker never reads it
+    found = np.arange(40)
+    t = np.zeros((40, 52), np.float32)
+    t[:, INDEX["jawOpen"]] = d[:, INDEX["jawOpen"]]
+    table = fidelity_table(d, found, t, unread=["cheekPuff"])
+    assert table["mean_r_top_active"] == pytest.approx(0.5, abs=1e-4)  # cheekPuff r = 0
+    assert table["top_active_read"] == ["jawOpen"]
+    assert table["mean_r_top_active_read"] == pytest.approx(1.0, abs=1e-4)
+    assert "mean_r_top_active_read" not in fidelity_table(d, found, t)
