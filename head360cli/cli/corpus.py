@@ -103,11 +103,11 @@ def synth(outdir: str, identities: int, expressions: int, views: int, size: int,
 @common_options
 def build_expressions_cmd(ict: str, out: str | None) -> None:
     """Carry ICT-FaceKit's scanned ARKit expressions onto the head template: the
-    displacement fields SynHead-P's heads (and so the bilinear model built from them)
-    move their skin, lips and jaw by.
+    displacement fields that SynHead-P's heads move their skin, lips and jaw by in a
+    model built with head360 build-model --expressions scanned.
 
-    ICT is ICT-FaceKit's folder or its light npz. Rebuild the model afterwards
-    (head360 build-model) and its landmark map (head360 build-landmark-map).
+    ICT is ICT-FaceKit's folder or its light npz. A scanned model needs its own landmark
+    map (head360 build-landmark-map, written beside it with -o).
 
     \b
     Example:
@@ -147,14 +147,20 @@ def build_expressions_cmd(ict: str, out: str | None) -> None:
 @click.option("--calibrate", type=InputPath(exists=True, file_okay=False), default=None,
               help="Folder of dlib landmark XML files: learn where the 68 landmarks sit on "
               "the template from those faces.")
+@click.option("--expressions", type=click.Choice(["procedural", "scanned"]),
+              default="procedural", show_default=True,
+              help="SynHead-P's blendshapes: the procedural ones (what the shipped model and "
+                   "generator use) or ICT-FaceKit's scanned ones (head360 build-expressions).")
 @common_options
 def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, seed: int,
-                    held_out: int, out: str | None, calibrate: str | None) -> None:
+                    held_out: int, out: str | None, calibrate: str | None,
+                    expressions: str) -> None:
     """Build the bilinear head model (identity HOSVD, 52 ARKit blendshapes kept).
 
     \b
     Examples:
       head360 build-model --calibrate ../shared/data/faces  models/bilinear.npz
+      head360 build-model --expressions scanned --calibrate ../shared/data/faces -o m/bilinear.npz
       head360 build-model --corpus ict --path ../shared/data/ict-facekit -o ict.npz
     """
     from head360cli.mesh.build import build_model
@@ -169,7 +175,8 @@ def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, s
         from head360cli.paths import models_dir
 
         out = str(models_dir() / "bilinear.npz")
-    s = build_model(corpus, path, identities, rank, seed, out, held_out, calibrate)
+    s = build_model(corpus, path, identities, rank, seed, out, held_out, calibrate,
+                    expressions)
     lines = [f"wrote {s['out']} ({s['bytes'] / 1e6:.1f} MB, sha256 {s['sha256'][:16]}) from "
              f"{s['identities']} {corpus} identities, rank {s['rank']}, {s['seconds']} s",
              "reconstruction error, all 53 meshes per identity (mean / p99 / max mm):",

@@ -46,7 +46,8 @@ def reconstruction_error(model: BilinearModel, identities) -> dict[str, float]:
 
 def build_model(corpus: str = "synthead-p", path: str | None = None, identities: int = 100,
                 rank: int = 50, seed: int = 0, out: str | Path = "models/bilinear.npz",
-                held_out: int = 20, calibrate: str | Path | None = None) -> dict[str, Any]:
+                held_out: int = 20, calibrate: str | Path | None = None,
+                expressions: str = "procedural") -> dict[str, Any]:
     """Build, save and measure a bilinear model.
 
     Args:
@@ -60,6 +61,8 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
             split; external corpora: the last ones).
         calibrate: A folder of dlib landmark XML files: learn where the landmarks sit on
             the template from those faces (see :mod:`head360cli.fitting.calibrate`).
+        expressions: SynHead-P's blendshapes, ``procedural`` or ``scanned``
+            (:mod:`head360cli.synth.expressions`).
 
     Returns:
         Summary with the model hash, size and reconstruction errors.
@@ -74,10 +77,19 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
         raise BadInputError(f"expected --identities >= 2 and --held-out >= 0, found "
                             f"{identities} and {held_out}")
     t0 = time.perf_counter()
+    from head360cli.synth.expressions import EXPRESSION_KINDS
+
+    if expressions not in EXPRESSION_KINDS:
+        raise BadInputError(f"expected --expressions {' or '.join(EXPRESSION_KINDS)}, found "
+                            f"{expressions!r}")
+    if expressions != "procedural" and corpus != "synthead-p":
+        raise BadInputError(f"--expressions {expressions} is for --corpus synthead-p; "
+                            f"found --corpus {corpus}, whose meshes bring their own")
     if corpus == "synthead-p":
-        train_it, topo = corpora.synthead_p(identities, seed, "train")
+        train_it, topo = corpora.synthead_p(identities, seed, "train", expressions)
         train = list(train_it)
-        test = list(corpora.synthead_p(held_out, seed, "test")[0]) if held_out else []
+        test = (list(corpora.synthead_p(held_out, seed, "test", expressions)[0])
+                if held_out else [])
     elif corpus in ("ict", "synthead100"):
         if path is None:
             raise BadInputError(f"--corpus {corpus} needs --path")
@@ -97,6 +109,8 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
     meta = {"corpus": corpus, "seed": seed, "held_out": held_out,
             "command": f"head360 build-model --corpus {corpus} --identities {identities} "
                        f"--rank {rank} --seed {seed}"}
+    if expressions != "procedural":
+        meta["command"] += f" --expressions {expressions}"
     if calibrate is not None:
         meta["command"] += f" --calibrate {calibrate}"
     model = build_bilinear(train, rank, topo, meta)

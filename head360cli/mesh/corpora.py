@@ -1,6 +1,7 @@
 """Mesh corpora the bilinear model can be built from: identities as (neutral, 52 deltas).
 
-- ``synthead-p``: the project's own procedural heads (:mod:`head360cli.synth`), any count.
+- ``synthead-p``: the project's own procedural heads (:mod:`head360cli.synth`), any count,
+  with procedural or scanned expressions.
 - ``ict``: ICT-FaceKit's light npz (neutral, 100 identity deltas, 53 ARKit-style expression
   deltas with ``browInnerUp``/``cheekPuff`` split into halves and no ``tongueOut``). Its
   expressions do not depend on the identity, as in that linear model. ICT-FaceKit is in
@@ -24,9 +25,11 @@ from head360cli.mesh.arkit52 import ARKIT52, INDEX, canonical_name
 __all__ = ["ict_facekit", "read_ict", "synthead100", "synthead_p"]
 
 
-def synthead_p(count: int = 100, seed: int = 0, split: str = "train"
+def synthead_p(count: int = 100, seed: int = 0, split: str = "train",
+               expressions: str = "procedural"
                ) -> tuple[Iterator[tuple[np.ndarray, np.ndarray]], dict]:
-    """SynHead-P identities (geometry only) and the template's topology."""
+    """SynHead-P identities (geometry only, blendshapes of the kind ``expressions``) and
+    the template's topology."""
     from head360cli.mesh.template import REGION_NAMES, template
     from head360cli.synth.expressions import blendshape_deltas
     from head360cli.synth.identity import sample_identity
@@ -39,7 +42,7 @@ def synthead_p(count: int = 100, seed: int = 0, split: str = "train"
             rng = np.random.default_rng([s, 0x5EED])
             age = 16.0 + (((i * 7) % 10) + rng.uniform()) * 5.4  # as in make_head
             verts, frame = build_head(sample_identity(s, sex=float(i % 2), age=age))
-            yield verts, blendshape_deltas(verts, frame)
+            yield verts, blendshape_deltas(verts, frame, expressions)
 
     t = template()
     topo = {"faces": t.faces, "uv": t.uv, "faces_uv": t.faces_uv, "region": t.region,

@@ -1,11 +1,14 @@
-"""The 52 ARKit blendshapes of a synthetic identity.
+"""The 52 ARKit blendshapes of a synthetic identity, in two kinds.
 
-Skin, lips and jaw move as ICT-FaceKit's scanned expressions do (:mod:`head360cli.synth.ict`
-carries them onto the template once; ``models/expressions.npz``), scaled to each head.
-The template makes the rest on each head's own geometry: the eyeballs' turns (added to
-ICT's lids that follow the gaze), the blinks (the upper lid laid over each head's own
-eyeball down to its lower lid) and ``tongueOut``. Its older procedural fields for every
-shape (:func:`procedural_deltas`) remain the cues the transfer matches lips and lids by.
+- ``procedural`` (the default, what the shipped model and generator learnt): displacement
+  fields anchored at the identity's own features (jaw pivot, eye centres and lid margins,
+  mouth corners, brows), so identity and expression interact as in a real rig.
+- ``scanned``: skin, lips and jaw move as ICT-FaceKit's scanned expressions do
+  (:mod:`head360cli.synth.ict` carries them onto the template once;
+  ``models/expressions.npz``), scaled to each head; the eyeballs' turns (added to ICT's
+  lids that follow the gaze), the blinks and ``tongueOut`` stay the procedural ones. An
+  option of ``build-model`` until it fits photos as well as the procedural kind (see
+  ``docs/decisions.md``).
 
 A face with weights ``w`` is ``neutral + sum_k w_k * delta_k``.
 """
@@ -25,11 +28,15 @@ from head360cli.mesh.arkit52 import ARKIT52, INDEX
 from head360cli.synth.fields import gauss2d, smoothstep
 from head360cli.synth.sculpt import EYE_RADIUS, HeadFrame, topology
 
-__all__ = ["FIELDS_FORMAT", "FROM_TEMPLATE", "JAW_OPEN_RAD", "blendshape_deltas",
-           "expression_fields", "load_fields", "procedural_deltas", "save_fields"]
+__all__ = ["EXPRESSION_KINDS", "FIELDS_FORMAT", "FROM_TEMPLATE", "JAW_OPEN_RAD",
+           "blendshape_deltas", "expression_fields", "load_fields", "procedural_deltas",
+           "save_fields", "scanned_deltas"]
+
+EXPRESSION_KINDS = ("procedural", "scanned")
+"""The kinds of blendshapes :func:`blendshape_deltas` makes."""
 
 JAW_OPEN_RAD = math.radians(17.0)
-"""The procedural jaw's turn (its cue for the transfer; ICT's own jaw turns 25 degrees)."""
+"""The procedural jaw's turn (ICT's scanned jaw turns 25 degrees)."""
 FROM_TEMPLATE = ("eyeBlinkLeft", "eyeBlinkRight", "tongueOut")
 """Shapes the template makes itself: each head's lids must meet exactly; ICT has no
 tongueOut."""
@@ -303,9 +310,19 @@ def _mean_eye_span() -> float:
     return _eye_span(build_head(mean_identity())[1])
 
 
-def blendshape_deltas(verts: np.ndarray, frame: HeadFrame) -> np.ndarray:
-    """The 52 ARKit displacement fields of one identity: the shipped fields scaled by
-    its eye span, with the eyeballs' turns, the blinks and ``tongueOut`` of its own.
+def blendshape_deltas(verts: np.ndarray, frame: HeadFrame, kind: str = "procedural"
+                      ) -> np.ndarray:
+    """The 52 ARKit displacement fields of one identity, of a kind in
+    :data:`EXPRESSION_KINDS`: ``(52, V, 3)`` float64 deltas in
+    :data:`~head360cli.mesh.arkit52.ARKIT52` order."""
+    if kind == "scanned":
+        return scanned_deltas(verts, frame)
+    return procedural_deltas(verts, frame)
+
+
+def scanned_deltas(verts: np.ndarray, frame: HeadFrame) -> np.ndarray:
+    """The shipped scanned fields scaled by the identity's eye span, with the eyeballs'
+    turns, the blinks and ``tongueOut`` of its own (procedural).
 
     Args:
         verts: ``(V, 3)`` neutral vertices from :func:`~head360cli.synth.sculpt.build_head`.

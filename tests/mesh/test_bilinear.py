@@ -273,3 +273,25 @@ def test_build_refuses_an_output_it_could_not_write_before_the_work(tmp_path):
         locked.chmod(0o700)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["locked"]
     assert not any(locked.iterdir())
+
+
+def test_build_with_scanned_expressions_moves_as_the_scans_do(tmp_path):
+    """``--expressions scanned``: the model's shapes are the shipped scanned fields (at each
+    head's size), not the procedural ones; other corpora bring their own and refuse it."""
+    from head360cli.errors import BadInputError
+    from head360cli.mesh.arkit52 import INDEX
+    from head360cli.mesh.build import build_model
+    from head360cli.synth.expressions import expression_fields
+
+    out = tmp_path / "b.npz"
+    summary = build_model(identities=3, rank=2, held_out=0, out=out, expressions="scanned")
+    model = load_bilinear(out)
+    assert "--expressions scanned" in model.meta["command"] and summary["rank"] == 2
+    smile = model.vertices(model.code_mean, np.eye(52)[INDEX["mouthSmileLeft"]]) - \
+        model.vertices(model.code_mean, np.zeros(52))
+    field = expression_fields()[INDEX["mouthSmileLeft"]]
+    cos = (smile * field).sum() / np.linalg.norm(smile) / np.linalg.norm(field)
+    assert cos > 0.99  # the scanned field, scaled by the head's eye span
+    with pytest.raises(BadInputError, match="--expressions scanned is for --corpus synthead-p"):
+        build_model(corpus="ict", path=tmp_path, out=tmp_path / "c.npz",
+                    expressions="scanned")

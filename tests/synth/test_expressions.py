@@ -12,17 +12,15 @@ from head360cli.synth.identity import mean_identity, sample_identity
 from head360cli.synth.sculpt import build_head, topology
 
 # Where each shape may move the head (>= 95 % of its total displacement must fall here).
-# The scanned expressions stretch the skin beyond the features: mouth shapes the skin
-# under the chin, brows and cheek squints the forehead and temples.
-FACE = {"face", "nose", "lips", "mouth_interior", "neck"}
+FACE = {"face", "nose", "lips", "mouth_interior"}
 ALLOWED = {name: FACE for name in ARKIT52}
-ALLOWED.update({n: FACE | {"teeth", "tongue", "ears"} for n in
+ALLOWED.update({n: FACE | {"teeth", "tongue", "neck"} for n in
                 ("jawOpen", "jawLeft", "jawRight", "jawForward", "mouthClose")})
-ALLOWED.update({n: {"eyes", "face"} for n in ARKIT52 if n.startswith("eyeLook")})
+ALLOWED.update({n: {"eyes"} for n in ARKIT52 if n.startswith("eyeLook")})
 ALLOWED.update({n: {"face"} for n in ARKIT52 if n.startswith(("eyeBlink", "eyeSquint",
                                                                 "eyeWide"))})
-ALLOWED.update({n: FACE | {"scalp", "ears"} for n in ARKIT52
-                if n.startswith(("brow", "cheekSquint", "mouthSmile"))})
+# Brows also move the glabella at the top of the nasal bridge.
+ALLOWED.update({n: {"face", "nose"} for n in ARKIT52 if n.startswith("brow")})
 ALLOWED["tongueOut"] = {"tongue"}
 
 

@@ -14,6 +14,7 @@ from head360cli.synth.expressions import (
     FROM_TEMPLATE,
     blendshape_deltas,
     load_fields,
+    procedural_deltas,
     save_fields,
 )
 from head360cli.synth.identity import mean_identity, sample_identity
@@ -91,7 +92,10 @@ def test_each_head_takes_the_fields_at_its_own_size_with_its_own_blinks():
     shipped = load_fields(models_dir() / "expressions.npz")["deltas"]
     for identity in (mean_identity(), sample_identity(7)):
         verts, frame = build_head(identity)
-        d = blendshape_deltas(verts, frame)
+        d = blendshape_deltas(verts, frame, "scanned")
+        own = procedural_deltas(verts, frame)
+        np.testing.assert_array_equal(blendshape_deltas(verts, frame), own)  # the default
+        np.testing.assert_array_equal(d[INDEX["eyeBlinkLeft"]], own[INDEX["eyeBlinkLeft"]])
         j = INDEX["mouthSmileLeft"]
         ratio = np.linalg.norm(d[j]) / np.linalg.norm(shipped[j])
         assert 0.8 < ratio < 1.2
