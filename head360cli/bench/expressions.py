@@ -189,15 +189,13 @@ def bench_expressions(head_path: str | Path | None = None, size: int | None = No
 
 def _markdown(result: dict[str, Any]) -> str:
     parts = [p for p in ("head", "corpus") if p in result]
-    lines = ["# Each blendshape alone, read back by the face tracker", "",
-             "| blendshape | " + " | ".join(
-                 f"{result[p].get('name') or result[p].get('head')}: score at "
-                 f"{', '.join(f'{x:g}' for x in result[p]['levels'])}" for p in parts) + " |",
-             "|---|" + "---|" * len(parts)]
     real = result.get("real")
+    cols = [f"{result[p].get('name') or result[p].get('head')}: score at "
+            f"{', '.join(f'{x:g}' for x in result[p]['levels'])}" for p in parts]
     if real:
-        lines[2] = lines[2][:-1] + f"| highest score on {real['faces']} real faces |"
-        lines[3] += "---|"
+        cols.append(f"highest score on {real['faces']} real faces")
+    lines = ["# Each blendshape alone, read back by the face tracker", "",
+             "| blendshape | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
     for name in result["head"]["per_shape"]:
         cells = []
         for p in parts:

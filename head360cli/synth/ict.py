@@ -143,7 +143,8 @@ def build_expressions(ict_path: str | Path) -> dict[str, Any]:
     src = ict["neutral"][ict["landmarks"][ICT_LANDMARKS]]
     dst = verts[tpl.landmarks[ICT_LANDMARKS]]
     scale, rot, shift = _similarity(src, dst)
-    placed = ict["neutral"] @ (scale * rot).T + shift
+    to_template = scale * rot
+    placed = ict["neutral"] @ to_template.T + shift
     before = float(np.linalg.norm(placed[ict["landmarks"][ICT_LANDMARKS]] - dst, axis=1).mean())
     warp = RBFInterpolator(placed[ict["landmarks"][ICT_LANDMARKS]], dst, kernel="linear",
                            degree=1, smoothing=1e-6)
@@ -159,7 +160,6 @@ def build_expressions(ict_path: str | Path) -> dict[str, Any]:
     dist, idx = cKDTree(ict_feat).query(own_feat, k=NEIGHBOURS)
     w = 1.0 / np.maximum(dist, 1e-5)
     w /= w.sum(1, keepdims=True)
-    to_template = scale * rot
     deltas = np.zeros((len(ARKIT52), len(verts), 3))
     for name in ARKIT52:
         if name in FROM_TEMPLATE:
@@ -175,9 +175,8 @@ def build_expressions(ict_path: str | Path) -> dict[str, Any]:
                              np.arange(*topo.parts["tongue"])])
     jaw_angles = {}
     for name in JAW_SHAPES:
-        p = placed[lower]
-        q = (ict["neutral"][lower] + ict["deltas"][INDEX[name]][lower]) @ (scale * rot).T + shift
-        r, t = _rigid(p, q)
+        moved = placed[lower] + ict["deltas"][INDEX[name]][lower] @ to_template.T
+        r, t = _rigid(placed[lower], moved)
         deltas[INDEX[name], follow] = verts[follow] @ r.T + t - verts[follow]
         jaw_angles[name] = round(float(np.degrees(np.arccos(np.clip(
             (np.trace(r) - 1) / 2, -1, 1)))), 2)
