@@ -129,6 +129,36 @@ def build_expressions_cmd(ict: str, out: str | None) -> None:
          f"jaw turns {meta['jaw_rotation_degrees']['jawOpen']} degrees")
 
 
+@cli.command("build-identities")
+@click.argument("ict", type=InputPath(exists=True))
+@click.option("-o", "--out", default=None, type=OutputPath(dir_okay=False),
+              help="Output file (default: identities.npz in the models folder).")
+@common_options
+def build_identities_cmd(ict: str, out: str | None) -> None:
+    """Carry ICT-FaceKit's 100 scanned identity components onto the head template: the
+    shape space of a model built with head360 build-model --identity-space scanned.
+
+    ICT is ICT-FaceKit's folder or its light npz.
+
+    \b
+    Example:
+      head360 build-identities ../shared/data/ict-facekit
+    """
+    from head360cli.paths import models_dir
+    from head360cli.synth.expressions import save_fields
+    from head360cli.synth.ict import build_identities
+
+    target = Path(out) if out else models_dir() / "identities.npz"
+    if target.suffix.lower() != ".npz":
+        raise BadInputError(f"expected an output ending in .npz, found {str(target)!r}")
+    fields = build_identities(ict)
+    sha = save_fields(fields, target)
+    emit({"out": str(target), "sha256": sha, "bytes": target.stat().st_size,
+          **fields["meta"]},
+         f"wrote {target} ({target.stat().st_size / 1e6:.1f} MB, sha256 {sha[:16]}): "
+         f"{fields['meta']['count']} identity components")
+
+
 @cli.command("build-model")
 @click.option("--corpus", type=click.Choice(["synthead-p", "ict", "synthead100"]),
               default="synthead-p", show_default=True, help="Where the meshes come from.")
@@ -151,16 +181,21 @@ def build_expressions_cmd(ict: str, out: str | None) -> None:
               default="procedural", show_default=True,
               help="SynHead-P's blendshapes: the procedural ones (what the shipped model and "
                    "generator use) or ICT-FaceKit's scanned ones (head360 build-expressions).")
+@click.option("--identity-space", type=click.Choice(["sculpted", "scanned"]),
+              default="sculpted", show_default=True,
+              help="SynHead-P's identities: the procedural sculpt's, or ICT-FaceKit's scanned "
+                   "shape space (head360 build-identities).")
 @common_options
 def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, seed: int,
                     held_out: int, out: str | None, calibrate: str | None,
-                    expressions: str) -> None:
+                    expressions: str, identity_space: str) -> None:
     """Build the bilinear head model (identity HOSVD, 52 ARKit blendshapes kept).
 
     \b
     Examples:
       head360 build-model --calibrate ../shared/data/faces  models/bilinear.npz
       head360 build-model --expressions scanned --calibrate ../shared/data/faces -o m/bilinear.npz
+      head360 build-model --expressions scanned --identity-space scanned -o m/bilinear.npz
       head360 build-model --corpus ict --path ../shared/data/ict-facekit -o ict.npz
     """
     from head360cli.mesh.build import build_model
@@ -176,7 +211,7 @@ def build_model_cmd(corpus: str, path: str | None, identities: int, rank: int, s
 
         out = str(models_dir() / "bilinear.npz")
     s = build_model(corpus, path, identities, rank, seed, out, held_out, calibrate,
-                    expressions)
+                    expressions, identity_space)
     lines = [f"wrote {s['out']} ({s['bytes'] / 1e6:.1f} MB, sha256 {s['sha256'][:16]}) from "
              f"{s['identities']} {corpus} identities, rank {s['rank']}, {s['seconds']} s",
              "reconstruction error, all 53 meshes per identity (mean / p99 / max mm):",

@@ -47,7 +47,8 @@ def reconstruction_error(model: BilinearModel, identities) -> dict[str, float]:
 def build_model(corpus: str = "synthead-p", path: str | None = None, identities: int = 100,
                 rank: int = 50, seed: int = 0, out: str | Path = "models/bilinear.npz",
                 held_out: int = 20, calibrate: str | Path | None = None,
-                expressions: str = "procedural") -> dict[str, Any]:
+                expressions: str = "procedural", identity_space: str = "sculpted"
+                ) -> dict[str, Any]:
     """Build, save and measure a bilinear model.
 
     Args:
@@ -63,6 +64,8 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
             the template from those faces (see :mod:`head360cli.fitting.calibrate`).
         expressions: SynHead-P's blendshapes, ``procedural`` or ``scanned``
             (:mod:`head360cli.synth.expressions`).
+        identity_space: SynHead-P's identities, ``sculpted`` or ``scanned``
+            (:mod:`head360cli.synth.scanned`).
 
     Returns:
         Summary with the model hash, size and reconstruction errors.
@@ -82,14 +85,20 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
     if expressions not in EXPRESSION_KINDS:
         raise BadInputError(f"expected --expressions {' or '.join(EXPRESSION_KINDS)}, found "
                             f"{expressions!r}")
-    if expressions != "procedural" and corpus != "synthead-p":
-        raise BadInputError(f"--expressions {expressions} is for --corpus synthead-p; "
-                            f"found --corpus {corpus}, whose meshes bring their own")
+    from head360cli.synth.scanned import IDENTITY_SPACES
+
+    if identity_space not in IDENTITY_SPACES:
+        raise BadInputError(f"expected --identity-space {' or '.join(IDENTITY_SPACES)}, "
+                            f"found {identity_space!r}")
+    if (expressions, identity_space) != ("procedural", "sculpted") and corpus != "synthead-p":
+        raise BadInputError(f"--expressions and --identity-space are for --corpus "
+                            f"synthead-p; found --corpus {corpus}, whose meshes bring their own")
     if corpus == "synthead-p":
-        train_it, topo = corpora.synthead_p(identities, seed, "train", expressions)
+        train_it, topo = corpora.synthead_p(identities, seed, "train", expressions,
+                                            identity_space)
         train = list(train_it)
-        test = (list(corpora.synthead_p(held_out, seed, "test", expressions)[0])
-                if held_out else [])
+        test = (list(corpora.synthead_p(held_out, seed, "test", expressions,
+                                        identity_space)[0]) if held_out else [])
     elif corpus in ("ict", "synthead100"):
         if path is None:
             raise BadInputError(f"--corpus {corpus} needs --path")
@@ -111,6 +120,8 @@ def build_model(corpus: str = "synthead-p", path: str | None = None, identities:
                        f"--rank {rank} --seed {seed}"}
     if expressions != "procedural":
         meta["command"] += f" --expressions {expressions}"
+    if identity_space != "sculpted":
+        meta["command"] += f" --identity-space {identity_space}"
     if calibrate is not None:
         meta["command"] += f" --calibrate {calibrate}"
     model = build_bilinear(train, rank, topo, meta)

@@ -1,7 +1,7 @@
 """Mesh corpora the bilinear model can be built from: identities as (neutral, 52 deltas).
 
 - ``synthead-p``: the project's own procedural heads (:mod:`head360cli.synth`), any count,
-  with procedural or scanned expressions.
+  with procedural or scanned expressions, sculpted or scanned identities.
 - ``ict``: ICT-FaceKit's light npz (neutral, 100 identity deltas, 53 ARKit-style expression
   deltas with ``browInnerUp``/``cheekPuff`` split into halves and no ``tongueOut``). Its
   expressions do not depend on the identity, as in that linear model. ICT-FaceKit is in
@@ -26,13 +26,15 @@ __all__ = ["ict_facekit", "read_ict", "synthead100", "synthead_p"]
 
 
 def synthead_p(count: int = 100, seed: int = 0, split: str = "train",
-               expressions: str = "procedural"
+               expressions: str = "procedural", identity_space: str = "sculpted"
                ) -> tuple[Iterator[tuple[np.ndarray, np.ndarray]], dict]:
     """SynHead-P identities (geometry only, blendshapes of the kind ``expressions``) and
-    the template's topology."""
+    the template's topology. ``identity_space``: ``sculpted`` (the procedural sculpt) or
+    ``scanned`` (ICT-FaceKit's shape space, :mod:`head360cli.synth.scanned`)."""
     from head360cli.mesh.template import REGION_NAMES, template
     from head360cli.synth.expressions import blendshape_deltas
     from head360cli.synth.identity import sample_identity
+    from head360cli.synth.scanned import scanned_identity
     from head360cli.synth.scene import head_seed
     from head360cli.synth.sculpt import build_head
 
@@ -41,7 +43,11 @@ def synthead_p(count: int = 100, seed: int = 0, split: str = "train",
             s = head_seed(seed, split, i)
             rng = np.random.default_rng([s, 0x5EED])
             age = 16.0 + (((i * 7) % 10) + rng.uniform()) * 5.4  # as in make_head
-            verts, frame = build_head(sample_identity(s, sex=float(i % 2), age=age))
+            params = sample_identity(s, sex=float(i % 2), age=age)
+            if identity_space == "scanned":
+                yield scanned_identity(params, s, expressions)
+                continue
+            verts, frame = build_head(params)
             yield verts, blendshape_deltas(verts, frame, expressions)
 
     t = template()

@@ -250,8 +250,8 @@ def _eye_shapes(m: _Masks, side: int) -> dict[str, np.ndarray]:
 
 
 def save_fields(fields: dict[str, Any], out: str | Path) -> str:
-    """Write expression fields ``{"deltas": (52, V, 3), "meta": {...}}`` sparsely (vertex
-    ids and float16 displacements per shape); returns the file's SHA-256."""
+    """Write displacement fields ``{"deltas": (N, V, 3), "meta": {...}}`` sparsely (vertex
+    ids and float16 displacements per field); returns the file's SHA-256."""
     from head360cli.io.atomic import atomic_path
 
     d = fields["deltas"]
@@ -265,21 +265,23 @@ def save_fields(fields: dict[str, Any], out: str | Path) -> str:
     return hashlib.sha256(Path(out).read_bytes()).hexdigest()
 
 
-def load_fields(path: str | Path) -> dict[str, Any]:
-    """Read a file written by :func:`save_fields`: ``deltas (52, V, 3)`` float64, meta."""
+def load_fields(path: str | Path, kind: str = "expressions") -> dict[str, Any]:
+    """Read a file written by :func:`save_fields`: ``deltas (N, V, 3)`` float64 (``N``:
+    52 expressions, or the meta's ``count``), meta. ``kind``: what the file must hold,
+    ``expressions`` or ``identities`` (:func:`head360cli.synth.ict.build_identities`)."""
     from head360cli.errors import FileFormatError
 
     try:
         data = np.load(path, allow_pickle=False)
-        deltas = np.zeros((len(ARKIT52), int(data["vertices"]), 3))
+        meta = json.loads(str(data["meta"]))
+        deltas = np.zeros((int(meta.get("count", len(ARKIT52))), int(data["vertices"]), 3))
         deltas[data["shape"].astype(np.int64), data["vertex"].astype(np.int64)] = \
             data["delta"].astype(np.float64)
-        meta = json.loads(str(data["meta"]))
-    except (KeyError, ValueError, OSError) as exc:
-        raise FileFormatError(f"{path}: not a head360 expressions file ({exc})") from None
-    if meta.get("format") != FIELDS_FORMAT:
-        raise FileFormatError(f"{path}: expected expressions format {FIELDS_FORMAT}, found "
-                              f"{meta.get('format')}")
+    except (KeyError, ValueError, OSError, IndexError) as exc:
+        raise FileFormatError(f"{path}: not a head360 {kind} file ({exc})") from None
+    if meta.get("format") != FIELDS_FORMAT or meta.get("kind", "expressions") != kind:
+        raise FileFormatError(f"{path}: expected {kind} format {FIELDS_FORMAT}, found "
+                              f"{meta.get('kind', 'expressions')} format {meta.get('format')}")
     return {"deltas": deltas, "meta": meta}
 
 
@@ -320,19 +322,22 @@ def blendshape_deltas(verts: np.ndarray, frame: HeadFrame, kind: str = "procedur
     return procedural_deltas(verts, frame)
 
 
-def scanned_deltas(verts: np.ndarray, frame: HeadFrame) -> np.ndarray:
+def scanned_deltas(verts: np.ndarray, frame: HeadFrame, span: float | None = None
+                   ) -> np.ndarray:
     """The shipped scanned fields scaled by the identity's eye span, with the eyeballs'
     turns, the blinks and ``tongueOut`` of its own (procedural).
 
     Args:
         verts: ``(V, 3)`` neutral vertices from :func:`~head360cli.synth.sculpt.build_head`.
         frame: The identity's feature frame from the same call.
+        span: The head's eye span (metres), where it is not the frame's (a head that
+            :mod:`head360cli.synth.scanned` moved after sculpting).
 
     Returns:
         ``(52, V, 3)`` float64 deltas in :data:`~head360cli.mesh.arkit52.ARKIT52` order.
     """
     own = procedural_deltas(verts, frame)
-    deltas = expression_fields() * (_eye_span(frame) / _mean_eye_span())
+    deltas = expression_fields() * ((span or _eye_span(frame)) / _mean_eye_span())
     for name in FROM_TEMPLATE:
         deltas[INDEX[name]] = own[INDEX[name]]
     for name in EYE_TURNS:

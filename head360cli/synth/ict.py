@@ -35,7 +35,7 @@ from head360cli.mesh.arkit52 import ARKIT52, INDEX, MIRROR_INDEX
 from head360cli.mesh.corpora import read_ict
 from head360cli.synth.expressions import FIELDS_FORMAT, FROM_TEMPLATE
 
-__all__ = ["build_expressions"]
+__all__ = ["build_expressions", "build_identities"]
 
 FEATURE_SCALE = 0.03
 """Metres a unit of difference in jaw or blink motion counts as when matching points: an
@@ -55,6 +55,16 @@ SMOOTHING = 3
 """Rounds of neighbour averaging over the template's skin that even out the blend of
 matches (ICT's vertices are 1-3 mm apart, the template's 3-12 mm)."""
 JAW_SHAPES = ("jawOpen", "jawForward", "jawLeft", "jawRight")
+ICT_EYEBALL_L = slice(21451, 23021)
+ICT_EYEBALL_R = slice(23021, 24591)
+NECK_FADE = 0.04
+"""Metres down the template's neck over which ICT's fields fade out: the scans' neck
+varies with posture more than with identity, and ends above the template's."""
+LID_FADE = 0.008
+"""Metres over which skin goes from moving with the eyeball (the lids, as far as the
+template's own lid shapes reach) to following ICT's fields."""
+EAR_ROOT = 0.006
+"""Skin this close (metres) to an ear is its root, whose mean motion the ear takes."""
 
 
 def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -66,6 +76,46 @@ def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np
     rot = u @ d @ vt
     scale = float((sig * np.diag(d)).sum() / (a ** 2).sum())
     return scale, rot, md - scale * rot @ ms
+
+
+def _place(ict: dict[str, Any], verts: np.ndarray) -> dict[str, Any]:
+    """ICT's whole mesh brought onto the template head ``verts (V, 3)``: ``placed`` by the
+    similarity on the inner landmarks (``to_template``, the 3x3 scale times rotation, and
+    ``shift``), ``warped`` further by the biharmonic spline that makes those landmarks
+    meet; both ``(V_ict, 3)``. ``landmark_error``: their mean distance before the warp."""
+    from scipy.interpolate import RBFInterpolator
+
+    from head360cli.mesh.template import template
+
+    src = ict["neutral"][ict["landmarks"][ICT_LANDMARKS]]
+    dst = verts[template().landmarks[ICT_LANDMARKS]]
+    scale, rot, shift = _similarity(src, dst)
+    placed = ict["neutral"] @ (scale * rot).T + shift
+    moved = placed[ict["landmarks"][ICT_LANDMARKS]]
+    warp = RBFInterpolator(moved, dst, kernel="linear", degree=1, smoothing=1e-6)
+    return {"scale": scale, "to_template": scale * rot, "shift": shift, "placed": placed,
+            "warped": warp(placed),
+            "landmark_error": float(np.linalg.norm(moved - dst, axis=1).mean())}
+
+
+def _matches(ict: dict[str, Any], warped: np.ndarray, verts: np.ndarray, own: np.ndarray,
+             ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For the template vertices ``ids``: their :data:`NEIGHBOURS` matches among ICT's face
+    vertices ``warped (13294, 3)`` (indices into :data:`ICT_FACE`) and inverse-distance
+    weights, both ``(len(ids), k)``. Searched in position and in jaw and blink motion
+    (``own (52, V, 3)``, the template's procedural shapes), so that lips and lids that
+    touch take the motion of their own side."""
+    from scipy.spatial import cKDTree
+
+    face = np.arange(ICT_FACE.start, ICT_FACE.stop)
+    cues = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight")
+    ict_feat = np.concatenate([warped] + [FEATURE_SCALE * _motion(ict["deltas"], face, c)[:, None]
+                                          for c in cues], 1)
+    own_feat = np.concatenate([verts[ids]] + [FEATURE_SCALE * _motion(own, ids, c)[:, None]
+                                               for c in cues], 1)
+    dist, idx = cKDTree(ict_feat).query(own_feat, k=NEIGHBOURS)
+    w = 1.0 / np.maximum(dist, 1e-5)
+    return idx, w / w.sum(1, keepdims=True)
 
 
 def _motion(deltas: np.ndarray, ids: np.ndarray, name: str) -> np.ndarray:
@@ -127,39 +177,22 @@ def build_expressions(ict_path: str | Path) -> dict[str, Any]:
         ``{"deltas": (52, V, 3) float64 metres (zero for :data:`FROM_TEMPLATE`),
         "meta": {...}}``, the meta with the source's SHA-256 and the alignment's residuals.
     """
-    from scipy.interpolate import RBFInterpolator
-    from scipy.spatial import cKDTree
-
-    from head360cli.mesh.template import template
     from head360cli.synth.expressions import procedural_deltas
     from head360cli.synth.identity import mean_identity
     from head360cli.synth.sculpt import build_head, topology
 
     ict = read_ict(ict_path)
-    topo, tpl = topology(), template()
+    topo = topology()
     verts, frame = build_head(mean_identity())
     own = procedural_deltas(verts, frame)
     # 1. similarity and a biharmonic warp on the inner landmarks
-    src = ict["neutral"][ict["landmarks"][ICT_LANDMARKS]]
-    dst = verts[tpl.landmarks[ICT_LANDMARKS]]
-    scale, rot, shift = _similarity(src, dst)
-    to_template = scale * rot
-    placed = ict["neutral"] @ to_template.T + shift
-    before = float(np.linalg.norm(placed[ict["landmarks"][ICT_LANDMARKS]] - dst, axis=1).mean())
-    warp = RBFInterpolator(placed[ict["landmarks"][ICT_LANDMARKS]], dst, kernel="linear",
-                           degree=1, smoothing=1e-6)
+    placement = _place(ict, verts)
+    to_template, placed = placement["to_template"], placement["placed"]
     face = np.arange(ICT_FACE.start, ICT_FACE.stop)
-    warped = warp(placed[face])
+    warped = placement["warped"][face]
     # 2. matches in position and motion
     skin = np.concatenate([np.arange(*topo.parts[p]) for p in ("skin", "ear_l", "ear_r")])
-    cues = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight")
-    ict_feat = np.concatenate([warped] + [FEATURE_SCALE * _motion(ict["deltas"], face, c)[:, None]
-                                          for c in cues], 1)
-    own_feat = np.concatenate([verts[skin]] + [FEATURE_SCALE * _motion(own, skin, c)[:, None]
-                                                for c in cues], 1)
-    dist, idx = cKDTree(ict_feat).query(own_feat, k=NEIGHBOURS)
-    w = 1.0 / np.maximum(dist, 1e-5)
-    w /= w.sum(1, keepdims=True)
+    idx, w = _matches(ict, warped, verts, own, skin)
     deltas = np.zeros((len(ARKIT52), len(verts), 3))
     for name in ARKIT52:
         if name in FROM_TEMPLATE:
@@ -186,8 +219,85 @@ def build_expressions(ict_path: str | Path) -> dict[str, Any]:
     deltas = 0.5 * (deltas + deltas[list(MIRROR_INDEX)][:, topo.mirror] * flip)
     deltas[np.linalg.norm(deltas, axis=2) < KEEP] = 0.0
     meta = {"format": FIELDS_FORMAT, "source": "ICT-FaceKit light (MIT), ict_facekit_light_f16.npz",
-            "source_sha256": ict["sha256"], "scale": round(scale, 5),
-            "landmark_error_mm_before_warp": round(before * 1000, 2),
+            "source_sha256": ict["sha256"], "scale": round(placement["scale"], 5),
+            "landmark_error_mm_before_warp": round(placement["landmark_error"] * 1000, 2),
             "jaw_rotation_degrees": jaw_angles, "from_template": list(FROM_TEMPLATE),
             "neighbours": NEIGHBOURS, "feature_scale_m": FEATURE_SCALE}
     return {"deltas": deltas, "meta": meta}
+
+
+def build_identities(ict_path: str | Path) -> dict[str, Any]:
+    """ICT-FaceKit's 100 identity components as displacement fields on the template's
+    mean head (a coefficient of 1 is one standard deviation).
+
+    ICT's mean face is not carried over: where its landmarks and the template's differ
+    most (inner eye corners 15 mm, chin 12 mm) they mark different points, not different
+    proportions. Skin takes its matches' displacement,
+    fading out down the neck; eyeballs, teeth and
+    tongue move rigidly as ICT's do, the lids with their eyeball (so each head's own
+    blink still closes them), the ears with the skin at their root.
+
+    Returns:
+        ``{"deltas": (100, V, 3) float64 metres, "meta": {...}}``.
+    """
+    from scipy.spatial import cKDTree
+
+    from head360cli.synth.expressions import procedural_deltas
+    from head360cli.synth.fields import smoothstep
+    from head360cli.synth.identity import mean_identity
+    from head360cli.synth.sculpt import build_head, topology
+
+    ict = read_ict(ict_path)
+    topo = topology()
+    verts, frame = build_head(mean_identity())
+    own = procedural_deltas(verts, frame)
+    placement = _place(ict, verts)
+    to_template, warped = placement["to_template"], placement["warped"]
+    ict_fields = ict["identity_deltas"] @ to_template.T  # (100, V_ict, 3)
+    face = np.arange(ICT_FACE.start, ICT_FACE.stop)
+    skin = np.arange(*topo.parts["skin"])
+    idx, w = _matches(ict, warped[face], verts, own, skin)
+    fields = np.zeros((len(ict_fields), len(verts), 3))
+    fields[:, skin] = np.einsum("sk,nskc->nsc", w, ict_fields[:, face][:, idx])
+    fields[:, skin] = _smooth(fields[:, skin], skin, verts, topo.faces, own[INDEX["jawOpen"]])
+    # the neck is posture more than identity in the scans: the fields fade down it
+    from head360cli.mesh.template import REGION_NAMES, template
+
+    neck = template().region[skin] == REGION_NAMES.index("neck")
+    below = cKDTree(verts[skin][~neck]).query(verts[skin])[0]
+    fields[:, skin] *= smoothstep(NECK_FADE, 0.0, below)[None, :, None]
+
+    def rigid(ict_ids: np.ndarray) -> np.ndarray:
+        return ict_fields[:, ict_ids].mean(1)  # (100, 3)
+
+    # eyeballs and the lids that close over them move as one
+    for side, part in enumerate(("eye_l", "eye_r")):
+        ids = np.arange(*topo.parts[part])
+        ball = min((ICT_EYEBALL_L, ICT_EYEBALL_R), key=lambda r: np.linalg.norm(
+            warped[r].mean(0) - verts[ids].mean(0)))
+        move = rigid(np.arange(ball.start, ball.stop))
+        lid_shapes = [INDEX[f"eye{s}{('Left', 'Right')[side]}"]
+                      for s in ("Blink", "Squint", "Wide")]
+        lid = skin[np.linalg.norm(own[lid_shapes][:, skin], axis=2).max(0) > 0]
+        near = cKDTree(verts[lid]).query(verts[skin])[0]
+        b = smoothstep(LID_FADE, 0.0, near)[None, :, None]
+        fields[:, skin] = b * move[:, None] + (1 - b) * fields[:, skin]
+        fields[:, ids] = move[:, None]
+    # teeth and tongue as ICT's upper and lower teeth
+    teeth = np.arange(ICT_TEETH.start, ICT_TEETH.stop)
+    lower = np.linalg.norm(ict["deltas"][INDEX["jawOpen"]][teeth], axis=1) > 1e-3
+    for parts, ict_ids in ((("teeth_upper",), teeth[~lower]),
+                           (("teeth_lower", "tongue"), teeth[lower])):
+        for part in parts:
+            fields[:, slice(*topo.parts[part])] = rigid(ict_ids)[:, None]
+    # ears as the skin at their root
+    for part in ("ear_l", "ear_r"):
+        ids = np.arange(*topo.parts[part])
+        root = skin[cKDTree(verts[ids]).query(verts[skin])[0] < EAR_ROOT]
+        fields[:, ids] = fields[:, root].mean(1)[:, None]
+    meta = {"format": FIELDS_FORMAT, "kind": "identities", "count": len(fields),
+            "source": "ICT-FaceKit light (MIT), ict_facekit_light_f16.npz",
+            "source_sha256": ict["sha256"], "scale": round(placement["scale"], 5),
+            "landmark_error_mm_before_warp": round(placement["landmark_error"] * 1000, 2),
+            "neighbours": NEIGHBOURS, "neck_fade_m": NECK_FADE}
+    return {"deltas": fields, "meta": meta}

@@ -292,6 +292,28 @@ def test_build_with_scanned_expressions_moves_as_the_scans_do(tmp_path):
     field = expression_fields()[INDEX["mouthSmileLeft"]]
     cos = (smile * field).sum() / np.linalg.norm(smile) / np.linalg.norm(field)
     assert cos > 0.99  # the scanned field, scaled by the head's eye span
-    with pytest.raises(BadInputError, match="--expressions scanned is for --corpus synthead-p"):
+    with pytest.raises(BadInputError, match="are for --corpus synthead-p; found --corpus ict"):
         build_model(corpus="ict", path=tmp_path, out=tmp_path / "c.npz",
                     expressions="scanned")
+
+
+def test_build_in_the_scanned_identity_space_spans_icts_faces(tmp_path):
+    """``--identity-space scanned``: the identity basis is ICT's shape space (its first
+    component lies in the model's span)."""
+    from head360cli.errors import BadInputError
+    from head360cli.mesh.build import build_model
+    from head360cli.synth.scanned import identity_fields
+
+    out = tmp_path / "b.npz"
+    build_model(identities=12, rank=10, held_out=0, out=out, expressions="scanned",
+                identity_space="scanned")
+    model = load_bilinear(out)
+    assert "--identity-space scanned" in model.meta["command"]
+    basis = model.neutral_basis.astype(np.float64).reshape(10, -1)
+    q, _ = np.linalg.qr(basis.T)
+    first = identity_fields()[0].reshape(-1)  # ICT's largest component
+    kept = np.linalg.norm(q.T @ first) / np.linalg.norm(first)
+    assert kept > 0.6  # 12 random ICT faces, 10 codes: the main direction is spanned
+    with pytest.raises(BadInputError, match="expected --identity-space sculpted or scanned"):
+        build_model(identities=3, rank=2, held_out=0, out=tmp_path / "c.npz",
+                    identity_space="scans")

@@ -102,3 +102,81 @@ def test_each_head_takes_the_fields_at_its_own_size_with_its_own_blinks():
         assert np.linalg.norm(d[INDEX["eyeBlinkLeft"]], axis=1).max() > 0.005
         eyes = np.arange(*topology().parts["eye_l"])
         assert np.linalg.norm(d[INDEX["eyeLookInLeft"]][eyes], axis=1).max() > 0.002
+
+
+@pytest.fixture(scope="module")
+def identities():
+    from head360cli.synth.ict import build_identities
+
+    return build_identities(ICT)
+
+
+@needs_ict
+def test_shipped_identity_fields_are_what_build_identities_makes(identities):
+    shipped = load_fields(models_dir() / "identities.npz", "identities")
+    np.testing.assert_allclose(shipped["deltas"], identities["deltas"], atol=2e-5)  # float16
+    assert shipped["meta"]["source_sha256"] == identities["meta"]["source_sha256"]
+    assert shipped["deltas"].shape[0] == 100
+    with pytest.raises(FileFormatError, match="expected expressions format 1, found "
+                                              "identities"):
+        load_fields(models_dir() / "identities.npz")
+
+
+@needs_ict
+def test_identity_fields_move_rigid_parts_rigidly_and_spare_the_neck(identities):
+    d, topo, tpl = identities["deltas"], topology(), template()
+    for part in ("eye_l", "eye_r", "teeth_upper", "teeth_lower", "tongue", "ear_l"):
+        ids = np.arange(*topo.parts[part])
+        np.testing.assert_allclose(d[:, ids], d[:, ids[:1]].repeat(len(ids), 1),
+                                   atol=1e-12, err_msg=part)
+    # the lids move with their eyeball, so each head's own blink still closes them
+    verts, frame = build_head(mean_identity())
+    blink = np.linalg.norm(procedural_deltas(verts, frame)[INDEX["eyeBlinkLeft"]], axis=1) > 0
+    ball = d[:, topo.parts["eye_l"][0]]
+    np.testing.assert_allclose(d[:, blink], ball[:, None].repeat(blink.sum(), 1), atol=1e-12)
+    # ICT's scale: the first component moves the face by millimetres, the neck's foot not
+    face = tpl.region == 1
+    rms = np.sqrt((np.linalg.norm(d[0][face], axis=1) ** 2).mean())
+    assert 0.002 < rms < 0.006
+    foot = verts[:, 1] < verts[:, 1].min() + 0.01
+    assert not d[:, foot].any()
+
+
+@needs_ict
+def test_scanned_heads_vary_as_icts_faces_without_folding():
+    import dataclasses
+
+    from head360cli.synth.scanned import SCULPT_KEEP, scanned_identity
+
+    faces = topology().faces
+
+    def normals(x):
+        return np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
+
+    heads = [scanned_identity(sample_identity(s), s) for s in range(8)]
+    for s, (verts, deltas) in enumerate(heads):
+        params = sample_identity(s)
+        sculpt, _ = build_head(dataclasses.replace(
+            mean_identity(), **{k: getattr(params, k) for k in SCULPT_KEEP}))
+        n0 = normals(sculpt)
+        ok = np.linalg.norm(n0, axis=1) > 1e-10
+        assert ((normals(verts)[ok] * n0[ok]).sum(1) > 0).all()  # no triangle turns over
+        assert deltas.shape == (52, *verts.shape)
+    face = template().region == 1
+    spread = np.std([v[face] for v, _ in heads], axis=0)
+    assert 0.002 < np.linalg.norm(spread, axis=1).mean() < 0.012
+    # the same draw makes the same head
+    np.testing.assert_array_equal(scanned_identity(sample_identity(3), 3)[0], heads[3][0])
+
+
+@needs_ict
+def test_build_identities_command_writes_the_fields_and_refuses_other_suffixes(run_cli,
+                                                                               tmp_path):
+    out = tmp_path / "ids.npz"
+    r = run_cli("build-identities", ICT, "-o", out, "--json")
+    assert r.code == 0, r.err
+    shipped = load_fields(models_dir() / "identities.npz", "identities")["deltas"]
+    np.testing.assert_array_equal(load_fields(out, "identities")["deltas"], shipped)
+    bad = run_cli("build-identities", ICT, "-o", tmp_path / "ids.txt")
+    assert bad.code == 3 and "expected an output ending in .npz" in bad.err
+    assert not (tmp_path / "ids.txt").exists()
