@@ -58,8 +58,8 @@ JAW_SHAPES = ("jawOpen", "jawForward", "jawLeft", "jawRight")
 ICT_EYEBALL_L = slice(21451, 23021)
 ICT_EYEBALL_R = slice(23021, 24591)
 NECK_FADE = 0.04
-"""Metres down the template's neck over which ICT's fields fade out: the scans' neck
-varies with posture more than with identity, and ends above the template's."""
+"""Metres down the template's neck over which ICT's fields fade out: the scans' neck ends
+above the template's, and its bend with the head would compete with the fit's pitch."""
 LID_FADE = 0.008
 """Metres over which skin goes from moving with the eyeball (the lids, as far as the
 template's own lid shapes reach) to following ICT's fields."""
@@ -260,7 +260,7 @@ def build_identities(ict_path: str | Path) -> dict[str, Any]:
     fields = np.zeros((len(ict_fields), len(verts), 3))
     fields[:, skin] = np.einsum("sk,nskc->nsc", w, ict_fields[:, face][:, idx])
     fields[:, skin] = _smooth(fields[:, skin], skin, verts, topo.faces, own[INDEX["jawOpen"]])
-    # the neck is posture more than identity in the scans: the fields fade down it
+    # the fields fade down the neck (see NECK_FADE)
     from head360cli.mesh.template import REGION_NAMES, template
 
     neck = template().region[skin] == REGION_NAMES.index("neck")
