@@ -3,7 +3,9 @@ sides and behind, with the hair as 0.5.2 fitted it (the silhouettes' first style
 built, the nearest of ten named colours, the generator's smooth strands) and as it is
 fitted now (since 0.5.3 the first styles ranked with their shapes fitted, contradicted
 tails and buns demoted, the ends raised and the thickness fitted by direction, the
-colour matched by render; since 0.5.4 the photo's hair in the hair's texture).
+colour matched by render; since 0.5.4 the photo's hair in the hair's texture; since 0.5.5
+see-through strand ends). The second row of each photo is labelled with the version
+that drew it.
 
 The photos: scikit-image's astronaut (public domain, NASA) and, where ``../shared/data``
 holds them, Tom Cruise's portrait, the frontal photo of Pointing'04 person 4 (curly hair;
@@ -105,7 +107,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name, photo in photos(work):
-            for kind in ("0.5.2", "0.5.4"):
+            from head360cli.version import __version__
+
+            for kind in ("0.5.2", __version__):
                 head = work / f"{len(images)}.h360"
                 config = FitConfig(preset="fast", hair_texture=kind != "0.5.2")
                 with as_before() if kind == "0.5.2" else contextlib.nullcontext():

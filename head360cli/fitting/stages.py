@@ -125,8 +125,9 @@ class BaldTarget:
     weight: np.ndarray
     """``(R, R)`` bool: the parsed face where the head covers it."""
     mask: np.ndarray
-    """``(R, R)`` float32 loss weights: 1 on ``weight``, 0.25 on the rest of the head
-    that is neither hair nor outside the photo."""
+    """``(R, R)`` float32 loss weights: 1 on ``weight`` but the hair's edge
+    (:func:`hair_edge`), 0.25 on the rest of the head that is neither hair nor outside
+    the photo."""
     hair: np.ndarray
     """``(R, R)`` bool: the parsed hair in the crop."""
     face: np.ndarray
@@ -327,9 +328,27 @@ def make_bald_target(seen: PhotoFace, frame: Framing, parse, first: dict) -> Bal
         raise BadInputError("expected a visible face region to fit the texture to, found "
                             f"{int(weight.sum())} pixels (is the face covered?)")
     valid = crop_mask(np.ones(seen.image.pixels.shape[:2], bool), frame.affine, res)
-    mask = weight.astype(np.float32) + 0.25 * skin_coloured(
+    # the hair's soft edge reaches past the segmenter's mask: fitted there, its strands
+    # were projected into the skin as a dark band along the hairline
+    sure = weight & ~hair_edge(hair, weight)
+    mask = sure.astype(np.float32) + 0.25 * skin_coloured(
         frame.crop, weight, alpha & ~weight & ~hair & valid)
     return BaldTarget(target, weight, mask, hair, face, valid)
+
+
+HAIR_MARGIN = 0.013
+"""Share of the crop's side (3 pixels at 256) by which the face next to the parsed hair
+is left out of the texture's fit: the hair's soft edge, which the segmenter leaves to
+the face (``docs/decisions.md``, the hairline)."""
+
+
+def hair_edge(hair: np.ndarray, face: np.ndarray) -> np.ndarray:
+    """``(R, R)`` bool: the ``face`` pixels within :data:`HAIR_MARGIN` of the parsed
+    ``hair`` (both ``(R, R)`` bool)."""
+    import cv2
+
+    side = 2 * round(HAIR_MARGIN * hair.shape[0]) + 1
+    return (cv2.dilate(hair.astype(np.uint8), np.ones((side, side), np.uint8)) > 0) & face
 
 
 SKIN_DELTA_E = 15.0

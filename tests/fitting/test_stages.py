@@ -67,3 +67,22 @@ def test_only_skin_coloured_pixels_around_the_face_join_the_texture_loss():
     assert not keep[16:20, 8:].any() and not keep[20:].any()
     assert not keep[:12].any()  # only pixels of ``around``
     assert not skin_coloured(crop, np.zeros_like(skin), around).any()  # no skin seen
+
+
+def test_the_face_next_to_the_hair_is_left_out_of_the_texture_fit():
+    """The parsed hair's soft edge stays out of the fit: the face pixels within
+    HAIR_MARGIN of the hair (3 at 256 pixels), and only face pixels."""
+    from head360cli.fitting.stages import HAIR_MARGIN, hair_edge
+
+    hair = np.zeros((256, 256), bool)
+    hair[:80] = True  # a fringe down to row 80
+    face = np.zeros((256, 256), bool)
+    face[60:200, 60:200] = True  # the segmenter's face runs under the fringe
+    edge = hair_edge(hair, face)
+    reach = round(HAIR_MARGIN * 256)
+    assert reach == 3
+    rows = np.nonzero(edge.any(1))[0]
+    assert rows.min() == 60 and rows.max() == 79 + reach  # under the hair, and 3 below
+    assert not (edge & ~face).any()
+    assert edge[79 + reach, 60:200].all() and not edge[80 + reach].any()
+    assert not hair_edge(np.zeros_like(hair), face).any()  # no hair, nothing left out
