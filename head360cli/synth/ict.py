@@ -1,4 +1,5 @@
-"""ICT-FaceKit's scanned expressions carried onto the head template.
+"""ICT-FaceKit's scanned expressions and identity components carried onto the head
+template.
 
 ICT-FaceKit (MIT) registers light-stage scans of real faces to one topology and gives 53
 ARKit-style expressions on it. Here they become displacement fields on the template's own
@@ -22,6 +23,10 @@ vertices, once, on the mean head:
 The fields are stored in ``models/expressions.npz`` (``head360 build-expressions``) so
 that the corpus is made without ICT-FaceKit's files; :mod:`head360cli.synth.expressions`
 reads them and adds what the template makes itself.
+
+ICT's 100 identity components go the same way (:func:`build_identities`, steps 1 and 2,
+``models/identities.npz``, ``head360 build-identities``), with the eyeballs, lids, teeth,
+tongue and ears moved rigidly; :mod:`head360cli.synth.scanned` draws heads from them.
 """
 
 from __future__ import annotations
@@ -232,16 +237,16 @@ def build_identities(ict_path: str | Path) -> dict[str, Any]:
 
     ICT's mean face is not carried over: where its landmarks and the template's differ
     most (inner eye corners 15 mm, chin 12 mm) they mark different points, not different
-    proportions. Skin takes its matches' displacement,
-    fading out down the neck; eyeballs, teeth and
-    tongue move rigidly as ICT's do, the lids with their eyeball (so each head's own
-    blink still closes them), the ears with the skin at their root.
+    proportions. Skin takes its matches' displacement, fading out down the neck;
+    eyeballs, teeth and tongue move rigidly as ICT's do, the lids with their eyeball (so
+    each head's own blink still closes them), the ears with the skin at their root.
 
     Returns:
         ``{"deltas": (100, V, 3) float64 metres, "meta": {...}}``.
     """
     from scipy.spatial import cKDTree
 
+    from head360cli.mesh.template import REGION_NAMES, template
     from head360cli.synth.expressions import procedural_deltas
     from head360cli.synth.fields import smoothstep
     from head360cli.synth.identity import mean_identity
@@ -261,8 +266,6 @@ def build_identities(ict_path: str | Path) -> dict[str, Any]:
     fields[:, skin] = np.einsum("sk,nskc->nsc", w, ict_fields[:, face][:, idx])
     fields[:, skin] = _smooth(fields[:, skin], skin, verts, topo.faces, own[INDEX["jawOpen"]])
     # the fields fade down the neck (see NECK_FADE)
-    from head360cli.mesh.template import REGION_NAMES, template
-
     neck = template().region[skin] == REGION_NAMES.index("neck")
     below = cKDTree(verts[skin][~neck]).query(verts[skin])[0]
     fields[:, skin] *= smoothstep(NECK_FADE, 0.0, below)[None, :, None]
