@@ -113,20 +113,28 @@ def build_expressions_cmd(ict: str, out: str | None) -> None:
     Example:
       head360 build-expressions ../shared/data/ict-facekit
     """
-    from head360cli.paths import models_dir
-    from head360cli.synth.expressions import save_fields
     from head360cli.synth.ict import build_expressions
 
-    target = Path(out) if out else models_dir() / "expressions.npz"
-    if target.suffix.lower() != ".npz":
-        raise BadInputError(f"expected an output ending in .npz, found {str(target)!r}")
-    fields = build_expressions(ict)
-    sha = save_fields(fields, target)
-    meta = fields["meta"]
+    target, sha, meta = _write_fields(build_expressions, ict, out, "expressions.npz")
     emit({"out": str(target), "sha256": sha, "bytes": target.stat().st_size, **meta},
          f"wrote {target} ({target.stat().st_size / 1e3:.0f} kB, sha256 {sha[:16]}); "
          f"landmarks {meta['landmark_error_mm_before_warp']} mm apart before the warp, "
          f"jaw turns {meta['jaw_rotation_degrees']['jawOpen']} degrees")
+
+
+def _write_fields(build, ict: str, out: str | None, default: str
+                  ) -> tuple[Path, str, dict]:
+    """Check the output's name, then build the fields from ICT-FaceKit's files with
+    ``build`` and write them to ``out`` (default: ``default`` in the models folder).
+    Returns the path, the file's SHA-256 and the fields' meta."""
+    from head360cli.paths import models_dir
+    from head360cli.synth.expressions import save_fields
+
+    target = Path(out) if out else models_dir() / default
+    if target.suffix.lower() != ".npz":
+        raise BadInputError(f"expected an output ending in .npz, found {str(target)!r}")
+    fields = build(ict)
+    return target, save_fields(fields, target), fields["meta"]
 
 
 @cli.command("build-identities")
@@ -144,19 +152,12 @@ def build_identities_cmd(ict: str, out: str | None) -> None:
     Example:
       head360 build-identities ../shared/data/ict-facekit
     """
-    from head360cli.paths import models_dir
-    from head360cli.synth.expressions import save_fields
     from head360cli.synth.ict import build_identities
 
-    target = Path(out) if out else models_dir() / "identities.npz"
-    if target.suffix.lower() != ".npz":
-        raise BadInputError(f"expected an output ending in .npz, found {str(target)!r}")
-    fields = build_identities(ict)
-    sha = save_fields(fields, target)
-    emit({"out": str(target), "sha256": sha, "bytes": target.stat().st_size,
-          **fields["meta"]},
+    target, sha, meta = _write_fields(build_identities, ict, out, "identities.npz")
+    emit({"out": str(target), "sha256": sha, "bytes": target.stat().st_size, **meta},
          f"wrote {target} ({target.stat().st_size / 1e6:.1f} MB, sha256 {sha[:16]}): "
-         f"{fields['meta']['count']} identity components")
+         f"{meta['count']} identity components")
 
 
 @cli.command("build-model")

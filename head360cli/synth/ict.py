@@ -103,6 +103,20 @@ def _place(ict: dict[str, Any], verts: np.ndarray) -> dict[str, Any]:
             "landmark_error": float(np.linalg.norm(moved - dst, axis=1).mean())}
 
 
+def _mean_head_and_placement(ict_path: str | Path
+                             ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, dict]:
+    """ICT-FaceKit's arrays (:func:`~head360cli.mesh.corpora.read_ict`), the template's
+    mean head ``(V, 3)``, its procedural shapes ``(52, V, 3)`` (the motion cues of
+    :func:`_matches`) and ICT placed on it (:func:`_place`)."""
+    from head360cli.synth.expressions import procedural_deltas
+    from head360cli.synth.identity import mean_identity
+    from head360cli.synth.sculpt import build_head
+
+    ict = read_ict(ict_path)
+    verts, frame = build_head(mean_identity())
+    return ict, verts, procedural_deltas(verts, frame), _place(ict, verts)
+
+
 def _matches(ict: dict[str, Any], warped: np.ndarray, verts: np.ndarray, own: np.ndarray,
              ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For the template vertices ``ids``: their :data:`NEIGHBOURS` matches among ICT's face
@@ -182,16 +196,11 @@ def build_expressions(ict_path: str | Path) -> dict[str, Any]:
         ``{"deltas": (52, V, 3) float64 metres (zero for :data:`FROM_TEMPLATE`),
         "meta": {...}}``, the meta with the source's SHA-256 and the alignment's residuals.
     """
-    from head360cli.synth.expressions import procedural_deltas
-    from head360cli.synth.identity import mean_identity
-    from head360cli.synth.sculpt import build_head, topology
+    from head360cli.synth.sculpt import topology
 
-    ict = read_ict(ict_path)
-    topo = topology()
-    verts, frame = build_head(mean_identity())
-    own = procedural_deltas(verts, frame)
     # 1. similarity and a biharmonic warp on the inner landmarks
-    placement = _place(ict, verts)
+    ict, verts, own, placement = _mean_head_and_placement(ict_path)
+    topo = topology()
     to_template, placed = placement["to_template"], placement["placed"]
     face = np.arange(ICT_FACE.start, ICT_FACE.stop)
     warped = placement["warped"][face]
@@ -247,16 +256,11 @@ def build_identities(ict_path: str | Path) -> dict[str, Any]:
     from scipy.spatial import cKDTree
 
     from head360cli.mesh.template import REGION_NAMES, template
-    from head360cli.synth.expressions import procedural_deltas
     from head360cli.synth.fields import smoothstep
-    from head360cli.synth.identity import mean_identity
-    from head360cli.synth.sculpt import build_head, topology
+    from head360cli.synth.sculpt import topology
 
-    ict = read_ict(ict_path)
+    ict, verts, own, placement = _mean_head_and_placement(ict_path)
     topo = topology()
-    verts, frame = build_head(mean_identity())
-    own = procedural_deltas(verts, frame)
-    placement = _place(ict, verts)
     to_template, warped = placement["to_template"], placement["warped"]
     ict_fields = ict["identity_deltas"] @ to_template.T  # (100, V_ict, 3)
     face = np.arange(ICT_FACE.start, ICT_FACE.stop)
