@@ -382,7 +382,9 @@ def test_the_astronaut_s_hair_at_her_photo_s_view(fitted_astronaut):
     h = hair_at_photo(fitted_astronaut.head, rgb, fitted_astronaut.summary)
     assert set(h) == {"hair_iou", "hair_delta_e", "hair_steps"}
     # measured: IoU 0.841 (her bob's ends and thickness fitted to her parsed hair; 0.609
-    # placed only), CIEDE2000 3.37 (matched by render; 9.91 in a learnt colour), 1 step
+    # placed only), later 0.781 with see-through strand ends; CIEDE2000 3.37 (matched by
+    # render; 9.91 in a learnt colour), 0.96 since the face next to the hair stays out of
+    # the texture fit; 1 step
     assert 0.75 < h["hair_iou"] < 0.92
-    assert 1.0 < h["hair_delta_e"] < 6.0
+    assert 0.3 < h["hair_delta_e"] < 6.0
     assert 0 <= h["hair_steps"] <= 10
