@@ -29,8 +29,8 @@ from head360cli.synth.fields import gauss2d, smoothstep
 from head360cli.synth.sculpt import EYE_RADIUS, HeadFrame, topology
 
 __all__ = ["EXPRESSION_KINDS", "FIELDS_FORMAT", "FROM_TEMPLATE", "JAW_OPEN_RAD",
-           "blendshape_deltas", "expression_fields", "load_fields", "procedural_deltas",
-           "save_fields", "scanned_deltas"]
+           "blendshape_deltas", "load_fields", "procedural_deltas",
+           "save_fields", "scanned_deltas", "shipped_fields"]
 
 EXPRESSION_KINDS = ("procedural", "scanned")
 """The kinds of blendshapes :func:`blendshape_deltas` makes."""
@@ -285,18 +285,18 @@ def load_fields(path: str | Path, kind: str = "expressions") -> dict[str, Any]:
     return {"deltas": deltas, "meta": meta}
 
 
-@functools.lru_cache(maxsize=1)
-def expression_fields() -> np.ndarray:
-    """The shipped fields (``models/expressions.npz``): ``(52, V, 3)`` metres on the mean
-    head, read once."""
+@functools.lru_cache(maxsize=2)
+def shipped_fields(kind: str = "expressions") -> np.ndarray:
+    """The shipped fields of ``kind`` (``models/expressions.npz``: ``(52, V, 3)``;
+    ``models/identities.npz``: ``(100, V, 3)``), metres on the mean head, read once."""
     from head360cli.errors import ModelNotFoundError
     from head360cli.paths import models_dir
 
-    path = models_dir() / "expressions.npz"
+    path = models_dir() / f"{kind}.npz"
     if not path.is_file():
-        raise ModelNotFoundError(f"expression fields not found at {str(path)!r}; make them "
-                                 "with 'head360 build-expressions ../shared/data/ict-facekit'")
-    return load_fields(path)["deltas"]
+        raise ModelNotFoundError(f"{kind} fields not found at {str(path)!r}; make them with "
+                                 f"'head360 build-{kind} ../shared/data/ict-facekit'")
+    return load_fields(path, kind)["deltas"]
 
 
 def _eye_span(frame: HeadFrame) -> float:
@@ -337,7 +337,7 @@ def scanned_deltas(verts: np.ndarray, frame: HeadFrame, span: float | None = Non
         ``(52, V, 3)`` float64 deltas in :data:`~head360cli.mesh.arkit52.ARKIT52` order.
     """
     own = procedural_deltas(verts, frame)
-    deltas = expression_fields() * ((span or _eye_span(frame)) / _mean_eye_span())
+    deltas = shipped_fields("expressions") * ((span or _eye_span(frame)) / _mean_eye_span())
     for name in FROM_TEMPLATE:
         deltas[INDEX[name]] = own[INDEX[name]]
     for name in EYE_TURNS:

@@ -12,13 +12,12 @@ with their eyeball, teeth, tongue).
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 
 from head360cli.synth.identity import IdentityParams, mean_identity
 
-__all__ = ["IDENTITY_SPACES", "SCULPT_KEEP", "identity_fields", "scanned_identity"]
+__all__ = ["IDENTITY_SPACES", "SCULPT_KEEP", "scanned_identity"]
 
 IDENTITY_SPACES = ("sculpted", "scanned")
 """Where SynHead-P's identities come from: the procedural sculpt, or ICT's scans."""
@@ -28,21 +27,6 @@ ears or lower neck, and each head's blink must close its own eye opening (the li
 rigidly with the eyeball in ICT's fields)."""
 COEFFICIENT_CLIP = 2.5
 """Coefficients are clipped to this many standard deviations, as the sculpt's are."""
-
-
-@functools.lru_cache(maxsize=1)
-def identity_fields() -> np.ndarray:
-    """The shipped identity fields (``models/identities.npz``): ``(100, V, 3)`` metres
-    on the mean head, read once."""
-    from head360cli.errors import ModelNotFoundError
-    from head360cli.paths import models_dir
-    from head360cli.synth.expressions import load_fields
-
-    path = models_dir() / "identities.npz"
-    if not path.is_file():
-        raise ModelNotFoundError(f"identity fields not found at {str(path)!r}; make them "
-                                 "with 'head360 build-identities ../shared/data/ict-facekit'")
-    return load_fields(path, "identities")["deltas"]
 
 
 def _eye_span(verts: np.ndarray) -> float:
@@ -68,13 +52,13 @@ def scanned_identity(params: IdentityParams, seed: int, expressions: str = "scan
     Returns:
         Neutral vertices ``(V, 3)`` and the 52 ARKit deltas ``(52, V, 3)``, float64.
     """
-    from head360cli.synth.expressions import procedural_deltas, scanned_deltas
+    from head360cli.synth.expressions import procedural_deltas, scanned_deltas, shipped_fields
     from head360cli.synth.sculpt import build_head
 
     base = dataclasses.replace(mean_identity(), **{k: getattr(params, k)
                                                    for k in SCULPT_KEEP})
     verts, frame = build_head(base)
-    fields = identity_fields()
+    fields = shipped_fields("identities")
     rng = np.random.default_rng([seed, 0x1C7])
     code = np.clip(rng.standard_normal(len(fields)), -COEFFICIENT_CLIP, COEFFICIENT_CLIP)
     moved = verts + np.tensordot(code, fields, 1)

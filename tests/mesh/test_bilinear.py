@@ -281,7 +281,7 @@ def test_build_with_scanned_expressions_moves_as_the_scans_do(tmp_path):
     from head360cli.errors import BadInputError
     from head360cli.mesh.arkit52 import INDEX
     from head360cli.mesh.build import build_model
-    from head360cli.synth.expressions import expression_fields
+    from head360cli.synth.expressions import shipped_fields
 
     out = tmp_path / "b.npz"
     summary = build_model(identities=3, rank=2, held_out=0, out=out, expressions="scanned")
@@ -289,7 +289,7 @@ def test_build_with_scanned_expressions_moves_as_the_scans_do(tmp_path):
     assert "--expressions scanned" in model.meta["command"] and summary["rank"] == 2
     smile = model.vertices(model.code_mean, np.eye(52)[INDEX["mouthSmileLeft"]]) - \
         model.vertices(model.code_mean, np.zeros(52))
-    field = expression_fields()[INDEX["mouthSmileLeft"]]
+    field = shipped_fields("expressions")[INDEX["mouthSmileLeft"]]
     cos = (smile * field).sum() / np.linalg.norm(smile) / np.linalg.norm(field)
     assert cos > 0.99  # the scanned field, scaled by the head's eye span
     with pytest.raises(BadInputError, match="are for --corpus synthead-p; found --corpus ict"):
@@ -302,7 +302,7 @@ def test_build_in_the_scanned_identity_space_spans_icts_faces(tmp_path):
     component lies in the model's span)."""
     from head360cli.errors import BadInputError
     from head360cli.mesh.build import build_model
-    from head360cli.synth.scanned import identity_fields
+    from head360cli.synth.expressions import shipped_fields
 
     out = tmp_path / "b.npz"
     build_model(identities=12, rank=10, held_out=0, out=out, expressions="scanned",
@@ -311,7 +311,7 @@ def test_build_in_the_scanned_identity_space_spans_icts_faces(tmp_path):
     assert "--identity-space scanned" in model.meta["command"]
     basis = model.neutral_basis.astype(np.float64).reshape(10, -1)
     q, _ = np.linalg.qr(basis.T)
-    first = identity_fields()[0].reshape(-1)  # ICT's largest component
+    first = shipped_fields("identities")[0].reshape(-1)  # ICT's largest component
     kept = np.linalg.norm(q.T @ first) / np.linalg.norm(first)
     assert kept > 0.6  # 12 random ICT faces, 10 codes: the main direction is spanned
     with pytest.raises(BadInputError, match="expected --identity-space sculpted or scanned"):
